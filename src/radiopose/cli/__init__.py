@@ -1,0 +1,72 @@
+"""The ``radiopose`` command line: parsing and printing only.
+
+Each area registers its commands from its own module (``cli/<area>.py``) on the
+one :data:`app`; the work itself lives in the library. :func:`main` turns every
+:class:`~radiopose.errors.RadioposeError` into ``radiopose: <one line>`` on
+stderr with exit status 2 — no traceback reaches the user.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from radiopose.errors import RadioposeError
+
+app = typer.Typer(
+    name="radiopose",
+    help="Passive position and orientation estimation of wireless devices from RSS.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def fail(message: str) -> typer.Exit:
+    """Print a one-line error on stderr and return the exit to raise."""
+    print(f"radiopose: {message}", file=sys.stderr)
+    return typer.Exit(2)
+
+
+def _register() -> None:
+    # Imported for their side effect of adding commands to ``app``.
+    import importlib
+
+    for name in ("core", "patterns", "capture"):
+        try:
+            importlib.import_module(f"radiopose.cli.{name}")
+        except ModuleNotFoundError as exc:  # an area not written yet
+            if exc.name != f"radiopose.cli.{name}":
+                raise
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns the exit status."""
+    _register()
+    try:
+        app(args=argv, standalone_mode=False)
+    except RadioposeError as exc:
+        print(f"radiopose: {exc}", file=sys.stderr)
+        return 2
+    except typer.Exit as exc:
+        return int(exc.exit_code or 0)
+    except typer.Abort:
+        print("radiopose: aborted", file=sys.stderr)
+        return 130
+    except KeyboardInterrupt:
+        print("radiopose: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # click usage errors and the like
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            return exc.exit_code
+        raise
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+"""Synchronised packets (``packets.csv``) and ground truth (``truth.csv``) tables.
+
+``packets.csv``: one row per packet per receiver that heard it —
+``packet_id, timestamp_s, transmitter, receiver_id, rss_dbm``. ``packet_id`` is
+kept as text exactly as written. :func:`group_packets` turns the rows into one
+:class:`PacketObservation` per packet (the unit the tracker consumes).
+
+``truth.csv``: ``timestamp_s, transmitter, x_m, y_m, z_m, azimuth_deg,
+pitch_deg, roll_deg`` — the true pose when each packet was sent.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiopose.tables import Column, read_table, write_table
+from radiopose.units import FloatArray
+
+PACKET_COLUMNS = (
+    Column("packet_id", "str"),
+    Column("timestamp_s"),
+    Column("transmitter", "str"),
+    Column("receiver_id", "str"),
+    Column("rss_dbm", low=-200.0, high=50.0),
+)
+TRUTH_COLUMNS = (
+    Column("timestamp_s"),
+    Column("transmitter", "str"),
+    Column("x_m"),
+    Column("y_m"),
+    Column("z_m"),
+    Column("azimuth_deg", low=-360.0, high=360.0),
+    Column("pitch_deg", low=-90.0, high=90.0),
+    Column("roll_deg", low=-360.0, high=360.0),
+)
+
+
+@dataclass(frozen=True, eq=False)
+class Packets:
+    """Rows of ``packets.csv`` as arrays (all ``(n,)``); ``lines`` = file lines if read."""
+
+    packet_id: np.ndarray
+    timestamp_s: FloatArray
+    transmitter: np.ndarray
+    receiver_id: np.ndarray
+    rss_dbm: FloatArray
+    lines: np.ndarray | None = None
+    path: str | None = None
+
+    def __len__(self) -> int:
+        return int(self.timestamp_s.shape[0])
+
+
+@dataclass(frozen=True, eq=False)
+class PacketObservation:
+    """One packet: when, from whom, and the RSS each receiver measured.
+
+    Attributes
+    ----------
+    packet_id
+        Identifier from ``packets.csv``.
+    timestamp_s
+        Packet time, seconds (the first row's time if rows differ).
+    transmitter
+        Transmitter address.
+    receiver_ids
+        ``(k,)`` receivers that heard it.
+    rss_dbm
+        ``(k,)`` their RSS, dBm.
+    line
+        First file line of the packet, for messages (``None`` if not from a file).
+    """
+
+    packet_id: str
+    timestamp_s: float
+    transmitter: str
+    receiver_ids: tuple[str, ...]
+    rss_dbm: FloatArray
+    line: int | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Truth:
+    """Rows of ``truth.csv``: ``timestamp_s (n,)``, ``transmitter (n,)``,
+    ``position_m (n, 3)``, ``orientation_deg (n, 3)``."""
+
+    timestamp_s: FloatArray
+    transmitter: np.ndarray
+    position_m: FloatArray
+    orientation_deg: FloatArray
+
+    def __len__(self) -> int:
+        return int(self.timestamp_s.shape[0])
+
+
+def read_packets_csv(path: str | os.PathLike[str]) -> Packets:
+    """Read and validate ``packets.csv``."""
+    t = read_table(path, PACKET_COLUMNS)
+    return Packets(
+        t["packet_id"], t["timestamp_s"], t["transmitter"], t["receiver_id"], t["rss_dbm"],
+        t.lines, t.path,
+    )
+
+
+def write_packets_csv(packets: Packets, path: str | os.PathLike[str]) -> None:
+    """Write ``packets.csv`` atomically (timestamps to 1 ns, RSS to 0.001 dB)."""
+    write_table(
+        path,
+        {
+            "packet_id": packets.packet_id,
+            "timestamp_s": packets.timestamp_s,
+            "transmitter": packets.transmitter,
+            "receiver_id": packets.receiver_id,
+            "rss_dbm": packets.rss_dbm,
+        },
+        decimals={"timestamp_s": 9, "rss_dbm": 3},
+    )
+
+
+def read_truth_csv(path: str | os.PathLike[str]) -> Truth:
+    """Read and validate ``truth.csv``."""
+    t = read_table(path, TRUTH_COLUMNS)
+    return Truth(
+        t["timestamp_s"],
+        t["transmitter"],
+        np.column_stack([t["x_m"], t["y_m"], t["z_m"]]).reshape(-1, 3),
+        np.column_stack([t["azimuth_deg"], t["pitch_deg"], t["roll_deg"]]).reshape(-1, 3),
+    )
+
+
+def write_truth_csv(truth: Truth, path: str | os.PathLike[str]) -> None:
+    """Write ``truth.csv`` atomically."""
+    write_table(
+        path,
+        {
+            "timestamp_s": truth.timestamp_s,
+            "transmitter": truth.transmitter,
+            "x_m": truth.position_m[:, 0],
+            "y_m": truth.position_m[:, 1],
+            "z_m": truth.position_m[:, 2],
+            "azimuth_deg": truth.orientation_deg[:, 0],
+            "pitch_deg": truth.orientation_deg[:, 1],
+            "roll_deg": truth.orientation_deg[:, 2],
+        },
+        decimals={"timestamp_s": 9},
+    )
+
+
+def group_packets(packets: Packets) -> list[PacketObservation]:
+    """Group rows into one observation per ``(transmitter, packet_id)``, in file order
+    of each packet's first row. Rows of one packet need not be adjacent."""
+    order: dict[tuple[str, str], list[int]] = {}
+    for i, (tx, pid) in enumerate(zip(packets.transmitter, packets.packet_id, strict=True)):
+        order.setdefault((str(tx), str(pid)), []).append(i)
+    out = []
+    for (tx, pid), rows in order.items():
+        idx = np.asarray(rows)
+        out.append(
+            PacketObservation(
+                pid,
+                float(packets.timestamp_s[idx[0]]),
+                tx,
+                tuple(str(r) for r in packets.receiver_id[idx]),
+                packets.rss_dbm[idx].astype(float),
+                None if packets.lines is None else int(packets.lines[idx[0]]),
+            )
+        )
+    return out

@@ -1,0 +1,246 @@
+"""Simulated scenarios: a site, a moving device and its packets with ground truth.
+
+The default :class:`ScenarioConfig` is the paper's 2-D proof-of-concept setup
+("2D Proof of Concept Simulations"): a 20 m × 20 m area, 4 receivers (3–6
+selectable) at seeded random positions (at least ``min_receiver_spacing_m``
+apart) and random azimuths, each with its own smooth pattern; a survey on a
+1 m grid computed from the same channel model (survey transmitter power and
+pattern included, at a random azimuth per point); a 0.1 m candidate grid and
+1° azimuth candidates; a transmitter moving in a straight line at constant
+speed with linear rotation; a packet every 5 ms; Gaussian noise σ on every
+packet's RSS at every receiver. Everything lies at one height (``z_m``), so
+every direction is in the plane of the screen (polar angle 90°).
+
+Randomness: one ``np.random.Generator`` seeded from ``seed`` is drawn in a
+fixed order (receivers, patterns, survey, trajectory, noise, losses), so the
+same config and seed give byte-identical files.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from radiopose.errors import InputError
+from radiopose.packets import Packets, Truth, write_packets_csv, write_truth_csv
+from radiopose.patterns.pattern import Pattern
+from radiopose.patterns.synthetic import smartphone_like
+from radiopose.simulate.channel import LogDistance, link_rss_dbm
+from radiopose.simulate.trajectories import MotionConfig, rotation_path, straight_path
+from radiopose.site import (
+    AreaGrid,
+    Device,
+    OrientationGrid,
+    Receiver,
+    Site,
+    SurveyConfig,
+    SurveyRows,
+    assemble_site,
+    write_site,
+)
+from radiopose.units import FloatArray
+
+DEFAULT_TRANSMITTER = "02:00:00:00:00:01"
+
+
+@dataclass(frozen=True)
+class ScenarioConfig:
+    """A simulated scenario (defaults: the paper's standard scenario).
+
+    Attributes
+    ----------
+    size_m
+        Side of the square area, metres (candidates from 0 to ``size_m``).
+    step_m
+        Candidate grid step, metres.
+    z_m
+        Height of candidates, receivers, survey points and device, metres.
+    survey_step_m
+        Survey grid step, metres.
+    n_receivers
+        Number of receivers (3–6 in the paper's sweeps; 1–16 accepted).
+    noise_db
+        σ of the Gaussian noise on packet RSS, dB.
+    survey_noise_db
+        σ of Gaussian noise on survey RSS, dB (0 = noise-free survey).
+    interval_ms
+        Time between packets, milliseconds.
+    duration_s
+        Length of the trace, seconds.
+    azimuth_step_deg
+        Candidate azimuth step, degrees.
+    loss_fraction
+        Probability that a receiver misses a packet (independent per receiver).
+    tx_power_dbm, survey_tx_power_dbm
+        Transmit powers of the tracked device and the survey transmitter, dBm.
+    channel
+        Path-loss model.
+    motion
+        Trajectory model.
+    min_receiver_spacing_m
+        Minimum distance between receivers, metres.
+    device_range_db, receiver_range_db, survey_range_db
+        Directivity ranges (max − min, dB) of the synthetic patterns, drawn
+        uniformly from these intervals.
+    """
+
+    size_m: float = 20.0
+    step_m: float = 0.1
+    z_m: float = 1.0
+    survey_step_m: float = 1.0
+    n_receivers: int = 4
+    noise_db: float = 1.0
+    survey_noise_db: float = 0.0
+    interval_ms: float = 5.0
+    duration_s: float = 2.0
+    azimuth_step_deg: float = 1.0
+    loss_fraction: float = 0.0
+    tx_power_dbm: float = 15.0
+    survey_tx_power_dbm: float = 20.0
+    channel: LogDistance = field(default_factory=LogDistance)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    min_receiver_spacing_m: float = 4.0
+    device_range_db: tuple[float, float] = (14.0, 20.0)
+    receiver_range_db: tuple[float, float] = (4.0, 8.0)
+    survey_range_db: tuple[float, float] = (4.0, 8.0)
+
+    def validate(self) -> None:
+        """Raise :class:`InputError` naming the first out-of-range setting."""
+        checks = [
+            ("size_m", self.size_m > 0),
+            ("step_m", 0 < self.step_m <= self.size_m),
+            ("survey_step_m", 0 < self.survey_step_m <= self.size_m),
+            ("n_receivers", 1 <= self.n_receivers <= 16),
+            ("noise_db", 0 <= self.noise_db <= 30),
+            ("survey_noise_db", 0 <= self.survey_noise_db <= 30),
+            ("interval_ms", 0.01 <= self.interval_ms <= 60_000),
+            ("duration_s", 0 < self.duration_s <= 3600),
+            ("azimuth_step_deg", 0 < self.azimuth_step_deg <= 360),
+            ("loss_fraction", 0 <= self.loss_fraction < 1),
+            ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0),
+        ]
+        for name, ok in checks:
+            if not ok:
+                raise InputError(f"scenario setting {name} = {getattr(self, name)!r} is out of range")
+        n = round(360.0 / self.azimuth_step_deg)
+        if abs(n * self.azimuth_step_deg - 360.0) > 1e-6:
+            raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
+        if round(self.duration_s / (self.interval_ms / 1000.0)) > 2_000_000:
+            raise InputError("more than 2,000,000 packets: shorten duration_s or raise interval_ms")
+
+
+@dataclass(frozen=True, eq=False)
+class Simulation:
+    """A simulated scenario's outputs."""
+
+    config: ScenarioConfig
+    seed: int
+    site: Site
+    packets: Packets
+    truth: Truth
+
+    def write(self, directory: str | os.PathLike[str]) -> list[Path]:
+        """Write ``DIR/site/``, ``DIR/packets.csv`` and ``DIR/truth.csv``; return the paths."""
+        root = Path(directory)
+        s = self.site
+        write_site(
+            root / "site",
+            name=s.name, area=s.area, orientations=s.orientations,
+            survey_config=s.survey_config, receivers=s.receivers, devices=s.devices,
+            patterns=s.patterns, survey_rows=s.survey_rows,
+        )
+        write_packets_csv(self.packets, root / "packets.csv")
+        write_truth_csv(self.truth, root / "truth.csv")
+        return [root / "site", root / "packets.csv", root / "truth.csv"]
+
+
+def _receiver_positions(rng: np.random.Generator, cfg: ScenarioConfig) -> FloatArray:
+    pts: list[FloatArray] = []
+    spacing = cfg.min_receiver_spacing_m
+    tries = 0
+    while len(pts) < cfg.n_receivers:
+        p = rng.uniform(0.0, cfg.size_m, 2)
+        tries += 1
+        if tries > 10_000:  # too crowded: relax the spacing rather than loop forever
+            spacing *= 0.8
+            tries = 0
+        if all(np.hypot(*(p - q)) >= spacing for q in pts):
+            pts.append(p)
+    xy = np.array(pts)
+    return np.column_stack([xy, np.full(len(pts), cfg.z_m)])
+
+
+def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
+    """Simulate a scenario (see the module docstring)."""
+    cfg = config or ScenarioConfig()
+    cfg.validate()
+    rng = np.random.default_rng(seed)
+
+    # Receivers with their own patterns.
+    rx_xyz = _receiver_positions(rng, cfg)
+    rx_az = rng.uniform(0.0, 360.0, cfg.n_receivers)
+    patterns: dict[str, Pattern] = {}
+    receivers = []
+    for i in range(cfg.n_receivers):
+        pname = f"rx{i + 1}"
+        patterns[pname] = smartphone_like(
+            rng, pname, range_db=rng.uniform(*cfg.receiver_range_db),
+            azimuth_step_deg=1.0,
+        )
+        receivers.append(Receiver(f"rx{i + 1}", *map(float, rx_xyz[i]), float(rx_az[i]),
+                                  0.0, 0.0, pname))
+    patterns["survey-tx"] = smartphone_like(rng, "survey-tx",
+                                            range_db=rng.uniform(*cfg.survey_range_db))
+    patterns["device"] = smartphone_like(rng, "device", range_db=rng.uniform(*cfg.device_range_db))
+    rx_orient = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in receivers])
+    rx_pats = tuple(patterns[r.pattern] for r in receivers)
+
+    # Survey on a regular grid, one random azimuth per point.
+    n_s = int(np.floor(cfg.size_m / cfg.survey_step_m + 1e-9)) + 1
+    axis = np.arange(n_s) * cfg.survey_step_m
+    sx, sy = np.meshgrid(axis, axis, indexing="ij")
+    s_xyz = np.column_stack([sx.ravel(), sy.ravel(), np.full(sx.size, cfg.z_m)])
+    s_orient = np.column_stack([rng.uniform(0, 360, sx.size), np.zeros((sx.size, 2))])
+    s_rss = link_rss_dbm(cfg.channel, s_xyz, s_orient, patterns["survey-tx"],
+                         cfg.survey_tx_power_dbm, rx_xyz, rx_orient, rx_pats)
+    if cfg.survey_noise_db > 0:
+        s_rss = s_rss + rng.normal(0.0, cfg.survey_noise_db, s_rss.shape)
+    n_pts, k = s_rss.shape
+    survey_rows = SurveyRows(
+        xyz_m=np.repeat(s_xyz, k, axis=0),
+        receiver_id=np.array([r.receiver_id for r in receivers] * n_pts, dtype=object),
+        rss_dbm=s_rss.reshape(-1),
+        orientation_deg=np.repeat(s_orient, k, axis=0),
+    )
+
+    area = AreaGrid(0.0, cfg.size_m, 0.0, cfg.size_m, cfg.z_m, cfg.step_m)
+    orient = OrientationGrid(cfg.azimuth_step_deg)
+    device = Device(DEFAULT_TRANSMITTER, "device", cfg.tx_power_dbm)
+    site = assemble_site(
+        "simulated", area, orient, SurveyConfig(cfg.survey_tx_power_dbm, "survey-tx"),
+        tuple(receivers), (device,), patterns, survey_rows,
+    )
+
+    # Trajectory and packets.
+    n_pk = round(cfg.duration_s / (cfg.interval_ms / 1000.0))
+    t = np.arange(n_pk) * (cfg.interval_ms / 1000.0)
+    pos = straight_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg.z_m, cfg.motion)
+    ori = rotation_path(rng, t, cfg.motion)
+    rss = link_rss_dbm(cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm,
+                       rx_xyz, rx_orient, rx_pats)
+    rss = rss + rng.normal(0.0, cfg.noise_db, rss.shape)
+    heard = rng.random(rss.shape) >= cfg.loss_fraction
+    pk_idx, rx_idx = np.nonzero(heard)
+    ids = np.array([r.receiver_id for r in receivers], dtype=object)
+    packets = Packets(
+        packet_id=np.array([str(i) for i in pk_idx], dtype=object),
+        timestamp_s=t[pk_idx],
+        transmitter=np.full(pk_idx.size, DEFAULT_TRANSMITTER, dtype=object),
+        receiver_id=ids[rx_idx],
+        rss_dbm=np.round(rss[pk_idx, rx_idx], 3),
+    )
+    truth = Truth(t, np.full(n_pk, DEFAULT_TRANSMITTER, dtype=object), pos, ori)
+    return Simulation(cfg, seed, site, packets, truth)

@@ -1,0 +1,489 @@
+"""A site: candidate grid, receivers, enrolled devices, patterns and survey.
+
+A site directory (interchange contract, "Site")::
+
+    site.toml            area, candidate grid, survey transmitter
+    receivers.csv        receiver_id, x_m, y_m, z_m, azimuth_deg, pitch_deg, roll_deg, pattern
+    devices.csv          transmitter, pattern, tx_power_dbm
+    patterns/<name>.csv  every pattern named above
+    survey.csv           x_m, y_m, z_m, receiver_id, rss_dbm, azimuth_deg, pitch_deg, roll_deg
+
+:func:`load_site` validates all of it (every referenced pattern present,
+receiver ids unique, grid sane, every receiver surveyed, survey rows name known
+receivers) and builds the survey map (:mod:`radiopose.survey`).
+:func:`write_site` writes one (atomically, file by file).
+
+Optional ``site.toml`` keys beyond the contract (documented in
+``docs/site.md``): ``[survey] interpolation = "cubic"|"linear"``,
+``[survey] outside = "nearest"|"exclude"``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from radiopose.config import Section, load_toml
+from radiopose.errors import InputError
+from radiopose.geometry import (
+    direction_to_pattern_angles_deg,
+    orientation_matrices,
+    pattern_angles_deg,
+)
+from radiopose.patterns.pattern import Pattern, read_pattern_csv, write_pattern_csv
+from radiopose.survey import SurveyMap, SurveyPoints, average_by_point, build_survey_map
+from radiopose.tables import Column, atomic_writer, read_table, write_table
+from radiopose.units import FloatArray
+
+MAX_GRID_POINTS = 25_000_000
+ANGLE_COLUMNS = (
+    Column("azimuth_deg", low=-360.0, high=360.0),
+    Column("pitch_deg", low=-90.0, high=90.0),
+    Column("roll_deg", low=-360.0, high=360.0),
+)
+RECEIVER_COLUMNS = (
+    Column("receiver_id", "str"),
+    Column("x_m"),
+    Column("y_m"),
+    Column("z_m"),
+    *ANGLE_COLUMNS,
+    Column("pattern", "str"),
+)
+DEVICE_COLUMNS = (
+    Column("transmitter", "str"),
+    Column("pattern", "str"),
+    Column("tx_power_dbm", low=-100.0, high=60.0),
+)
+SURVEY_COLUMNS = (
+    Column("x_m"),
+    Column("y_m"),
+    Column("z_m"),
+    Column("receiver_id", "str"),
+    Column("rss_dbm", low=-200.0, high=50.0),
+    *ANGLE_COLUMNS,
+)
+
+
+@dataclass(frozen=True)
+class AreaGrid:
+    """Candidate positions: a regular grid at one height.
+
+    ``x_m()`` runs ``x_min_m, x_min_m + step_m, …`` up to ``x_max_m`` (inclusive
+    within 1e-9 m); likewise ``y_m()``. Flattened candidates are in ``ij``
+    order: index ``ix * ny + iy``.
+    """
+
+    x_min_m: float
+    x_max_m: float
+    y_min_m: float
+    y_max_m: float
+    z_m: float
+    step_m: float
+
+    def _axis(self, lo: float, hi: float) -> FloatArray:
+        n = int(np.floor((hi - lo) / self.step_m + 1e-9)) + 1
+        return lo + np.arange(n) * self.step_m
+
+    def x_m(self) -> FloatArray:
+        return self._axis(self.x_min_m, self.x_max_m)
+
+    def y_m(self) -> FloatArray:
+        return self._axis(self.y_min_m, self.y_max_m)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.x_m().size, self.y_m().size
+
+    def points_m(self) -> FloatArray:
+        """``(nx·ny, 3)`` candidate positions in ``ij`` order, metres."""
+        gx, gy = np.meshgrid(self.x_m(), self.y_m(), indexing="ij")
+        return np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, self.z_m)])
+
+
+@dataclass(frozen=True)
+class OrientationGrid:
+    """Candidate orientations: azimuths at a step × listed pitches × listed rolls.
+
+    Flattened order: pitch slowest, then roll, azimuth fastest — index
+    ``(ip * n_roll + ir) * n_azimuth + ia``.
+    """
+
+    azimuth_step_deg: float = 1.0
+    pitch_deg: tuple[float, ...] = (0.0,)
+    roll_deg: tuple[float, ...] = (0.0,)
+
+    def azimuth_deg(self) -> FloatArray:
+        n = round(360.0 / self.azimuth_step_deg)
+        return np.arange(n) * (360.0 / n)
+
+    @property
+    def n_azimuth(self) -> int:
+        return round(360.0 / self.azimuth_step_deg)
+
+    def __len__(self) -> int:
+        return self.n_azimuth * len(self.pitch_deg) * len(self.roll_deg)
+
+    def orientations_deg(self) -> FloatArray:
+        """``(m, 3)`` (azimuth, pitch, roll) in degrees, flattened order above."""
+        p, r, a = np.meshgrid(self.pitch_deg, self.roll_deg, self.azimuth_deg(), indexing="ij")
+        return np.column_stack([a.ravel(), p.ravel(), r.ravel()])
+
+
+@dataclass(frozen=True)
+class Receiver:
+    """A fixed receiver: id, position (m), orientation (deg) and pattern name."""
+
+    receiver_id: str
+    x_m: float
+    y_m: float
+    z_m: float
+    azimuth_deg: float
+    pitch_deg: float
+    roll_deg: float
+    pattern: str
+
+    @property
+    def position_m(self) -> FloatArray:
+        return np.array([self.x_m, self.y_m, self.z_m])
+
+
+@dataclass(frozen=True)
+class Device:
+    """An enrolled device: transmitter address, pattern name, transmit power (dBm)."""
+
+    transmitter: str
+    pattern: str
+    tx_power_dbm: float
+
+
+@dataclass(frozen=True)
+class SurveyConfig:
+    """Survey transmitter and survey-map settings."""
+
+    tx_power_dbm: float
+    pattern: str
+    interpolation: str = "cubic"
+    outside: str = "nearest"
+
+
+@dataclass(frozen=True)
+class SurveyRows:
+    """Raw survey rows (contract ``survey.csv``), one array per column."""
+
+    xyz_m: FloatArray
+    receiver_id: np.ndarray
+    rss_dbm: FloatArray
+    orientation_deg: FloatArray
+
+
+@dataclass(frozen=True, eq=False)
+class Site:
+    """A validated site. See the module docstring."""
+
+    name: str
+    area: AreaGrid
+    orientations: OrientationGrid
+    survey_config: SurveyConfig
+    receivers: tuple[Receiver, ...]
+    devices: tuple[Device, ...]
+    patterns: Mapping[str, Pattern]
+    survey_rows: SurveyRows
+    survey_map: SurveyMap = field(repr=False)
+    path: str | None = None
+
+    @property
+    def receiver_ids(self) -> tuple[str, ...]:
+        return tuple(r.receiver_id for r in self.receivers)
+
+    def receiver_positions_m(self) -> FloatArray:
+        """``(n_receivers, 3)`` receiver positions, metres, in site order."""
+        return np.array([r.position_m for r in self.receivers]).reshape(-1, 3)
+
+    def device(self, transmitter: str) -> Device:
+        """The enrolled device of a transmitter (case-insensitive address match)."""
+        key = transmitter.lower()
+        for d in self.devices:
+            if d.transmitter.lower() == key:
+                return d
+        raise InputError(f"unknown transmitter {transmitter!r}: not enrolled in devices.csv")
+
+    def device_pattern(self, transmitter: str) -> Pattern:
+        return self.patterns[self.device(transmitter).pattern]
+
+
+# ----------------------------------------------------------------------------- survey
+def correct_survey(
+    rows: SurveyRows, tx_power_dbm: float, survey_pattern: Pattern, receivers: tuple[Receiver, ...]
+) -> FloatArray:
+    """``M = R − P_tx − D_st`` per survey row (dB), see :mod:`radiopose.survey`."""
+    ids = [r.receiver_id for r in receivers]
+    rx_pos = np.array([r.position_m for r in receivers]).reshape(-1, 3)
+    idx = np.array([ids.index(r) for r in rows.receiver_id], dtype=np.int64)
+    rot = orientation_matrices(*rows.orientation_deg.T)  # (n, 3, 3)
+    d = rx_pos[idx] - rows.xyz_m  # world direction survey tx → receiver
+    v = np.einsum("ni,nij->nj", d, rot)  # body frame: v = Rᵀ d
+    phi, theta = direction_to_pattern_angles_deg(v)
+    d_st = survey_pattern.lookup_dbi(phi, theta)
+    return rows.rss_dbm - tx_power_dbm - d_st
+
+
+def survey_points_by_receiver(
+    rows: SurveyRows, m_db: FloatArray, receiver_ids: tuple[str, ...]
+) -> tuple[SurveyPoints, ...]:
+    """Average corrected values per surveyed point, for each receiver in order."""
+    out = []
+    for rid in receiver_ids:
+        sel = rows.receiver_id == rid
+        out.append(average_by_point(rows.xyz_m[sel, :2], m_db[sel]))
+    return tuple(out)
+
+
+def device_directivity_dbi(
+    pattern: Pattern,
+    device_xyz_m: FloatArray,
+    orientation_deg: FloatArray,
+    receiver_xyz_m: FloatArray,
+) -> FloatArray:
+    """Device directivity toward receivers, ``(n, m, k)`` dBi (see geometry)."""
+    rot = orientation_matrices(*np.asarray(orientation_deg, float).reshape(-1, 3).T)
+    phi, theta = pattern_angles_deg(device_xyz_m, rot, receiver_xyz_m)
+    return pattern.lookup_dbi(phi, theta)
+
+
+# ----------------------------------------------------------------------------- loading
+def _read_site_toml(path: Path) -> tuple[str, AreaGrid, OrientationGrid, SurveyConfig]:
+    root = Section(load_toml(path), path)
+    name = root.string("name", path.parent.name)
+    a = root.section("area")
+    area = AreaGrid(
+        x_min_m=a.number("x_min_m", required=True),
+        x_max_m=a.number("x_max_m", required=True),
+        y_min_m=a.number("y_min_m", required=True),
+        y_max_m=a.number("y_max_m", required=True),
+        z_m=a.number("z_m", required=True),
+        step_m=a.number("step_m", required=True, positive=True),
+    )
+    if area.x_max_m < area.x_min_m:
+        raise a.error("x_max_m", "must be >= x_min_m")
+    if area.y_max_m < area.y_min_m:
+        raise a.error("y_max_m", "must be >= y_min_m")
+    nx, ny = area.shape
+    if nx * ny > MAX_GRID_POINTS:
+        raise a.error("step_m", f"grid of {nx}x{ny} candidates exceeds {MAX_GRID_POINTS:,}")
+    a.finish()
+    o = root.section("orientations")
+    step = o.number("azimuth_step_deg", 1.0, positive=True, high=360.0)
+    n = round(360.0 / step)
+    if abs(n * step - 360.0) > 1e-6:
+        raise o.error("azimuth_step_deg", f"{step:g} does not divide 360")
+    orient = OrientationGrid(
+        azimuth_step_deg=step,
+        pitch_deg=o.numbers("pitch_deg", (0.0,), low=-90.0, high=90.0),
+        roll_deg=o.numbers("roll_deg", (0.0,), low=-180.0, high=180.0),
+    )
+    o.finish()
+    s = root.section("survey")
+    survey = SurveyConfig(
+        tx_power_dbm=s.number("tx_power_dbm", required=True, low=-100.0, high=60.0),
+        pattern=s.string("pattern", required=True),
+        interpolation=s.string("interpolation", "cubic", choices=("cubic", "linear")),
+        outside=s.string("outside", "nearest", choices=("nearest", "exclude")),
+    )
+    s.finish()
+    root.finish()
+    return name, area, orient, survey
+
+
+def load_site(directory: str | os.PathLike[str]) -> Site:
+    """Load and validate a site directory; build its survey map.
+
+    Raises
+    ------
+    InputError
+        One line naming the file (and line/column or key) of the first problem.
+    """
+    root = Path(directory)
+    if not root.is_dir():
+        raise InputError("site directory not found", path=root)
+    name, area, orient, survey_cfg = _read_site_toml(root / "site.toml")
+
+    rt = read_table(root / "receivers.csv", RECEIVER_COLUMNS)
+    if len(rt) == 0:
+        raise InputError("no receivers", path=rt.path, line=2)
+    receivers = []
+    seen: dict[str, int] = {}
+    for i in range(len(rt)):
+        rid = str(rt["receiver_id"][i])
+        if rid in seen:
+            raise rt.error(i, "receiver_id", f"duplicate receiver id {rid!r}")
+        seen[rid] = i
+        receivers.append(
+            Receiver(
+                rid, *(float(rt[c][i]) for c in ("x_m", "y_m", "z_m", "azimuth_deg",
+                                                  "pitch_deg", "roll_deg")),
+                pattern=str(rt["pattern"][i]),
+            )
+        )
+
+    dt = read_table(root / "devices.csv", DEVICE_COLUMNS)
+    devices = []
+    seen_tx: set[str] = set()
+    for i in range(len(dt)):
+        tx = str(dt["transmitter"][i])
+        if tx.lower() in seen_tx:
+            raise dt.error(i, "transmitter", f"duplicate transmitter {tx!r}")
+        seen_tx.add(tx.lower())
+        devices.append(Device(tx, str(dt["pattern"][i]), float(dt["tx_power_dbm"][i])))
+
+    # Patterns: every referenced name must exist as patterns/<name>.csv.
+    wanted: dict[str, tuple[str, int | None, str]] = {}
+    for i, r in enumerate(receivers):
+        wanted.setdefault(r.pattern, (rt.path, int(rt.lines[i]), "pattern"))
+    for i, d in enumerate(devices):
+        wanted.setdefault(d.pattern, (dt.path, int(dt.lines[i]), "pattern"))
+    wanted.setdefault(survey_cfg.pattern, (str(root / "site.toml"), None, None))
+    patterns: dict[str, Pattern] = {}
+    for pname, (where, line, col) in wanted.items():
+        ppath = root / "patterns" / f"{pname}.csv"
+        if not ppath.is_file():
+            what = "key 'survey.pattern': " if col is None else ""
+            raise InputError(
+                f"{what}unknown pattern {pname!r}: no file patterns/{pname}.csv",
+                path=where, line=line, column=col,
+            )
+        patterns[pname] = read_pattern_csv(ppath, name=pname)
+
+    st = read_table(root / "survey.csv", SURVEY_COLUMNS)
+    if len(st) == 0:
+        raise InputError("no survey rows", path=st.path, line=2)
+    for i, rid in enumerate(st["receiver_id"]):
+        if rid not in seen:
+            raise st.error(i, "receiver_id", f"unknown receiver {rid!r} (not in receivers.csv)")
+    rows = SurveyRows(
+        xyz_m=np.column_stack([st["x_m"], st["y_m"], st["z_m"]]),
+        receiver_id=st["receiver_id"],
+        rss_dbm=st["rss_dbm"],
+        orientation_deg=np.column_stack([st["azimuth_deg"], st["pitch_deg"], st["roll_deg"]]),
+    )
+    for r in receivers:
+        if not np.any(rows.receiver_id == r.receiver_id):
+            raise InputError(f"receiver {r.receiver_id!r} has no survey rows", path=st.path)
+    return assemble_site(
+        name, area, orient, survey_cfg, tuple(receivers), tuple(devices), patterns, rows,
+        path=str(root),
+    )
+
+
+def assemble_site(
+    name: str,
+    area: AreaGrid,
+    orientations: OrientationGrid,
+    survey_config: SurveyConfig,
+    receivers: tuple[Receiver, ...],
+    devices: tuple[Device, ...],
+    patterns: Mapping[str, Pattern],
+    survey_rows: SurveyRows,
+    path: str | None = None,
+) -> Site:
+    """Build a :class:`Site` from validated parts: correct and interpolate the survey."""
+    m_db = correct_survey(
+        survey_rows, survey_config.tx_power_dbm, patterns[survey_config.pattern], receivers
+    )
+    ids = tuple(r.receiver_id for r in receivers)
+    points = survey_points_by_receiver(survey_rows, m_db, ids)
+    smap = build_survey_map(
+        ids, points, area.x_m(), area.y_m(),
+        survey_config.interpolation,  # type: ignore[arg-type]
+        survey_config.outside,  # type: ignore[arg-type]
+    )
+    return Site(name, area, orientations, survey_config, receivers, devices, dict(patterns),
+                survey_rows, smap, path)
+
+
+# ----------------------------------------------------------------------------- writing
+def _toml_number(x: float) -> str:
+    return repr(float(x))
+
+
+def write_site_toml(
+    path: str | os.PathLike[str],
+    name: str,
+    area: AreaGrid,
+    orientations: OrientationGrid,
+    survey: SurveyConfig,
+) -> None:
+    """Write ``site.toml`` (atomically)."""
+    lines = [
+        f'name = "{name}"',
+        "",
+        "[area]",
+        *(f"{k} = {_toml_number(getattr(area, k))}" for k in
+          ("x_min_m", "x_max_m", "y_min_m", "y_max_m", "z_m", "step_m")),
+        "",
+        "[orientations]",
+        f"azimuth_step_deg = {_toml_number(orientations.azimuth_step_deg)}",
+        f"pitch_deg = [{', '.join(_toml_number(p) for p in orientations.pitch_deg)}]",
+        f"roll_deg = [{', '.join(_toml_number(r) for r in orientations.roll_deg)}]",
+        "",
+        "[survey]",
+        f"tx_power_dbm = {_toml_number(survey.tx_power_dbm)}",
+        f'pattern = "{survey.pattern}"',
+        f'interpolation = "{survey.interpolation}"',
+        f'outside = "{survey.outside}"',
+        "",
+    ]
+    with atomic_writer(path) as fh:
+        fh.write("\n".join(lines))
+
+
+def write_site(
+    directory: str | os.PathLike[str],
+    *,
+    name: str,
+    area: AreaGrid,
+    orientations: OrientationGrid,
+    survey_config: SurveyConfig,
+    receivers: tuple[Receiver, ...],
+    devices: tuple[Device, ...],
+    patterns: Mapping[str, Pattern],
+    survey_rows: SurveyRows,
+) -> None:
+    """Write a site directory in the contract layout."""
+    root = Path(directory)
+    write_site_toml(root / "site.toml", name, area, orientations, survey_config)
+    write_table(
+        root / "receivers.csv",
+        {
+            "receiver_id": [r.receiver_id for r in receivers],
+            **{c: np.array([getattr(r, c) for r in receivers], float)
+               for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")},
+            "pattern": [r.pattern for r in receivers],
+        },
+    )
+    write_table(
+        root / "devices.csv",
+        {
+            "transmitter": [d.transmitter for d in devices],
+            "pattern": [d.pattern for d in devices],
+            "tx_power_dbm": np.array([d.tx_power_dbm for d in devices], float),
+        },
+    )
+    for pname, pat in patterns.items():
+        write_pattern_csv(pat.renamed(pname), root / "patterns" / f"{pname}.csv")
+    write_table(
+        root / "survey.csv",
+        {
+            "x_m": survey_rows.xyz_m[:, 0],
+            "y_m": survey_rows.xyz_m[:, 1],
+            "z_m": survey_rows.xyz_m[:, 2],
+            "receiver_id": survey_rows.receiver_id,
+            "rss_dbm": survey_rows.rss_dbm,
+            "azimuth_deg": survey_rows.orientation_deg[:, 0],
+            "pitch_deg": survey_rows.orientation_deg[:, 1],
+            "roll_deg": survey_rows.orientation_deg[:, 2],
+        },
+    )

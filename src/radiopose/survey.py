@@ -1,0 +1,178 @@
+"""Site survey: raw survey RSS → the per-receiver channel map ``M_r(p)`` on the candidate grid.
+
+Paper, "Site Survey". While the survey transmitter stands at a surveyed point
+``p`` with orientation ``o`` and transmits at ``P_tx`` (dBm), receiver ``r``
+measures ``R``. Its directivity toward the receiver, ``D_st``, is looked up
+from the survey transmitter's pattern at the body-frame direction of the
+receiver. What remains,
+
+    M_r(p) = R − P_tx − D_st(o, p → r)          (dB)
+
+is everything between an isotropic radiator at ``p`` and receiver ``r``'s
+reported RSS: path loss, the receiver's own pattern and gain, the room.
+Repeated samples at one point are averaged in dB. ``M_r`` is then interpolated
+from the survey points onto the candidate grid:
+
+* survey points forming a complete regular grid → ``RegularGridInterpolator``
+  (``method``: ``"cubic"`` by default, ``"linear"`` available);
+* irregular survey points → Clough–Tocher (C¹, piecewise cubic on a Delaunay
+  triangulation) for ``"cubic"``, piecewise linear for ``"linear"``.
+
+Both reproduce the survey values exactly at survey points. Candidate points
+outside the surveyed convex hull follow ``outside``: ``"nearest"`` (default,
+the value of the nearest surveyed point) or ``"exclude"`` (NaN: the candidate
+is never scored). Interpolation is 2-D in ``(x, y)`` at the candidate height;
+survey heights are not used for interpolation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.interpolate import (
+    CloughTocher2DInterpolator,
+    LinearNDInterpolator,
+    RegularGridInterpolator,
+)
+from scipy.spatial import cKDTree
+
+from radiopose.units import FloatArray
+
+InterpolationMethod = Literal["cubic", "linear"]
+OutsidePolicy = Literal["nearest", "exclude"]
+
+
+@dataclass(frozen=True, eq=False)
+class SurveyPoints:
+    """Corrected survey values at surveyed points, one receiver.
+
+    Attributes
+    ----------
+    xy_m
+        ``(n, 2)`` unique surveyed points, metres.
+    m_db
+        ``(n,)`` mean corrected value ``M = R − P_tx − D_st`` at each point, dB.
+    n_samples
+        ``(n,)`` how many raw samples were averaged.
+    """
+
+    xy_m: FloatArray
+    m_db: FloatArray
+    n_samples: NDArray[np.int64]
+
+
+def average_by_point(xy_m: FloatArray, values_db: FloatArray, decimals: int = 6) -> SurveyPoints:
+    """Average values that share a surveyed point (positions rounded to ``decimals``)."""
+    key = np.round(np.asarray(xy_m, float), decimals)
+    uniq, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    sums = np.zeros(uniq.shape[0])
+    np.add.at(sums, inverse.reshape(-1), values_db)
+    return SurveyPoints(uniq, sums / counts, counts.astype(np.int64))
+
+
+def _regular_axes(xy: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    xs = np.unique(xy[:, 0])
+    ys = np.unique(xy[:, 1])
+    if xs.size < 2 or ys.size < 2 or xs.size * ys.size != xy.shape[0]:
+        return None
+    return xs, ys
+
+
+def interpolate_points(
+    points: SurveyPoints,
+    query_xy_m: FloatArray,
+    method: InterpolationMethod = "cubic",
+    outside: OutsidePolicy = "nearest",
+) -> FloatArray:
+    """Interpolate one receiver's corrected survey values at query points.
+
+    Parameters
+    ----------
+    points
+        Averaged survey values of the receiver.
+    query_xy_m
+        ``(q, 2)`` query points, metres.
+    method
+        ``"cubic"`` or ``"linear"`` (see module docstring).
+    outside
+        Policy outside the surveyed hull: ``"nearest"`` or ``"exclude"`` (NaN).
+
+    Returns
+    -------
+    ``(q,)`` values in dB (NaN outside the hull with ``"exclude"``).
+    """
+    q = np.asarray(query_xy_m, float).reshape(-1, 2)
+    xy = points.xy_m
+    if xy.shape[0] == 1:
+        out = np.full(q.shape[0], points.m_db[0])
+        return out
+    axes = _regular_axes(xy)
+    if axes is not None:
+        xs, ys = axes
+        grid = np.full((xs.size, ys.size), np.nan)
+        grid[np.searchsorted(xs, xy[:, 0]), np.searchsorted(ys, xy[:, 1])] = points.m_db
+        use = method if min(xs.size, ys.size) >= 4 else "linear"
+        interp = RegularGridInterpolator(
+            (xs, ys), grid, method=use, bounds_error=False, fill_value=np.nan
+        )
+        out = interp(q)
+    else:
+        cls = CloughTocher2DInterpolator if method == "cubic" else LinearNDInterpolator
+        try:
+            out = cls(xy, points.m_db, fill_value=np.nan)(q)
+        except Exception:  # collinear / degenerate layout: Qhull cannot triangulate
+            out = np.full(q.shape[0], np.nan)
+    missing = ~np.isfinite(out)
+    if outside == "nearest" and np.any(missing):
+        _, idx = cKDTree(xy).query(q[missing])
+        out[missing] = points.m_db[idx]
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class SurveyMap:
+    """The channel map of every receiver on the candidate grid.
+
+    Attributes
+    ----------
+    receiver_ids
+        Receiver order of the first axis.
+    x_m, y_m
+        Candidate grid axes ``(nx,)``, ``(ny,)``, metres.
+    m_db
+        ``(n_receivers, nx, ny)``: ``M_r`` at each candidate, dB (NaN = excluded).
+    points
+        The averaged survey values each map was interpolated from.
+    """
+
+    receiver_ids: tuple[str, ...]
+    x_m: FloatArray
+    y_m: FloatArray
+    m_db: FloatArray
+    points: tuple[SurveyPoints, ...]
+
+    def receiver_index(self, receiver_id: str) -> int:
+        return self.receiver_ids.index(receiver_id)
+
+
+def build_survey_map(
+    receiver_ids: Sequence[str],
+    points: Sequence[SurveyPoints],
+    x_m: FloatArray,
+    y_m: FloatArray,
+    method: InterpolationMethod = "cubic",
+    outside: OutsidePolicy = "nearest",
+) -> SurveyMap:
+    """Interpolate every receiver's survey onto the ``(x_m, y_m)`` candidate grid."""
+    gx, gy = np.meshgrid(x_m, y_m, indexing="ij")
+    q = np.column_stack([gx.ravel(), gy.ravel()])
+    maps = np.stack(
+        [interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points]
+    )
+    for arr in (maps,):
+        arr.setflags(write=False)
+    return SurveyMap(tuple(receiver_ids), np.asarray(x_m), np.asarray(y_m), maps, tuple(points))

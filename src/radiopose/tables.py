@@ -1,0 +1,245 @@
+"""CSV tables of the interchange contract: validated reading, atomic writing.
+
+Every table radiopose reads goes through :func:`read_table`, which checks the
+header, parses each required column, rejects NaN/inf and out-of-range values and
+raises :class:`~radiopose.errors.InputError` naming file, line and column
+(the header is line 1, the first data row line 2). Extra columns are ignored.
+
+Every table radiopose writes goes through :func:`write_table`, which writes a
+temporary file beside the target and renames it into place, so a failure never
+leaves a half-written output.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import math
+import os
+import tempfile
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from radiopose.errors import InputError
+
+
+@dataclass(frozen=True)
+class Column:
+    """A required column of a contract table.
+
+    Parameters
+    ----------
+    name
+        Exact header name.
+    kind
+        ``"float"`` (finite float64), ``"int"`` (int64) or ``"str"`` (non-empty text).
+    low, high
+        Optional inclusive lower / upper bound for numbers.
+    high_open
+        If true the upper bound is exclusive (e.g. azimuth ``< 360``).
+    """
+
+    name: str
+    kind: Literal["float", "int", "str"] = "float"
+    low: float | None = None
+    high: float | None = None
+    high_open: bool = False
+
+    def describe_range(self) -> str:
+        lo = "-inf" if self.low is None else f"{self.low:g}"
+        hi = "inf" if self.high is None else f"{self.high:g}"
+        return f"[{lo}, {hi}{')' if self.high_open else ']'}"
+
+
+@dataclass(frozen=True)
+class Table:
+    """Parsed columns, each an array of one value per data row.
+
+    ``lines`` holds the 1-based file line of each row, for error messages
+    raised by later, cross-row checks.
+    """
+
+    path: str
+    columns: Mapping[str, NDArray]
+    lines: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.lines.shape[0])
+
+    def __getitem__(self, name: str) -> NDArray:
+        return self.columns[name]
+
+    def error(self, row: int, column: str | None, message: str) -> InputError:
+        """An :class:`InputError` for data row index ``row`` (0-based)."""
+        return InputError(message, path=self.path, line=int(self.lines[row]), column=column)
+
+
+def _open_text(path: Path) -> io.TextIOWrapper:
+    try:
+        return open(path, newline="", encoding="utf-8-sig")  # noqa: SIM115
+    except FileNotFoundError:
+        raise InputError("file not found", path=path) from None
+    except IsADirectoryError:
+        raise InputError("is a directory, expected a CSV file", path=path) from None
+    except OSError as exc:
+        raise InputError(f"cannot read: {exc.strerror}", path=path) from None
+
+
+def _parse_number(text: str, col: Column, path: Path, line: int) -> float | int:
+    s = text.strip()
+    if s == "":
+        raise InputError("empty value", path=path, line=line, column=col.name)
+    try:
+        value: float | int = int(s) if col.kind == "int" else float(s)
+    except ValueError:
+        kind = "an integer" if col.kind == "int" else "a number"
+        raise InputError(f"not {kind}: {s[:40]!r}", path=path, line=line, column=col.name) from None
+    if col.kind == "float" and not math.isfinite(value):
+        raise InputError(f"not a finite number: {s!r}", path=path, line=line, column=col.name)
+    below = col.low is not None and value < col.low
+    above = col.high is not None and (value >= col.high if col.high_open else value > col.high)
+    if below or above:
+        raise InputError(
+            f"value {s} out of range {col.describe_range()}", path=path, line=line, column=col.name
+        )
+    return value
+
+
+def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table:
+    """Read and validate a contract CSV table.
+
+    Parameters
+    ----------
+    path
+        The CSV file (UTF-8, header row, comma separated).
+    columns
+        The required columns; others in the file are ignored.
+
+    Raises
+    ------
+    InputError
+        Missing file or column, unparsable/NaN/inf/out-of-range value, ragged row.
+    """
+    p = Path(path)
+    with _open_text(p) as fh:
+        try:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            if header is None:
+                raise InputError("empty file, expected a header row", path=p, line=1)
+            header = [h.strip() for h in header]
+            index: dict[str, int] = {}
+            for col in columns:
+                if col.name not in header:
+                    raise InputError(
+                        f"missing required column (header has: {', '.join(header)[:200]})",
+                        path=p,
+                        line=1,
+                        column=col.name,
+                    )
+                index[col.name] = header.index(col.name)
+            dupes = {h for h in header if header.count(h) > 1 and h in index}
+            if dupes:
+                name = sorted(dupes)[0]
+                raise InputError("column appears more than once", path=p, line=1, column=name)
+            values: dict[str, list] = {c.name: [] for c in columns}
+            lines: list[int] = []
+            width = len(header)
+            for row in reader:
+                line = reader.line_num
+                if not row or all(not f.strip() for f in row):
+                    continue  # blank lines are not rows
+                if len(row) != width:
+                    raise InputError(
+                        f"row has {len(row)} fields, header has {width}", path=p, line=line
+                    )
+                for col in columns:
+                    raw = row[index[col.name]]
+                    if col.kind == "str":
+                        s = raw.strip()
+                        if not s:
+                            raise InputError("empty value", path=p, line=line, column=col.name)
+                        values[col.name].append(s)
+                    else:
+                        values[col.name].append(_parse_number(raw, col, p, line))
+                lines.append(line)
+        except UnicodeDecodeError as exc:
+            raise InputError(f"not UTF-8 text ({exc.reason})", path=p) from None
+        except csv.Error as exc:
+            raise InputError(f"malformed CSV: {exc}", path=p, line=reader.line_num) from None
+    arrays: dict[str, NDArray] = {}
+    for col in columns:
+        if col.kind == "float":
+            arrays[col.name] = np.asarray(values[col.name], dtype=np.float64)
+        elif col.kind == "int":
+            arrays[col.name] = np.asarray(values[col.name], dtype=np.int64)
+        else:
+            arrays[col.name] = np.asarray(values[col.name], dtype=object)
+    return Table(str(p), arrays, np.asarray(lines, dtype=np.int64))
+
+
+def format_float(value: float, decimals: int = 6) -> str:
+    """Deterministic text for a float: fixed decimals with trailing zeros stripped."""
+    s = f"{value:.{decimals}f}"
+    if "." in s:
+        s = s.rstrip("0").rstrip(".")
+    return "0" if s in ("-0", "") else s
+
+
+@contextlib.contextmanager
+def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.IOBase]:
+    """Open a temporary file beside ``path``; rename it over ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is untouched.
+    Parent directories are created.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        kwargs = {"newline": "", "encoding": "utf-8"} if "b" not in mode else {}
+        with os.fdopen(fd, mode, **kwargs) as fh:
+            yield fh
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_table(
+    path: str | os.PathLike[str],
+    columns: Mapping[str, Sequence | NDArray],
+    *,
+    decimals: Mapping[str, int] | None = None,
+) -> None:
+    """Write a CSV table atomically, columns in the given order.
+
+    Floats are written with :func:`format_float` (``decimals`` per column,
+    default 6) so that the same values always give the same bytes.
+    """
+    names = list(columns)
+    n = len(columns[names[0]]) if names else 0
+    for name in names:
+        if len(columns[name]) != n:
+            raise ValueError(f"column {name!r} has {len(columns[name])} rows, expected {n}")
+    dec = dict(decimals or {})
+    cols = [np.asarray(columns[name]) for name in names]
+    with atomic_writer(path) as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(names)
+        fmts = []
+        for name, arr in zip(names, cols, strict=True):
+            if arr.dtype.kind == "f":
+                d = dec.get(name, 6)
+                fmts.append(lambda v, d=d: format_float(float(v), d))
+            else:
+                fmts.append(str)
+        for i in range(n):
+            w.writerow([f(c[i]) for f, c in zip(fmts, cols, strict=True)])
