@@ -112,7 +112,12 @@ class Section:
         return v
 
     def integer(
-        self, name: str, default: Any = None, *, low: int | None = None, high: int | None = None,
+        self,
+        name: str,
+        default: Any = None,
+        *,
+        low: int | None = None,
+        high: int | None = None,
         required: bool = False,
     ) -> int:
         v = self._get(name, _REQUIRED if required else default)
@@ -125,7 +130,11 @@ class Section:
         return int(v)
 
     def string(
-        self, name: str, default: Any = None, *, choices: tuple[str, ...] | None = None,
+        self,
+        name: str,
+        default: Any = None,
+        *,
+        choices: tuple[str, ...] | None = None,
         required: bool = False,
     ) -> str:
         v = self._get(name, _REQUIRED if required else default)
@@ -138,8 +147,13 @@ class Section:
         return v
 
     def numbers(
-        self, name: str, default: Any = None, *, low: float | None = None,
-        high: float | None = None, nonempty: bool = True,
+        self,
+        name: str,
+        default: Any = None,
+        *,
+        low: float | None = None,
+        high: float | None = None,
+        nonempty: bool = True,
     ) -> tuple[float, ...]:
         v = self._get(name, default)
         if v is default and name not in self.data:

@@ -159,9 +159,7 @@ def pattern_angles_deg(
     return direction_to_pattern_angles_deg(v)
 
 
-def relative_rotation_angle_deg(
-    est_deg: ArrayLike, true_deg: ArrayLike
-) -> FloatArray:
+def relative_rotation_angle_deg(est_deg: ArrayLike, true_deg: ArrayLike) -> FloatArray:
     """Orientation error: the angle of ``R_estᵀ R_true`` in degrees, ``[0, 180]``.
 
     Parameters

@@ -100,8 +100,13 @@ def read_packets_csv(path: str | os.PathLike[str]) -> Packets:
     """Read and validate ``packets.csv``."""
     t = read_table(path, PACKET_COLUMNS)
     return Packets(
-        t["packet_id"], t["timestamp_s"], t["transmitter"], t["receiver_id"], t["rss_dbm"],
-        t.lines, t.path,
+        t["packet_id"],
+        t["timestamp_s"],
+        t["transmitter"],
+        t["receiver_id"],
+        t["rss_dbm"],
+        t.lines,
+        t.path,
     )
 
 

@@ -323,8 +323,11 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
         seen[rid] = i
         receivers.append(
             Receiver(
-                rid, *(float(rt[c][i]) for c in ("x_m", "y_m", "z_m", "azimuth_deg",
-                                                  "pitch_deg", "roll_deg")),
+                rid,
+                *(
+                    float(rt[c][i])
+                    for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")
+                ),
                 pattern=str(rt["pattern"][i]),
             )
         )
@@ -353,7 +356,9 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
             what = "key 'survey.pattern': " if col is None else ""
             raise InputError(
                 f"{what}unknown pattern {pname!r}: no file patterns/{pname}.csv",
-                path=where, line=line, column=col,
+                path=where,
+                line=line,
+                column=col,
             )
         patterns[pname] = read_pattern_csv(ppath, name=pname)
 
@@ -373,7 +378,14 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
         if not np.any(rows.receiver_id == r.receiver_id):
             raise InputError(f"receiver {r.receiver_id!r} has no survey rows", path=st.path)
     return assemble_site(
-        name, area, orient, survey_cfg, tuple(receivers), tuple(devices), patterns, rows,
+        name,
+        area,
+        orient,
+        survey_cfg,
+        tuple(receivers),
+        tuple(devices),
+        patterns,
+        rows,
         path=str(root),
     )
 
@@ -396,12 +408,25 @@ def assemble_site(
     ids = tuple(r.receiver_id for r in receivers)
     points = survey_points_by_receiver(survey_rows, m_db, ids)
     smap = build_survey_map(
-        ids, points, area.x_m(), area.y_m(),
+        ids,
+        points,
+        area.x_m(),
+        area.y_m(),
         survey_config.interpolation,  # type: ignore[arg-type]
         survey_config.outside,  # type: ignore[arg-type]
     )
-    return Site(name, area, orientations, survey_config, receivers, devices, dict(patterns),
-                survey_rows, smap, path)
+    return Site(
+        name,
+        area,
+        orientations,
+        survey_config,
+        receivers,
+        devices,
+        dict(patterns),
+        survey_rows,
+        smap,
+        path,
+    )
 
 
 # ----------------------------------------------------------------------------- writing
@@ -421,8 +446,10 @@ def write_site_toml(
         f'name = "{name}"',
         "",
         "[area]",
-        *(f"{k} = {_toml_number(getattr(area, k))}" for k in
-          ("x_min_m", "x_max_m", "y_min_m", "y_max_m", "z_m", "step_m")),
+        *(
+            f"{k} = {_toml_number(getattr(area, k))}"
+            for k in ("x_min_m", "x_max_m", "y_min_m", "y_max_m", "z_m", "step_m")
+        ),
         "",
         "[orientations]",
         f"azimuth_step_deg = {_toml_number(orientations.azimuth_step_deg)}",
@@ -459,8 +486,10 @@ def write_site(
         root / "receivers.csv",
         {
             "receiver_id": [r.receiver_id for r in receivers],
-            **{c: np.array([getattr(r, c) for r in receivers], float)
-               for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")},
+            **{
+                c: np.array([getattr(r, c) for r in receivers], float)
+                for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")
+            },
             "pattern": [r.pattern for r in receivers],
         },
     )

@@ -13,8 +13,9 @@ reported RSS: path loss, the receiver's own pattern and gain, the room.
 Repeated samples at one point are averaged in dB. ``M_r`` is then interpolated
 from the survey points onto the candidate grid:
 
-* survey points forming a complete regular grid → ``RegularGridInterpolator``
-  (``method``: ``"cubic"`` by default, ``"linear"`` available);
+* survey points forming a complete regular grid → an interpolating bicubic
+  spline (``RectBivariateSpline``, ``s = 0``) for ``"cubic"`` (default), bilinear
+  (``RegularGridInterpolator``) for ``"linear"``;
 * irregular survey points → Clough–Tocher (C¹, piecewise cubic on a Delaunay
   triangulation) for ``"cubic"``, piecewise linear for ``"linear"``.
 
@@ -36,6 +37,7 @@ from numpy.typing import NDArray
 from scipy.interpolate import (
     CloughTocher2DInterpolator,
     LinearNDInterpolator,
+    RectBivariateSpline,
     RegularGridInterpolator,
 )
 from scipy.spatial import cKDTree
@@ -115,11 +117,14 @@ def interpolate_points(
         xs, ys = axes
         grid = np.full((xs.size, ys.size), np.nan)
         grid[np.searchsorted(xs, xy[:, 0]), np.searchsorted(ys, xy[:, 1])] = points.m_db
-        use = method if min(xs.size, ys.size) >= 4 else "linear"
-        interp = RegularGridInterpolator(
-            (xs, ys), grid, method=use, bounds_error=False, fill_value=np.nan
-        )
-        out = interp(q)
+        inside = (q[:, 0] >= xs[0]) & (q[:, 0] <= xs[-1]) & (q[:, 1] >= ys[0]) & (q[:, 1] <= ys[-1])
+        out = np.full(q.shape[0], np.nan)
+        if method == "cubic" and min(xs.size, ys.size) >= 4:
+            spline = RectBivariateSpline(xs, ys, grid, kx=3, ky=3, s=0)
+            out[inside] = spline.ev(q[inside, 0], q[inside, 1])
+        else:
+            interp = RegularGridInterpolator((xs, ys), grid, method="linear")
+            out[inside] = interp(q[inside])
     else:
         cls = CloughTocher2DInterpolator if method == "cubic" else LinearNDInterpolator
         try:
@@ -170,9 +175,7 @@ def build_survey_map(
     """Interpolate every receiver's survey onto the ``(x_m, y_m)`` candidate grid."""
     gx, gy = np.meshgrid(x_m, y_m, indexing="ij")
     q = np.column_stack([gx.ravel(), gy.ravel()])
-    maps = np.stack(
-        [interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points]
-    )
+    maps = np.stack([interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points])
     for arr in (maps,):
         arr.setflags(write=False)
     return SurveyMap(tuple(receiver_ids), np.asarray(x_m), np.asarray(y_m), maps, tuple(points))

@@ -82,7 +82,7 @@ class Table:
 
 def _open_text(path: Path) -> io.TextIOWrapper:
     try:
-        return open(path, newline="", encoding="utf-8-sig")  # noqa: SIM115
+        return open(path, newline="", encoding="utf-8-sig")
     except FileNotFoundError:
         raise InputError("file not found", path=path) from None
     except IsADirectoryError:

@@ -198,7 +198,10 @@ class Pattern:
         """
         lin = db_to_linear(self.directivity_dbi)
         return Pattern(
-            self.name, self.azimuth_deg, self.polar_deg, linear_to_db(lin / mean_intensity(self, lin))
+            self.name,
+            self.azimuth_deg,
+            self.polar_deg,
+            linear_to_db(lin / mean_intensity(self, lin)),
         )
 
 
@@ -237,9 +240,7 @@ def read_pattern_csv(path: str | os.PathLike[str], name: str | None = None) -> P
     dup = np.nonzero(np.diff(flat[order]) == 0)[0]
     if dup.size:
         r = int(order[dup[0] + 1])
-        raise table.error(
-            r, "azimuth_deg", f"duplicate grid point ({az[r]:g}, {po[r]:g}) deg"
-        )
+        raise table.error(r, "azimuth_deg", f"duplicate grid point ({az[r]:g}, {po[r]:g}) deg")
     if flat.size != az_u.size * po_u.size:
         have = np.zeros(az_u.size * po_u.size, bool)
         have[flat] = True

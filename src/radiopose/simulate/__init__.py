@@ -4,4 +4,11 @@ from radiopose.simulate.channel import LogDistance, link_rss_dbm
 from radiopose.simulate.scenario import ScenarioConfig, Simulation, simulate
 from radiopose.simulate.trajectories import MotionConfig
 
-__all__ = ["LogDistance", "MotionConfig", "ScenarioConfig", "Simulation", "link_rss_dbm", "simulate"]
+__all__ = [
+    "LogDistance",
+    "MotionConfig",
+    "ScenarioConfig",
+    "Simulation",
+    "link_rss_dbm",
+    "simulate",
+]

@@ -124,7 +124,9 @@ class ScenarioConfig:
         ]
         for name, ok in checks:
             if not ok:
-                raise InputError(f"scenario setting {name} = {getattr(self, name)!r} is out of range")
+                raise InputError(
+                    f"scenario setting {name} = {getattr(self, name)!r} is out of range"
+                )
         n = round(360.0 / self.azimuth_step_deg)
         if abs(n * self.azimuth_step_deg - 360.0) > 1e-6:
             raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
@@ -148,9 +150,14 @@ class Simulation:
         s = self.site
         write_site(
             root / "site",
-            name=s.name, area=s.area, orientations=s.orientations,
-            survey_config=s.survey_config, receivers=s.receivers, devices=s.devices,
-            patterns=s.patterns, survey_rows=s.survey_rows,
+            name=s.name,
+            area=s.area,
+            orientations=s.orientations,
+            survey_config=s.survey_config,
+            receivers=s.receivers,
+            devices=s.devices,
+            patterns=s.patterns,
+            survey_rows=s.survey_rows,
         )
         write_packets_csv(self.packets, root / "packets.csv")
         write_truth_csv(self.truth, root / "truth.csv")
@@ -187,13 +194,17 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     for i in range(cfg.n_receivers):
         pname = f"rx{i + 1}"
         patterns[pname] = smartphone_like(
-            rng, pname, range_db=rng.uniform(*cfg.receiver_range_db),
+            rng,
+            pname,
+            range_db=rng.uniform(*cfg.receiver_range_db),
             azimuth_step_deg=1.0,
         )
-        receivers.append(Receiver(f"rx{i + 1}", *map(float, rx_xyz[i]), float(rx_az[i]),
-                                  0.0, 0.0, pname))
-    patterns["survey-tx"] = smartphone_like(rng, "survey-tx",
-                                            range_db=rng.uniform(*cfg.survey_range_db))
+        receivers.append(
+            Receiver(f"rx{i + 1}", *map(float, rx_xyz[i]), float(rx_az[i]), 0.0, 0.0, pname)
+        )
+    patterns["survey-tx"] = smartphone_like(
+        rng, "survey-tx", range_db=rng.uniform(*cfg.survey_range_db)
+    )
     patterns["device"] = smartphone_like(rng, "device", range_db=rng.uniform(*cfg.device_range_db))
     rx_orient = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in receivers])
     rx_pats = tuple(patterns[r.pattern] for r in receivers)
@@ -204,8 +215,16 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     sx, sy = np.meshgrid(axis, axis, indexing="ij")
     s_xyz = np.column_stack([sx.ravel(), sy.ravel(), np.full(sx.size, cfg.z_m)])
     s_orient = np.column_stack([rng.uniform(0, 360, sx.size), np.zeros((sx.size, 2))])
-    s_rss = link_rss_dbm(cfg.channel, s_xyz, s_orient, patterns["survey-tx"],
-                         cfg.survey_tx_power_dbm, rx_xyz, rx_orient, rx_pats)
+    s_rss = link_rss_dbm(
+        cfg.channel,
+        s_xyz,
+        s_orient,
+        patterns["survey-tx"],
+        cfg.survey_tx_power_dbm,
+        rx_xyz,
+        rx_orient,
+        rx_pats,
+    )
     if cfg.survey_noise_db > 0:
         s_rss = s_rss + rng.normal(0.0, cfg.survey_noise_db, s_rss.shape)
     n_pts, k = s_rss.shape
@@ -220,8 +239,14 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     orient = OrientationGrid(cfg.azimuth_step_deg)
     device = Device(DEFAULT_TRANSMITTER, "device", cfg.tx_power_dbm)
     site = assemble_site(
-        "simulated", area, orient, SurveyConfig(cfg.survey_tx_power_dbm, "survey-tx"),
-        tuple(receivers), (device,), patterns, survey_rows,
+        "simulated",
+        area,
+        orient,
+        SurveyConfig(cfg.survey_tx_power_dbm, "survey-tx"),
+        tuple(receivers),
+        (device,),
+        patterns,
+        survey_rows,
     )
 
     # Trajectory and packets.
@@ -229,8 +254,9 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     t = np.arange(n_pk) * (cfg.interval_ms / 1000.0)
     pos = straight_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg.z_m, cfg.motion)
     ori = rotation_path(rng, t, cfg.motion)
-    rss = link_rss_dbm(cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm,
-                       rx_xyz, rx_orient, rx_pats)
+    rss = link_rss_dbm(
+        cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats
+    )
     rss = rss + rng.normal(0.0, cfg.noise_db, rss.shape)
     heard = rng.random(rss.shape) >= cfg.loss_fraction
     pk_idx, rx_idx = np.nonzero(heard)

@@ -107,8 +107,11 @@ def rotation_path(rng: np.random.Generator, t_s: FloatArray, config: MotionConfi
         amp = rng.uniform(*config.periodic_amplitude_deg)
         f = rng.uniform(*config.periodic_frequency_hz)
         ph1, ph2 = rng.uniform(0, 2 * np.pi, 2)
-        az = (az0 + amp * np.sin(2 * np.pi * f * t + ph1)
-              + amp / 3.0 * np.sin(4 * np.pi * f * t + ph2))
+        az = (
+            az0
+            + amp * np.sin(2 * np.pi * f * t + ph1)
+            + amp / 3.0 * np.sin(4 * np.pi * f * t + ph2)
+        )
     else:
         raise ValueError(f"unknown rotation kind {config.rotation!r}")
     return np.column_stack([wrap_deg(az), np.zeros(t.size), np.zeros(t.size)])

@@ -1,0 +1,83 @@
+"""Likelihood estimation: score every candidate pose of a packet, keep the top k.
+
+Paper, "Enhanced Localisation Pipeline", steps 1–2. A candidate is a grid
+position × grid orientation (:mod:`~radiopose.likelihood.candidates`); its score
+is the MSE between the packet's RSS and ``M_r(p) + P_tx + D_t`` over the
+receivers that heard it. Scorers are pluggable: each takes a
+:class:`~radiopose.likelihood.candidates.CandidateSpace` and offers
+``score_topk(packet, k) -> TopK`` (and ``score_heard(heard, k)``).
+
+Registry (:data:`SCORERS`):
+
+* ``"reference"`` — exhaustive float64 (:mod:`~radiopose.likelihood.reference`);
+* ``"numpy"`` — float32 table screen + exact rescoring
+  (:mod:`~radiopose.likelihood.numpy_kernel`), same output as the reference.
+
+Example
+-------
+>>> from radiopose.likelihood import candidate_space, make_scorer
+>>> # scorer = make_scorer("numpy", candidate_space(site, "02:00:00:00:00:01"))
+>>> # top = scorer.score_topk(packet, k=100)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+from radiopose.likelihood.candidates import (
+    CandidateSpace,
+    HeardRss,
+    candidate_mse_db2,
+    candidate_space,
+    exact_mse_db2,
+    expected_rss_dbm,
+)
+from radiopose.likelihood.numpy_kernel import TableScorer
+from radiopose.likelihood.reference import ReferenceScorer
+from radiopose.likelihood.topk import TopK, select_topk
+from radiopose.packets import PacketObservation
+
+
+class Scorer(Protocol):
+    """What the tracker needs from a scorer."""
+
+    name: str
+    space: CandidateSpace
+
+    def score_heard(self, heard: HeardRss, k: int) -> TopK: ...
+
+    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK: ...
+
+
+SCORERS: dict[str, Callable[[CandidateSpace], Scorer]] = {
+    "reference": ReferenceScorer,
+    "numpy": TableScorer,
+}
+"""Scorer name → constructor taking a :class:`CandidateSpace`."""
+
+
+def make_scorer(name: str, space: CandidateSpace) -> Scorer:
+    """Build the scorer registered under ``name`` for a candidate space."""
+    try:
+        factory = SCORERS[name]
+    except KeyError:
+        raise ValueError(f"unknown scorer {name!r} (known: {', '.join(sorted(SCORERS))})") from None
+    return factory(space)
+
+
+__all__ = [
+    "SCORERS",
+    "CandidateSpace",
+    "HeardRss",
+    "ReferenceScorer",
+    "Scorer",
+    "TableScorer",
+    "TopK",
+    "candidate_mse_db2",
+    "candidate_space",
+    "exact_mse_db2",
+    "expected_rss_dbm",
+    "make_scorer",
+    "select_topk",
+]

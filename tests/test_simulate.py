@@ -1,0 +1,121 @@
+"""Simulator: determinism, contract conformance, motion options."""
+
+import csv
+import hashlib
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radiopose.errors import InputError
+from radiopose.packets import read_packets_csv, read_truth_csv
+from radiopose.simulate import MotionConfig, ScenarioConfig, simulate
+from radiopose.site import load_site
+from radiopose.units import angle_diff_deg
+
+SMALL = ScenarioConfig(size_m=10.0, step_m=0.5, duration_s=0.5, min_receiver_spacing_m=3.0)
+
+
+def digest(root: Path) -> dict[str, str]:
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_same_seed_byte_identical(tmp_path):
+    simulate(SMALL, seed=42).write(tmp_path / "a")
+    simulate(SMALL, seed=42).write(tmp_path / "b")
+    simulate(SMALL, seed=43).write(tmp_path / "c")
+    assert digest(tmp_path / "a") == digest(tmp_path / "b")
+    assert digest(tmp_path / "a")["packets.csv"] != digest(tmp_path / "c")["packets.csv"]
+
+
+def test_contract_files(tmp_path):
+    simulate(replace(SMALL, n_receivers=5), seed=3).write(tmp_path)
+    header = {
+        "packets.csv": "packet_id,timestamp_s,transmitter,receiver_id,rss_dbm",
+        "truth.csv": "timestamp_s,transmitter,x_m,y_m,z_m,azimuth_deg,pitch_deg,roll_deg",
+        "site/receivers.csv": "receiver_id,x_m,y_m,z_m,azimuth_deg,pitch_deg,roll_deg,pattern",
+        "site/devices.csv": "transmitter,pattern,tx_power_dbm",
+        "site/survey.csv": "x_m,y_m,z_m,receiver_id,rss_dbm,azimuth_deg,pitch_deg,roll_deg",
+        "site/patterns/device.csv": "azimuth_deg,polar_deg,directivity_dbi",
+    }
+    for name, cols in header.items():
+        with open(tmp_path / name, newline="") as fh:
+            assert next(csv.reader(fh)) == cols.split(","), name
+    site = load_site(tmp_path / "site")  # full validation
+    assert len(site.receivers) == 5
+    packets = read_packets_csv(tmp_path / "packets.csv")
+    truth = read_truth_csv(tmp_path / "truth.csv")
+    n = len(truth)
+    assert n == 100  # 0.5 s at 5 ms
+    assert len(packets) == 5 * n
+    assert set(packets.receiver_id) == set(site.receiver_ids)
+    assert np.all(np.diff(truth.timestamp_s) > 0)
+    np.testing.assert_allclose(np.diff(truth.timestamp_s), 0.005, atol=1e-9)
+    assert np.all((truth.position_m[:, :2] >= 0) & (truth.position_m[:, :2] <= 10))
+    assert np.all((truth.orientation_deg[:, 0] >= 0) & (truth.orientation_deg[:, 0] < 360))
+
+
+def test_receivers_spaced_and_patterns_phone_like():
+    sim = simulate(ScenarioConfig(duration_s=0.05), seed=9)
+    rx = sim.site.receiver_positions_m()
+    d = np.linalg.norm(rx[:, None] - rx[None], axis=-1)
+    assert np.min(d[np.triu_indices(4, 1)]) >= 4.0
+    lo, hi = sim.site.patterns["device"].range_dbi
+    assert 14.0 <= hi - lo <= 20.0 + 1e-9
+
+
+def rates(sim) -> np.ndarray:
+    az = sim.truth.orientation_deg[:, 0]
+    return angle_diff_deg(az[1:], az[:-1]) / np.diff(sim.truth.timestamp_s)
+
+
+def test_rotation_kinds():
+    lin = simulate(replace(SMALL, motion=MotionConfig(rotation="linear")), seed=1)
+    r = rates(lin)
+    assert np.allclose(r, r[0]) and 10 <= abs(r[0]) <= 90
+    per = simulate(replace(SMALL, duration_s=3.0, motion=MotionConfig(rotation="periodic")), seed=1)
+    r = rates(per)
+    assert r.max() > 0 > r.min()  # sways both ways
+    assert np.abs(r).max() < 360.0  # within the rotation model
+    fast = simulate(replace(SMALL, motion=MotionConfig(rotation="fast")), seed=1)
+    assert np.all(np.abs(rates(fast)) > 360.0)
+
+
+def test_straight_line_constant_speed():
+    sim = simulate(SMALL, seed=5)
+    v = np.diff(sim.truth.position_m, axis=0) / 0.005
+    assert np.allclose(v, v[0], atol=1e-6)
+    assert 0.5 <= np.linalg.norm(v[0]) <= 1.5
+
+
+def test_loss_fraction():
+    sim = simulate(replace(SMALL, duration_s=2.0, loss_fraction=0.3), seed=2)
+    heard = len(sim.packets) / (4 * len(sim.truth))
+    assert heard == pytest.approx(0.7, abs=0.04)
+
+
+def test_noise_level():
+    a = simulate(replace(SMALL, noise_db=0.0, duration_s=2.0), seed=8)
+    b = simulate(replace(SMALL, noise_db=2.0, duration_s=2.0), seed=8)
+    diff = b.packets.rss_dbm - a.packets.rss_dbm
+    assert np.std(diff) == pytest.approx(2.0, rel=0.05)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"n_receivers": 0},
+        {"noise_db": -1.0},
+        {"loss_fraction": 1.0},
+        {"azimuth_step_deg": 7.0},
+        {"interval_ms": 0.0},
+    ],
+)
+def test_bad_config(bad):
+    with pytest.raises(InputError):
+        simulate(replace(SMALL, **bad))

@@ -1,0 +1,118 @@
+"""The validated CSV reader and the atomic writer (the base of every loader)."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from radiopose.errors import InputError
+from radiopose.tables import Column, format_float, read_table, write_table
+
+COLS = (
+    Column("x_m"),
+    Column("name", "str"),
+    Column("azimuth_deg", low=0, high=360, high_open=True),
+)
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    p = tmp_path / "t.csv"
+    p.write_text(text, encoding="utf-8")
+    return p
+
+
+def test_reads_and_ignores_extra_columns(tmp_path):
+    p = write(tmp_path, "extra,name,x_m,azimuth_deg\n1,a,1.5,0\n\n2,b,-2,359.9\n")
+    t = read_table(p, COLS)
+    assert len(t) == 2
+    assert t["x_m"].tolist() == [1.5, -2.0]
+    assert t["name"].tolist() == ["a", "b"]
+    assert t.lines.tolist() == [2, 4]
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("name,azimuth_deg\na,1\n", "t.csv:1, column 'x_m': missing required column"),
+        ("x_m,name,azimuth_deg\nabc,a,1\n", "t.csv:2, column 'x_m': not a number"),
+        ("x_m,name,azimuth_deg\nnan,a,1\n", "t.csv:2, column 'x_m': not a finite number"),
+        ("x_m,name,azimuth_deg\ninf,a,1\n", "t.csv:2, column 'x_m': not a finite number"),
+        ("x_m,name,azimuth_deg\n1,a,1\n1,b,360\n", "t.csv:3, column 'azimuth_deg': value 360"),
+        ("x_m,name,azimuth_deg\n1,a,-0.5\n", "column 'azimuth_deg': value -0.5 out of range"),
+        ("x_m,name,azimuth_deg\n1,,1\n", "t.csv:2, column 'name': empty value"),
+        ("x_m,name,azimuth_deg\n1,a\n", "t.csv:2: row has 2 fields, header has 3"),
+        ("", "empty file"),
+        ("x_m,x_m,name,azimuth_deg\n1,1,a,1\n", "column appears more than once"),
+    ],
+)
+def test_errors_name_file_line_column(tmp_path, text, needle):
+    p = write(tmp_path, text)
+    with pytest.raises(InputError) as exc:
+        read_table(p, COLS)
+    assert needle in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_missing_file_and_binary(tmp_path):
+    with pytest.raises(InputError, match="file not found"):
+        read_table(tmp_path / "nope.csv", COLS)
+    p = tmp_path / "b.csv"
+    p.write_bytes(b"x_m,name,azimuth_deg\n\xff\xfe\x00,a,1\n")
+    with pytest.raises(InputError, match="not UTF-8"):
+        read_table(p, COLS)
+
+
+def test_write_is_atomic(tmp_path):
+    target = tmp_path / "out.csv"
+    target.write_text("old\n")
+    with pytest.raises(ValueError):
+        write_table(target, {"a": [1.0, 2.0], "b": [1.0]})
+    assert target.read_text() == "old\n"
+    assert list(tmp_path.iterdir()) == [target]
+
+
+def test_float_format_is_deterministic():
+    assert format_float(1.0) == "1"
+    assert format_float(-0.0000001) == "0"
+    assert format_float(2.5) == "2.5"
+    assert format_float(1 / 3, 3) == "0.333"
+
+
+@settings(max_examples=200, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.text(alphabet=st.characters(codec="utf-8"), max_size=200))
+def test_fuzz_never_crashes(tmp_path, text):
+    p = write(tmp_path, "x_m,name,azimuth_deg\n" + text)
+    try:
+        t = read_table(p, COLS)
+    except InputError as exc:
+        assert "\n" not in str(exc)
+    else:
+        assert np.all(np.isfinite(t["x_m"]))
+        assert np.all((t["azimuth_deg"] >= 0) & (t["azimuth_deg"] < 360))
+
+
+@settings(max_examples=100, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(-1e6, 1e6), st.text("abc_", min_size=1, max_size=5), st.floats(0, 359.999)
+        ),
+        max_size=20,
+    )
+)
+def test_round_trip(tmp_path, rows):
+    p = tmp_path / "rt.csv"
+    write_table(
+        p,
+        {
+            "x_m": np.array([r[0] for r in rows], float),
+            "name": [r[1] for r in rows],
+            "azimuth_deg": np.array([r[2] for r in rows], float),
+        },
+        decimals={"x_m": 9},
+    )
+    t = read_table(p, COLS)
+    assert t["name"].tolist() == [r[1] for r in rows]
+    assert np.allclose(t["x_m"], [r[0] for r in rows], atol=1e-6)
