@@ -4,9 +4,10 @@ Usage::
 
     python scripts/enrol_mitll.py [--data ../shared/data/phone-patterns-mitll]
 
-Writes ``src/radiopose/data/patterns/{iphone-11,galaxy-s10}.csv`` and
-``docs/img/pattern-{iphone-11,galaxy-s10}.png`` and prints each directivity
-range. Method: :func:`radiopose.patterns.importers.read_mitll` with the default
+Writes ``src/radiopose/data/patterns/{iphone-11,galaxy-s10}.csv``,
+``docs/img/pattern-{iphone-11,galaxy-s10}.png`` and the overlay
+``docs/img/pattern-phones.png``, and prints each directivity range.
+Method: :func:`radiopose.patterns.importers.read_mitll` with the default
 :class:`~radiopose.patterns.enrol.EnrolConfig` (``docs/patterns.md``).
 """
 
@@ -19,9 +20,11 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-from radiopose.patterns.importers import read_mitll  # noqa: E402
-from radiopose.patterns.pattern import write_pattern_csv  # noqa: E402
-from radiopose.patterns.plot import save_pattern_figure  # noqa: E402
+import matplotlib.pyplot as plt
+
+from radiopose.patterns.importers import read_mitll
+from radiopose.patterns.pattern import write_pattern_csv
+from radiopose.patterns.plot import plot_polar, save_pattern_figure
 
 ROOT = Path(__file__).resolve().parents[1]
 PHONES = {"iphone-11": "iPhone-11-2", "galaxy-s10": "Samsung-Galaxy-S10-2"}
@@ -33,12 +36,20 @@ def main() -> None:
         "--data", type=Path, default=ROOT.parent / "shared" / "data" / "phone-patterns-mitll"
     )
     args = parser.parse_args()
+    fig = plt.figure(figsize=(5.5, 5.5))
+    ax = fig.add_subplot(projection="polar")
     for name, folder in PHONES.items():
         pattern = read_mitll(args.data / folder, name=name)
         write_pattern_csv(pattern, ROOT / "src" / "radiopose" / "data" / "patterns" / f"{name}.csv")
         save_pattern_figure(pattern, ROOT / "docs" / "img" / f"pattern-{name}.png")
         lo, hi = pattern.range_dbi
         print(f"{name}: directivity {lo:+.2f} … {hi:+.2f} dBi (span {hi - lo:.2f} dB)")
+        plot_polar(pattern, ax=ax)
+    ax.set_title("MIT LL chamber phones, 90° slice, directivity dBi", fontsize=10)
+    ax.legend(loc="lower left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(ROOT / "docs" / "img" / "pattern-phones.png", dpi=120)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -284,7 +284,7 @@ def _iter_pcap(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, int,
         hdr = dpkt.pcap.LEFileHdr(head)
     rec_cls = dpkt.pcap.MAGIC_TO_PKT_HDR[magic]
     nano = magic in (dpkt.pcap.TCPDUMP_MAGIC_NANO, dpkt.pcap.PMUDPCT_MAGIC_NANO)
-    linktype = hdr.linktype & 0x0FFFFFFF  # upper bits: FCS length / reserved
+    linktype = hdr.linktype & 0xFFFF  # upper bits: FCS length flags / reserved
     if linktype != LINKTYPE_IEEE802_11_RADIOTAP:
         what = _LINKTYPE_NAMES.get(linktype, "unsupported")
         raise InputError(

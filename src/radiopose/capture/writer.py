@@ -36,8 +36,8 @@ from typing import Any
 import dpkt
 import numpy as np
 
-from radiopose.capture.records import LINKTYPE_IEEE802_11_RADIOTAP, PLAUSIBLE_RSS_DBM
 from radiopose.capture.radiotap import FIELD_ALIGN_SIZE
+from radiopose.capture.records import LINKTYPE_IEEE802_11_RADIOTAP, PLAUSIBLE_RSS_DBM
 from radiopose.packets import Packets, read_packets_csv, write_packets_csv
 
 __all__ = [
@@ -283,7 +283,10 @@ def write_receiver_pcaps(
     ValueError
         Inconsistent columns, a fraction outside ``[0, 1]``, a negative timestamp.
     """
-    for name, frac in (("loss_fraction", loss_fraction), ("duplicate_fraction", duplicate_fraction)):
+    for name, frac in (
+        ("loss_fraction", loss_fraction),
+        ("duplicate_fraction", duplicate_fraction),
+    ):
         if not 0.0 <= frac <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {frac}")
     cols = _columns(packets)
@@ -357,7 +360,10 @@ def write_receiver_pcaps(
     }
     if bad_keys:
         keep &= np.asarray(
-            [(tx, pid) not in bad_keys for tx, pid in zip(cols["transmitter"], cols["packet_id"])],
+            [
+                (tx, pid) not in bad_keys
+                for tx, pid in zip(cols["transmitter"], cols["packet_id"], strict=True)
+            ],
             dtype=bool,
         )
     truth = Packets(

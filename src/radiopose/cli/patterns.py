@@ -7,7 +7,7 @@ written atomically, so a failure leaves no partial output.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
 
@@ -28,7 +28,7 @@ pattern_app = typer.Typer(
 app.add_typer(pattern_app, name="pattern")
 
 
-class ImportFormat(str, Enum):
+class ImportFormat(StrEnum):
     """Formats accepted by ``radiopose pattern import``."""
 
     msi = "msi"
@@ -36,7 +36,7 @@ class ImportFormat(str, Enum):
     mitll = "mitll"
 
 
-class MsiMode(str, Enum):
+class MsiMode(StrEnum):
     """What to build from an MSI file's two cuts."""
 
     horizontal = "horizontal"
@@ -175,9 +175,7 @@ def import_command(
 
 @pattern_app.command("plot")
 def plot_command(
-    pattern_csv: Annotated[
-        Path, typer.Argument(help="Pattern CSV to plot.", show_default=False)
-    ],
+    pattern_csv: Annotated[Path, typer.Argument(help="Pattern CSV to plot.", show_default=False)],
     output: Annotated[
         Path, typer.Option("-o", "--output", help="PNG file to write.", show_default=False)
     ],

@@ -33,6 +33,7 @@ from radiopose.likelihood.candidates import (
     exact_mse_db2,
     expected_rss_dbm,
 )
+from radiopose.likelihood.memo import MemoScorer
 from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.likelihood.reference import ReferenceScorer
 from radiopose.likelihood.topk import TopK, select_topk
@@ -70,6 +71,7 @@ __all__ = [
     "SCORERS",
     "CandidateSpace",
     "HeardRss",
+    "MemoScorer",
     "ReferenceScorer",
     "Scorer",
     "TableScorer",

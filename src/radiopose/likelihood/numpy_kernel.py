@@ -25,10 +25,11 @@ so every candidate of the true top-k has a screened value ``≤ τ + 2δ``, wher
 ``δ`` bounds the float32 error (derived from the table's magnitudes). The
 shortlist is then rescored exactly in float64 with the reference's own function
 and the top-k taken with the same tie rule — identical output to the
-reference, at ~60 ms per packet on the paper's 201 × 201 × 360 grid.
+reference, at ~50–100 ms per packet on the paper's 201 × 201 × 360 grid.
 
-Memory: ``4 · n_candidates · (n_rx + 1)`` bytes for the table and one ``S2``,
-plus two ``4 · n_candidates`` temporaries per packet (≈ 0.4 GB on the paper's grid).
+Memory: ``4 · n_candidates · (n_rx + 1)`` bytes for the table (with the full
+set's ``S2``), ``4 · n_candidates`` per cached subset ``S2`` and one or two
+such temporaries per packet (≈ 0.4 GB on the paper's grid).
 """
 
 from __future__ import annotations
@@ -56,7 +57,10 @@ def build_table(space: CandidateSpace, chunk_terms: int = 4_000_000) -> tuple[np
     Returns
     -------
     table
-        ``(n_pos · n_orient, n_rx)`` float32, ``G' = M + P_tx + D − c`` (0 where ``M`` is NaN).
+        ``(n_pos · n_orient, n_rx + 1)`` float32, column-major: columns ``r`` hold
+        ``G'_r = M_r + P_tx + D − c_r`` (0 where ``M_r`` is NaN); the last column
+        holds ``S2`` of the full receiver set (``+inf`` where any ``M_r`` is NaN).
+        Column-major makes the per-packet product a few fast vector updates.
     centre_db
         ``(n_rx,)`` float64 centres ``c_r``, dB.
     valid
@@ -72,7 +76,7 @@ def build_table(space: CandidateSpace, chunk_terms: int = 4_000_000) -> tuple[np
     centre = np.array(
         [float(np.mean(base[r][valid[:, r]])) if valid[:, r].any() else 0.0 for r in range(n_rx)]
     )
-    table = np.empty((n_pos, n_o, n_rx), dtype=np.float32)
+    table = np.zeros((n_pos * n_o, n_rx + 1), dtype=np.float32, order="F")
     chunk = max(1, chunk_terms // max(n_o * n_rx, 1))
     az = space.orientations_deg[:, 0]
     for start in range(0, n_pos, chunk):
@@ -89,9 +93,17 @@ def build_table(space: CandidateSpace, chunk_terms: int = 4_000_000) -> tuple[np
             ori = np.tile(np.arange(n_o), stop - start)
             dir_dbi = directivity_dbi(space, pos, ori).reshape(stop - start, n_o, n_rx)
         g = base.T[start:stop, None, :] - centre[None, None, :] + dir_dbi
-        table[start:stop] = np.where(valid[start:stop, None, :], g, 0.0)
-    gmax = np.abs(table).reshape(-1, n_rx).max(axis=0).astype(np.float64)
-    return table.reshape(n_pos * n_o, n_rx), centre, valid, gmax
+        g = np.where(valid[start:stop, None, :], g, 0.0).astype(np.float32)
+        rows = slice(start * n_o, stop * n_o)
+        for r in range(n_rx):
+            col = g[:, :, r].reshape(-1)
+            table[rows, r] = col
+            table[rows, n_rx] += col * col
+    bad = ~np.all(valid, axis=1)
+    if bad.any():
+        table[:, n_rx].reshape(n_pos, n_o)[bad] = np.inf
+    gmax = np.abs(table[:, :n_rx]).max(axis=0).astype(np.float64)
+    return table, centre, valid, gmax
 
 
 class TableScorer:
@@ -114,6 +126,7 @@ class TableScorer:
         self._cache_masks = max(1, cache_masks)
 
     def _sum_squares(self, heard: HeardRss) -> np.ndarray:
+        """``S2_H`` for a subset ``H`` of receivers (not the full set), cached."""
         key = heard.mask
         if key in self._s2:
             self._s2.move_to_end(key)
@@ -136,12 +149,15 @@ class TableScorer:
         n_rx, n_o = s.n_receivers, s.n_orientations
         r = heard.receiver_index
         w64 = heard.rss_dbm - self.centre_db[r]
-        w = np.zeros(n_rx, dtype=np.float32)
-        w[r] = w64
-        # h·MSE ≈ Σ G'² − 2 G'·w + Σ w²  (float32 screen)
-        v = self.table @ w
-        v *= -2.0
-        v += self._sum_squares(heard)
+        # h·MSE ≈ S2_H − 2 G'·w + Σ w²  (float32 screen, one matrix-vector product)
+        w = np.zeros(n_rx + 1, dtype=np.float32)
+        w[r] = -2.0 * w64
+        if heard.n_heard == n_rx:
+            w[n_rx] = 1.0  # S2 of the full set is the table's last column
+            v = self.table @ w
+        else:
+            v = self.table @ w
+            v += self._sum_squares(heard)
         v += np.float32(np.sum(w64 * w64))
         g = self.gmax_db[r]
         delta = (

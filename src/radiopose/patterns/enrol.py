@@ -54,7 +54,6 @@ from radiopose.patterns.pattern import Pattern, mean_intensity
 from radiopose.tables import Column, read_table, write_table
 from radiopose.units import (
     FloatArray,
-    db_to_linear,
     dbm_to_mw,
     linear_to_db,
     mw_to_dbm,
@@ -167,9 +166,7 @@ def read_measurements_csv(path: str | os.PathLike[str]) -> Measurements:
     table = read_table(path, MEASUREMENT_COLUMNS)
     if len(table) == 0:
         raise InputError("no measurement rows", path=path, line=2)
-    return Measurements(
-        table["motor_azimuth_deg"], table["motor_elevation_deg"], table["rss_dbm"]
-    )
+    return Measurements(table["motor_azimuth_deg"], table["motor_elevation_deg"], table["rss_dbm"])
 
 
 def write_measurements_csv(measurements: Measurements, path: str | os.PathLike[str]) -> None:
@@ -496,4 +493,3 @@ __all__ = [
     "smooth_rows",
     "write_measurements_csv",
 ]
-

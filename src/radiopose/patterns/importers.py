@@ -65,7 +65,9 @@ def _finite(text: str, path: Path, line: int | None, column: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise InputError(f"not a number: {text[:40]!r}", path=path, line=line, column=column) from None
+        raise InputError(
+            f"not a number: {text[:40]!r}", path=path, line=line, column=column
+        ) from None
     if not math.isfinite(value):
         raise InputError(f"not a finite number: {text!r}", path=path, line=line, column=column)
     return value
@@ -86,10 +88,14 @@ def _parse_gain_dbi(text: str, path: Path, line: int) -> float:
         return value
     if unit == "dbd":
         return value + DBD_TO_DBI
-    raise InputError(f"unknown gain unit {parts[1]!r} (dBi or dBd)", path=path, line=line, column="GAIN")
+    raise InputError(
+        f"unknown gain unit {parts[1]!r} (dBi or dBd)", path=path, line=line, column="GAIN"
+    )
 
 
-def _parse_msi(path: Path) -> tuple[dict[str, str], float, FloatArray, FloatArray, FloatArray, FloatArray]:
+def _parse_msi(
+    path: Path,
+) -> tuple[dict[str, str], float, FloatArray, FloatArray, FloatArray, FloatArray]:
     lines = _read_text(path).splitlines()
     header: dict[str, str] = {}
     gain_dbi: float | None = None
@@ -209,13 +215,13 @@ def read_msi(
     mode
         ``"horizontal"``: a slice pattern (``polar_deg = [90]``) from the
         horizontal cut alone. ``"sphere"``: a 1° full-sphere grid from both
-        cuts by summing attenuations (``docs/patterns.md``):
-        ``A(phi, theta) = min(A_H(phi) + A_V(phi, theta), A_max)``, where
-        ``A_V(phi, ·)`` blends the front and back vertical half-planes with
-        weight ``(1 + cos phi)/2`` and ``A_max`` is the largest attenuation in
-        either cut; pole rows are set to their mean power. The vertical cut is
-        reproduced exactly in the front half-plane (``A_H(0) = 0``), the
-        horizontal cut on the cone of the vertical maximum (the tilt).
+        cuts by summing attenuations, as the 3GPP antenna model does
+        (TR 36.814 / 38.901): ``A(phi, theta) = min(A_H(phi) + A_V(theta), A_max)``
+        with ``A_V`` the *front* half of the vertical cut (``theta = 90 + v``)
+        and ``A_max`` the largest attenuation in either cut; pole rows are set
+        to their mean power. The front vertical cut is reproduced exactly
+        (``A_H(0) = 0``), the horizontal cut on the cone of the vertical
+        maximum (the tilt); the back half of the vertical cut is not used.
     normalise
         Rescale to mean intensity 0 dBi (radiopose directivity) instead of
         keeping the file's absolute gain.
@@ -239,15 +245,10 @@ def read_msi(
     if mode != "sphere":
         raise ValueError(f"unknown MSI mode {mode!r}")
     theta = np.arange(181) * 1.0
-    # vertical angle of (front: theta), (back: theta) half-planes
-    v_front = wrap_deg(theta + 270.0)  # phi = 0 half-plane: theta = 90 + v (mod 360)
-    v_back = wrap_deg(270.0 - theta)  # phi = 180 half-plane: theta = 270 − v
-    a_vf = _cut_at(v_ang, v_att, v_front)  # (181,)
-    a_vb = _cut_at(v_ang, v_att, v_back)
-    w = (1.0 + np.cos(np.deg2rad(az)))[:, None] / 2.0  # (360, 1) front weight
-    a_v = w * a_vf[None, :] + (1.0 - w) * a_vb[None, :]  # (360, 181)
-    # A(phi, theta) = min(A_H(phi) + A_V(phi, theta), A_max)
-    atten = np.minimum(a_h[:, None] + a_v, max(h_att.max(), v_att.max()))
+    # front vertical half-plane (phi = 0): theta = 90 + v (mod 360)
+    a_v = _cut_at(v_ang, v_att, wrap_deg(theta + 270.0))  # (181,)
+    # A(phi, theta) = min(A_H(phi) + A_V(theta), A_max)
+    atten = np.minimum(a_h[:, None] + a_v[None, :], max(h_att.max(), v_att.max()))
     lin = 10.0 ** (-atten / 10.0)
     for j in (0, 180):  # each pole is one direction
         lin[:, j] = lin[:, j].mean()
@@ -308,10 +309,12 @@ def read_basta_json(
 
     Coordinate systems (boresight = body ``+x``, up = body ``+z``)::
 
-        SPCS_Polar  theta 0…180 from zenith, phi CCW from above:  theta_p = theta,      phi_p = phi
-        SPCS_CW     theta −90…90, +90 = nadir (down-tilt > 0),
-                    phi clockwise from above:                     theta_p = theta + 90, phi_p = −phi mod 360
-        SPCS_CCW    as SPCS_CW with phi counter-clockwise:        theta_p = theta + 90, phi_p = phi
+        SPCS_Polar  theta 0…180 from zenith, phi CCW from above:
+                    theta_p = theta,       phi_p = phi
+        SPCS_CW     theta −90…90, +90 = nadir (down-tilt > 0), phi clockwise from above:
+                    theta_p = theta + 90,  phi_p = −phi mod 360
+        SPCS_CCW    as SPCS_CW with phi counter-clockwise:
+                    theta_p = theta + 90,  phi_p = phi
         directivity_dbi = G_dBi − attenuation_dB,  G_dBi = G_dBd + 2.15
 
     ``SPCS_Geo`` is rejected: its theta orientation is not pinned down by the
@@ -337,7 +340,9 @@ def read_basta_json(
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise InputError(f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno) from None
+        raise InputError(
+            f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
+        ) from None
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", path=p)
     system = str(_basta_key(data, "Coordinate_System", p))
@@ -358,7 +363,9 @@ def read_basta_json(
     try:
         table = np.array(rows, dtype=np.float64)
     except (TypeError, ValueError):
-        raise InputError("rows must be lists of numbers of one length", path=p, column="Data_Set") from None
+        raise InputError(
+            "rows must be lists of numbers of one length", path=p, column="Data_Set"
+        ) from None
     if table.ndim != 2 or table.shape[1] != len(structure) or table.shape[0] == 0:
         raise InputError(
             f"expected rows of {len(structure)} numbers (Data_Set_Row_Structure)",
@@ -393,7 +400,9 @@ def read_basta_json(
         atten = -linear_to_db(lin)
     else:
         raise InputError(
-            "no MagAttenuationTP or MagAttenuationCo column", path=p, column="Data_Set_Row_Structure"
+            "no MagAttenuationTP or MagAttenuationCo column",
+            path=p,
+            column="Data_Set_Row_Structure",
         )
 
     polar, az = _basta_to_polar(system, theta, phi, p)
@@ -401,9 +410,7 @@ def read_basta_json(
     az = np.round(az, _ROUND)
     az = np.where(az >= 360.0, 0.0, az)
     if polar.min() < 0.0 or polar.max() > 180.0:
-        raise InputError(
-            f"theta out of range for {system}", path=p, column="Data_Set"
-        )
+        raise InputError(f"theta out of range for {system}", path=p, column="Data_Set")
     return _grid_pattern(name or _stem(p), az, polar, gain_dbi - atten, p, normalise)
 
 
@@ -414,20 +421,15 @@ def _grid_pattern(
     po_u, p_idx = np.unique(polar, return_inverse=True)
     flat = a_idx.reshape(-1) * po_u.size + p_idx.reshape(-1)
     counts = np.bincount(flat, minlength=az_u.size * po_u.size)
-    if counts.max() > 1:
-        k = int(np.argmax(counts))
-        raise InputError(
-            f"duplicate direction azimuth {az_u[k // po_u.size]:g}, polar {po_u[k % po_u.size]:g} deg",
-            path=path,
-            column="Data_Set",
-        )
-    if counts.min() == 0:
-        k = int(np.argmin(counts))
-        raise InputError(
-            f"missing direction azimuth {az_u[k // po_u.size]:g}, polar {po_u[k % po_u.size]:g} deg",
-            path=path,
-            column="Data_Set",
-        )
+    for bad, what in ((counts.max() > 1, "duplicate"), (counts.min() == 0, "missing")):
+        if bad:
+            k = int(np.argmax(counts) if what == "duplicate" else np.argmin(counts))
+            az_k, po_k = az_u[k // po_u.size], po_u[k % po_u.size]
+            raise InputError(
+                f"{what} direction azimuth {az_k:g}, polar {po_k:g} deg",
+                path=path,
+                column="Data_Set",
+            )
     grid = np.empty(az_u.size * po_u.size)
     grid[flat] = value_dbi
     try:
@@ -471,7 +473,10 @@ def _read_mitll_file(path: Path) -> tuple[float, dict[str, dict[int, list[float]
             angle = _finite(row[2].strip(), path, line, "Angle")
             if not 0.0 <= angle <= 360.0:
                 raise InputError(
-                    f"angle {row[2].strip()} out of range [0, 360]", path=path, line=line, column="Angle"
+                    f"angle {row[2].strip()} out of range [0, 360]",
+                    path=path,
+                    line=line,
+                    column="Angle",
                 )
         elif kind == "Bluetooth":
             if len(row) < 7:
@@ -489,7 +494,10 @@ def _read_mitll_file(path: Path) -> tuple[float, dict[str, dict[int, list[float]
             ch_text = row[6].strip()
             if ch_text not in ("37", "38", "39"):
                 raise InputError(
-                    f"BLE channel {ch_text[:10]!r} not 37/38/39", path=path, line=line, column="BLE channel"
+                    f"BLE channel {ch_text[:10]!r} not 37/38/39",
+                    path=path,
+                    line=line,
+                    column="BLE channel",
                 )
             packets[row[2].strip().lower()][int(ch_text)].append(rss)
     if angle is None:
@@ -547,7 +555,9 @@ def read_mitll_measurements(
     for f in files:
         angle, packets = _read_mitll_file(f)
         if wanted is None:
-            counts = Counter({m: sum(len(v) for v in chans.values()) for m, chans in packets.items()})
+            counts = Counter(
+                {m: sum(len(v) for v in chans.values()) for m, chans in packets.items()}
+            )
             keep = {counts.most_common(1)[0][0]}
         else:
             keep = wanted & set(packets)

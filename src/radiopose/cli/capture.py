@@ -1,0 +1,136 @@
+"""``radiopose sync``: receiver captures -> synchronised ``packets.csv``."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from radiopose.cli import app
+
+# Show a progress bar when the captures together are larger than this.
+_PROGRESS_MIN_BYTES = 8 * 1024 * 1024
+
+
+def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
+    from radiopose.errors import InputError
+
+    by_path = {p.resolve(): p for p in captures}
+    out: dict[Path, str] = {}
+    for item in pairs:
+        rid, sep, file = item.partition("=")
+        rid = rid.strip()
+        if not sep or not rid or not file:
+            raise InputError(f"--receiver expects ID=FILE, got {item!r}")
+        if any(c in rid for c in ',\n\r"') or rid != rid.strip():
+            raise InputError(f"--receiver {item!r}: receiver id must not contain commas or quotes")
+        key = Path(file).resolve()
+        if key not in by_path:
+            raise InputError(f"--receiver {item!r}: unknown capture {file} (not among CAPTURE...)")
+        out[by_path[key]] = rid
+    return out
+
+
+@app.command()
+def sync(
+    captures: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Receiver captures: pcap/pcapng (radiotap) files, one per receiver, or CSV "
+            "(receiver_id, timestamp_s, frame_sha256, transmitter, rss_dbm).",
+            show_default=False,
+        ),
+    ],
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="packets.csv to write (atomically).")
+    ],
+    tolerance_ms: Annotated[
+        float,
+        typer.Option(
+            "--tolerance-ms", help="Matching tolerance after clock correction, milliseconds."
+        ),
+    ] = 5.0,
+    receiver: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--receiver",
+            help="ID=FILE: receiver id of a pcap capture (default: the file name without "
+            "extension). Repeatable.",
+        ),
+    ] = None,
+    reference: Annotated[
+        str | None,
+        typer.Option(
+            help="Reference receiver whose clock the others are mapped to (default: first)."
+        ),
+    ] = None,
+    max_drift_ppm: Annotated[
+        float,
+        typer.Option("--max-drift-ppm", help="Largest receiver clock drift considered, ppm."),
+    ] = 500.0,
+    quiet: Annotated[bool, typer.Option("-q", "--quiet", help="Do not print the summary.")] = False,
+) -> None:
+    """Match the frames of several receivers into packets (packets.csv).
+
+    Frames are matched by the SHA-256 of their 802.11 bytes. Each receiver's
+    clock offset and drift against the reference receiver are estimated from
+    unambiguous matches first; then frames whose corrected times agree within
+    the tolerance form a packet, unless a receiver has the frame twice.
+    """
+    from radiopose.capture.records import read_capture
+    from radiopose.capture.sync import SyncConfig, synchronise
+    from radiopose.errors import InputError
+    from radiopose.packets import write_packets_csv
+
+    if not (tolerance_ms > 0 and tolerance_ms < 60_000):
+        raise InputError(f"--tolerance-ms must be in (0, 60000), got {tolerance_ms}")
+    if not max_drift_ppm >= 0:
+        raise InputError(f"--max-drift-ppm must be >= 0, got {max_drift_ppm}")
+    if len({p.resolve() for p in captures}) != len(captures):
+        raise InputError("the same capture is given twice")
+    names = _receiver_map(receiver or [], captures)
+    sizes = {}
+    for p in captures:
+        try:
+            sizes[p] = os.stat(p).st_size
+        except FileNotFoundError:
+            raise InputError("file not found", path=p) from None
+        except OSError as exc:
+            raise InputError(f"cannot read: {exc.strerror}", path=p) from None
+
+    caps = []
+    if sum(sizes.values()) >= _PROGRESS_MIN_BYTES:
+        from rich.console import Console
+        from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn
+
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            DownloadColumn(),
+            console=Console(stderr=True),
+            transient=True,
+        ) as bar:
+            for p in captures:
+                task = bar.add_task(f"reading {p.name}", total=sizes[p])
+                caps.append(
+                    read_capture(
+                        p,
+                        names.get(p),
+                        progress=lambda done, task=task: bar.update(task, completed=done),
+                    )
+                )
+                bar.update(task, completed=sizes[p])
+    else:
+        caps = [read_capture(p, names.get(p)) for p in captures]
+
+    cfg = SyncConfig(
+        tolerance_s=tolerance_ms / 1e3, reference=reference, max_drift_ppm=max_drift_ppm
+    )
+    packets, report = synchronise(caps, cfg)
+    write_packets_csv(packets, output)
+    if not quiet:
+        for line in report.lines():
+            typer.echo(line)
+        typer.echo(f"wrote {output} ({len(packets)} rows)")

@@ -1,0 +1,127 @@
+"""Pose estimates (``estimates.csv``): one row per packet with a valid estimate.
+
+Contract columns: ``timestamp_s, transmitter, packet_id, x_m, y_m, z_m,
+azimuth_deg, pitch_deg, roll_deg, method``. Packets without a valid estimate
+have no row. Position-only methods (:data:`POSITION_ONLY_METHODS`, i.e. the
+``lms`` baseline) write orientation 0, 0, 0; scoring leaves their orientation
+error out rather than scoring a guess.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiopose.tables import Column, read_table, write_table
+from radiopose.units import FloatArray
+
+POSITION_ONLY_METHODS = frozenset({"lms"})
+"""Methods that estimate position only (their orientation columns are 0)."""
+
+ESTIMATE_COLUMNS = (
+    Column("timestamp_s"),
+    Column("transmitter", "str"),
+    Column("packet_id", "str"),
+    Column("x_m"),
+    Column("y_m"),
+    Column("z_m"),
+    Column("azimuth_deg", low=-360.0, high=360.0),
+    Column("pitch_deg", low=-90.0, high=90.0),
+    Column("roll_deg", low=-360.0, high=360.0),
+    Column("method", "str"),
+)
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """One packet's estimate.
+
+    Attributes
+    ----------
+    timestamp_s, transmitter, packet_id
+        The packet.
+    position_m
+        ``(3,)`` metres.
+    orientation_deg
+        ``(3,)`` (azimuth, pitch, roll), degrees.
+    method
+        The method that produced it.
+    """
+
+    timestamp_s: float
+    transmitter: str
+    packet_id: str
+    position_m: tuple[float, float, float]
+    orientation_deg: tuple[float, float, float]
+    method: str
+
+
+@dataclass(frozen=True, eq=False)
+class Estimates:
+    """Rows of ``estimates.csv`` as arrays: ``(n,)`` each, ``position_m`` and
+    ``orientation_deg`` ``(n, 3)``."""
+
+    timestamp_s: FloatArray
+    transmitter: np.ndarray
+    packet_id: np.ndarray
+    position_m: FloatArray
+    orientation_deg: FloatArray
+    method: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.timestamp_s.shape[0])
+
+    @classmethod
+    def from_poses(cls, poses: Sequence[PoseEstimate]) -> Estimates:
+        """Stack a sequence of estimates."""
+        return cls(
+            np.array([p.timestamp_s for p in poses], dtype=np.float64),
+            np.array([p.transmitter for p in poses], dtype=object),
+            np.array([p.packet_id for p in poses], dtype=object),
+            np.array([p.position_m for p in poses], dtype=np.float64).reshape(-1, 3),
+            np.array([p.orientation_deg for p in poses], dtype=np.float64).reshape(-1, 3),
+            np.array([p.method for p in poses], dtype=object),
+        )
+
+    def select(self, mask: np.ndarray) -> Estimates:
+        """The rows where ``mask`` is true."""
+        return Estimates(
+            self.timestamp_s[mask], self.transmitter[mask], self.packet_id[mask],
+            self.position_m[mask], self.orientation_deg[mask], self.method[mask],
+        )
+
+
+def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
+    """Read and validate ``estimates.csv``."""
+    t = read_table(path, ESTIMATE_COLUMNS)
+    return Estimates(
+        t["timestamp_s"],
+        t["transmitter"],
+        t["packet_id"],
+        np.column_stack([t["x_m"], t["y_m"], t["z_m"]]).reshape(-1, 3),
+        np.column_stack([t["azimuth_deg"], t["pitch_deg"], t["roll_deg"]]).reshape(-1, 3),
+        t["method"],
+    )
+
+
+def write_estimates_csv(estimates: Estimates, path: str | os.PathLike[str]) -> None:
+    """Write ``estimates.csv`` atomically (timestamps to 1 ns, positions to 1 µm)."""
+    write_table(
+        path,
+        {
+            "timestamp_s": estimates.timestamp_s,
+            "transmitter": estimates.transmitter,
+            "packet_id": estimates.packet_id,
+            "x_m": estimates.position_m[:, 0],
+            "y_m": estimates.position_m[:, 1],
+            "z_m": estimates.position_m[:, 2],
+            "azimuth_deg": estimates.orientation_deg[:, 0],
+            "pitch_deg": estimates.orientation_deg[:, 1],
+            "roll_deg": estimates.orientation_deg[:, 2],
+            "method": estimates.method,
+        },
+        decimals={"timestamp_s": 9},
+    )

@@ -1,0 +1,149 @@
+"""Scoring estimates against ground truth (interchange contract, "Scoring").
+
+For each estimate, the truth row of the same transmitter and packet time
+(within ``tolerance_s``, default 1 µs):
+
+* position error — Euclidean distance, metres;
+* orientation error — the angle of ``R_estᵀ R_true`` in degrees (the wrapped
+  azimuth difference for azimuth-only poses), :func:`radiopose.geometry.orientation_error_deg`;
+* coverage — estimates ÷ packets (truth rows).
+
+Each is reported as mean, median and 95th percentile, with coverage beside
+them, per method. Position-only methods
+(:data:`radiopose.estimates.POSITION_ONLY_METHODS`) get no orientation error.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from radiopose.errors import InputError
+from radiopose.estimates import POSITION_ONLY_METHODS, Estimates
+from radiopose.geometry import orientation_error_deg
+from radiopose.packets import Truth
+from radiopose.units import FloatArray, seconds_to_ns
+
+
+@dataclass(frozen=True)
+class ErrorStats:
+    """Summary of errors: mean, median, 95th percentile (``None`` when there are none)."""
+
+    n: int
+    mean: float | None
+    median: float | None
+    p95: float | None
+
+
+def error_stats(errors: FloatArray) -> ErrorStats:
+    """Mean, median and 95th percentile (linear interpolation) of ``(n,)`` errors."""
+    e = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if e.size == 0:
+        return ErrorStats(0, None, None, None)
+    return ErrorStats(
+        int(e.size), float(e.mean()), float(np.median(e)), float(np.percentile(e, 95))
+    )
+
+
+@dataclass(frozen=True)
+class MethodScore:
+    """Scores of one method's estimates.
+
+    Attributes
+    ----------
+    method
+        Method name (from the ``method`` column).
+    n_packets
+        Packets (truth rows).
+    n_estimates
+        Estimates of this method.
+    coverage
+        ``n_estimates / n_packets``.
+    position_m
+        Position error statistics, metres.
+    orientation_deg
+        Orientation error statistics, degrees (``None`` for position-only methods).
+    """
+
+    method: str
+    n_packets: int
+    n_estimates: int
+    coverage: float
+    position_m: ErrorStats
+    orientation_deg: ErrorStats | None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> NDArray:
+    """Index ``(n_est,)`` of the truth row of each estimate (same transmitter, same time).
+
+    Raises
+    ------
+    InputError
+        An estimate without a truth row.
+    """
+    out = np.empty(len(estimates), dtype=np.int64)
+    tol_ns = int(round(tolerance_s * 1e9))
+    t_ns = seconds_to_ns(truth.timestamp_s)
+    tx = np.array([str(s).lower() for s in truth.transmitter], dtype=object)
+    by_tx: dict[str, tuple[NDArray, NDArray]] = {}
+    for key in set(tx.tolist()):
+        rows = np.flatnonzero(tx == key)
+        order = np.argsort(t_ns[rows], kind="stable")
+        by_tx[key] = (t_ns[rows][order], rows[order])
+    e_ns = seconds_to_ns(estimates.timestamp_s)
+    for i in range(len(estimates)):
+        key = str(estimates.transmitter[i]).lower()
+        if key not in by_tx:
+            raise InputError(
+                f"estimate {i + 1} (packet {estimates.packet_id[i]!r}): transmitter "
+                f"{estimates.transmitter[i]!r} has no truth rows"
+            )
+        times, rows = by_tx[key]
+        j = int(np.searchsorted(times, e_ns[i]))
+        best = None
+        for c in (j - 1, j):
+            if 0 <= c < times.size and abs(int(times[c]) - int(e_ns[i])) <= tol_ns:
+                if best is None or abs(int(times[c]) - int(e_ns[i])) < abs(
+                    int(times[best]) - int(e_ns[i])
+                ):
+                    best = c
+        if best is None:
+            raise InputError(
+                f"estimate {i + 1} (packet {estimates.packet_id[i]!r}, "
+                f"{estimates.timestamp_s[i]:.9g} s): no truth row of {estimates.transmitter[i]} "
+                f"within {tolerance_s:g} s"
+            )
+        out[i] = rows[best]
+    return out
+
+
+def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tuple[MethodScore, ...]:
+    """Score estimates against truth, one :class:`MethodScore` per method (file order).
+
+    With no estimates at all, one row with method ``"none"`` and coverage 0.
+    """
+    n_packets = len(truth)
+    idx = match_truth(truth, estimates, tolerance_s)
+    methods = list(dict.fromkeys(str(m) for m in estimates.method)) or ["none"]
+    out = []
+    for m in methods:
+        sel = np.array([str(x) == m for x in estimates.method], dtype=bool)
+        rows = idx[sel]
+        pos_err = np.linalg.norm(estimates.position_m[sel] - truth.position_m[rows], axis=1)
+        ori = None
+        if m not in POSITION_ONLY_METHODS:
+            ori = error_stats(
+                orientation_error_deg(estimates.orientation_deg[sel], truth.orientation_deg[rows])
+                if rows.size else np.empty(0)
+            )
+        n_est = int(sel.sum())
+        out.append(
+            MethodScore(m, n_packets, n_est, n_est / n_packets if n_packets else 0.0,
+                        error_stats(pos_err), ori)
+        )
+    return tuple(out)

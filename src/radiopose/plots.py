@@ -1,0 +1,160 @@
+"""Figures of the localisation pipeline (matplotlib lives here only).
+
+Every function takes ``ax=None`` (a new figure is made) and returns the Axes,
+except :func:`mse_map_figure`, which lays out several Axes and returns the Figure.
+
+* :func:`plot_mse_map` — one packet's MSE over the area, best orientation per
+  position, for one receiver or combined (paper, Figure 2 style);
+* :func:`mse_map_figure` — one panel per receiver and the combined map;
+* :func:`plot_trajectory` — true vs estimated positions with orientation arrows;
+* :func:`plot_orientation_error` — orientation error over time per method.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+
+from radiopose.estimates import Estimates
+from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
+from radiopose.packets import PacketObservation
+from radiopose.units import FloatArray
+
+
+def mse_map_db2(
+    space: CandidateSpace, packet: PacketObservation, receiver_id: str | None = None
+) -> FloatArray:
+    """MSE over the area ``(nx, ny)``, dB², minimised over orientations.
+
+    ``receiver_id=None`` combines every receiver that heard the packet; a
+    receiver id uses that receiver alone (its squared error).
+    """
+    heard = space.heard(packet)
+    if receiver_id is not None:
+        r = space.receiver_ids.index(receiver_id)
+        sel = heard.receiver_index == r
+        if not sel.any():
+            raise ValueError(f"receiver {receiver_id!r} did not hear packet {packet.packet_id!r}")
+        heard = HeardRss(heard.receiver_index[sel], heard.rss_dbm[sel])
+    n_pos, n_o = space.n_positions, space.n_orientations
+    best = np.full(n_pos, np.inf)
+    chunk = max(1, 1_000_000 // max(n_o * space.n_receivers, 1))
+    for start in range(0, n_pos, chunk):
+        stop = min(start + chunk, n_pos)
+        pos = np.repeat(np.arange(start, stop), n_o)
+        ori = np.tile(np.arange(n_o), stop - start)
+        exp = expected_rss_dbm(space, pos, ori)
+        acc = np.zeros(pos.size)
+        for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
+            acc += (rss - exp[:, r]) ** 2
+        best[start:stop] = (acc / heard.n_heard).reshape(-1, n_o).min(axis=1)
+    xs = np.unique(space.positions_m[:, 0])
+    return best.reshape(xs.size, -1)
+
+
+def plot_mse_map(
+    space: CandidateSpace,
+    packet: PacketObservation,
+    receiver_id: str | None = None,
+    *,
+    truth_xy_m: FloatArray | None = None,
+    ax: Axes | None = None,
+) -> Axes:
+    """Image of :func:`mse_map_db2` (dB², log colour scale), receivers as triangles."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(5, 4.5))
+    m = mse_map_db2(space, packet, receiver_id)
+    xs = np.unique(space.positions_m[:, 0])
+    ys = np.unique(space.positions_m[:, 1])
+    img = ax.pcolormesh(xs, ys, np.log10(m.T + 1e-3), shading="auto", cmap="viridis_r")
+    ax.figure.colorbar(img, ax=ax, label="log10 MSE (dB²)")
+    rx = space.receiver_positions_m
+    ax.scatter(rx[:, 0], rx[:, 1], marker="^", c="w", edgecolors="k", s=60, label="receivers")
+    if truth_xy_m is not None:
+        ax.plot(truth_xy_m[0], truth_xy_m[1], "r*", ms=12, label="truth")
+    ax.set_title("combined" if receiver_id is None else f"receiver {receiver_id}")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal")
+    return ax
+
+
+def mse_map_figure(
+    space: CandidateSpace, packet: PacketObservation, *, truth_xy_m: FloatArray | None = None
+) -> Figure:
+    """One MSE map per receiver that heard the packet, and the combined map."""
+    ids = [space.receiver_ids[r] for r in space.heard(packet).receiver_index]
+    n = len(ids) + 1
+    cols = min(n, 3)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.0 * rows), squeeze=False)
+    for ax, rid in zip(axes.flat, [*ids, None], strict=False):
+        plot_mse_map(space, packet, rid, truth_xy_m=truth_xy_m, ax=ax)
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    fig.suptitle(f"MSE of packet {packet.packet_id} (best orientation per position)")
+    fig.tight_layout()
+    return fig
+
+
+def plot_trajectory(
+    truth_position_m: FloatArray,
+    truth_azimuth_deg: FloatArray,
+    estimates: Mapping[str, Estimates],
+    *,
+    receivers_xy_m: FloatArray | None = None,
+    arrows: int = 12,
+    ax: Axes | None = None,
+) -> Axes:
+    """True vs estimated positions, with azimuth arrows at ``arrows`` evenly spaced points."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6, 6))
+    tp = np.asarray(truth_position_m, dtype=np.float64)
+    ax.plot(tp[:, 0], tp[:, 1], "k-", lw=2, label="truth")
+    _arrows(ax, tp[:, :2], np.asarray(truth_azimuth_deg), arrows, "k")
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for i, (name, est) in enumerate(estimates.items()):
+        c = colours[i % len(colours)]
+        ax.plot(est.position_m[:, 0], est.position_m[:, 1], ".", ms=3, color=c,
+                label=f"{name} ({len(est)} estimates)")
+        if len(est):
+            _arrows(ax, est.position_m[:, :2], est.orientation_deg[:, 0], arrows, c)
+    if receivers_xy_m is not None:
+        ax.scatter(receivers_xy_m[:, 0], receivers_xy_m[:, 1], marker="^", s=70, c="grey",
+                   label="receivers")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal")
+    ax.legend(loc="best", fontsize="small")
+    ax.set_title("trajectory: truth vs estimates (arrows: body +y)")
+    return ax
+
+
+def _arrows(ax: Axes, xy: FloatArray, azimuth_deg: FloatArray, n: int, colour: str) -> None:
+    if xy.shape[0] == 0:
+        return
+    idx = np.unique(np.linspace(0, xy.shape[0] - 1, min(n, xy.shape[0])).astype(int))
+    # Body +y (top of the device) points to world azimuth + 90° from +x.
+    a = np.deg2rad(np.asarray(azimuth_deg)[idx] + 90.0)
+    ax.quiver(xy[idx, 0], xy[idx, 1], np.cos(a), np.sin(a), color=colour, angles="xy",
+              scale_units="xy", scale=2.0, width=0.004)
+
+
+def plot_orientation_error(
+    errors: Mapping[str, tuple[FloatArray, FloatArray]], *, ax: Axes | None = None
+) -> Axes:
+    """Orientation error (degrees) over time, one series per method: ``{name: (t_s, err_deg)}``."""
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 3.5))
+    for name, (t, e) in errors.items():
+        ax.plot(np.asarray(t), np.asarray(e), ".", ms=3, label=f"{name} ({len(e)})")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("orientation error (°)")
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="best", fontsize="small")
+    ax.set_title("orientation error over time")
+    return ax

@@ -1,0 +1,423 @@
+"""Synchronisation: clock estimation, the ambiguity rule, streaming == batch,
+real captures, simulator round trip, the ``radiopose sync`` command."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radiopose.capture.records import FrameRecords, read_capture, read_pcap
+from radiopose.capture.sync import (
+    ClockModel,
+    StreamingMatcher,
+    SyncConfig,
+    _fit_clock,
+    estimate_clocks,
+    match_packets,
+    synchronise,
+)
+from radiopose.capture.writer import read_pcap_truth, write_receiver_pcaps
+from radiopose.cli import main
+from radiopose.packets import Packets, group_packets
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "captures"
+needs_data = pytest.mark.skipif(
+    not DATA.is_dir(), reason=f"real captures not found at {DATA} (see shared/data/README.md)"
+)
+ESP32 = [
+    DATA / f"probe-request-project_sc6-61_position_{k}_2024-03-17_anonymized.pcap" for k in (1, 2)
+]
+S = 1_000_000_000
+
+
+def _frames(rows: list[tuple[str, float, str, float]], tx: str = "02:00:00:00:00:01"):
+    """FrameRecords from (receiver, time_s, hash label, rss)."""
+    obj = lambda xs: np.asarray(xs, dtype=object).reshape(-1)  # noqa: E731
+    return FrameRecords(
+        obj([r[0] for r in rows]),
+        np.asarray([round(r[1] * S) for r in rows], dtype=np.int64).reshape(-1),
+        obj([r[2] for r in rows]),
+        obj([tx] * len(rows)),
+        np.asarray([r[3] for r in rows], dtype=np.float64).reshape(-1),
+    )
+
+
+def _same(a: Packets, b: Packets) -> None:
+    for name in ("packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def _concat(parts: list[Packets]) -> Packets:
+    return Packets(
+        *(
+            np.concatenate([getattr(p, n) for p in parts])
+            for n in ("packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm")
+        )
+    )
+
+
+# --------------------------------------------------------------------------
+# the ambiguity rule
+
+
+def test_rule_unique_missing_duplicate_spread_and_far_repeat() -> None:
+    rows = [
+        # packet heard by all three
+        ("a", 10.0, "h1", -50),
+        ("b", 10.001, "h1", -51),
+        ("c", 10.002, "h1", -52),
+        # c missed it: two rows
+        ("a", 20.0, "h2", -60),
+        ("b", 20.003, "h2", -61),
+        # b recorded it twice within the tolerance: ambiguous
+        ("a", 30.0, "h3", -40),
+        ("b", 30.0, "h3", -41),
+        ("b", 30.002, "h3", -41),
+        # chained over 8 ms although each step is within 5 ms: ambiguous
+        ("a", 40.0, "h4", -40),
+        ("b", 40.004, "h4", -40),
+        ("c", 40.008, "h4", -40),
+        # the same bytes again 100 s later: a separate packet
+        ("a", 110.0, "h1", -70),
+    ]
+    packets, counts, repeated = match_packets(_frames(rows), ["a", "b", "c"], tolerance_s=0.005)
+    groups = group_packets(packets)
+    assert [(g.receiver_ids, list(g.rss_dbm)) for g in groups] == [
+        (("a", "b", "c"), [-50, -51, -52]),
+        (("a", "b"), [-60, -61]),
+        (("a",), [-70]),
+    ]
+    assert groups[0].timestamp_s == pytest.approx(10.001)
+    assert counts.packets == 3
+    assert counts.packets_by_receivers == {1: 1, 2: 1, 3: 1}
+    assert counts.ambiguous_duplicate == 1
+    assert counts.ambiguous_spread == 1
+    assert counts.ambiguous_frames == 6
+    assert repeated == 1
+
+
+def test_rule_uses_the_clock_models() -> None:
+    rows = [("a", 100.0, "h", -50), ("b", 100.7, "h", -55)]
+    frames = _frames(rows)
+    _, counts, _ = match_packets(frames, ["a", "b"])
+    assert counts.packets_by_receivers == {1: 2}
+    clocks = {"b": ClockModel("b", offset_ns=700_000_000, method="offset")}
+    packets, counts, _ = match_packets(frames, ["a", "b"], clocks)
+    assert counts.packets_by_receivers == {2: 1}
+    assert packets.timestamp_s[0] == pytest.approx(100.0)
+
+
+def test_clock_model_inversion() -> None:
+    c = ClockModel("b", offset_ns=-900_000_000, drift_ppm=-5.5, epoch_ns=1_000 * S)
+    t_ref = np.array([0, 1_000 * S, 50_000 * S], dtype=np.int64) + 1_700_000_000 * S
+    c2 = ClockModel("b", c.offset_ns, c.drift_ppm, int(t_ref[1]))
+    t_rx = (
+        t_ref + c2.offset_ns + np.rint(c2.drift_ppm * 1e-6 * (t_ref - c2.epoch_ns)).astype(np.int64)
+    )
+    assert np.all(np.abs(c2.to_reference_ns(t_rx) - t_ref) <= 2)
+
+
+# --------------------------------------------------------------------------
+# clock estimation
+
+
+def test_robust_fit_with_many_outliers() -> None:
+    rng = np.random.default_rng(3)
+    n = 400
+    t_ref = np.sort(rng.uniform(0, 86_400, n))
+    true_off, true_drift = -0.9, -5.5e-6
+    d = true_off + true_drift * (t_ref - 40_000) + rng.normal(0, 3e-4, n)
+    out = rng.random(n) < 0.45  # coincidences far apart in time
+    d[out] = rng.uniform(-80_000, 80_000, out.sum())
+    t0 = 1_700_000_000
+    ref_ns = np.round((t0 + t_ref) * S).astype(np.int64)
+    rx_ns = ref_ns + np.round(d * S).astype(np.int64)
+    off_ns, drift_ppm, epoch_ns, n_in, rms, method = _fit_clock(ref_ns, rx_ns, SyncConfig())
+    assert method == "offset+drift"
+    assert n_in == int((~out).sum())
+    assert drift_ppm == pytest.approx(-5.5, abs=0.05)
+    expect = true_off + true_drift * (epoch_ns / S - t0 - 40_000)
+    assert off_ns / S == pytest.approx(expect, abs=1e-4)
+    assert rms < 5e-4
+
+
+def test_fit_without_enough_pairs() -> None:
+    one = np.array([5 * S], dtype=np.int64)
+    assert _fit_clock(one, one + S, SyncConfig())[-1] == "none"
+    assert _fit_clock(one[:0], one[:0], SyncConfig())[-1] == "none"
+    two = np.array([5 * S, 6 * S], dtype=np.int64)
+    off, drift, _, n_in, _, method = _fit_clock(two, two + S, SyncConfig())
+    assert (off, drift, n_in, method) == (S, 0.0, 2, "offset")
+
+
+# --------------------------------------------------------------------------
+# real captures
+
+
+@pytest.fixture(scope="module")
+def esp32() -> list:
+    if not DATA.is_dir():
+        pytest.skip(f"real captures not found at {DATA} (see shared/data/README.md)")
+    return [read_pcap(p, rid) for p, rid in zip(ESP32, ("pos1", "pos2"), strict=True)]
+
+
+def test_esp32_offset_drift_and_matches(esp32: list) -> None:
+    _, report = synchronise(esp32)
+    clock = report.clocks[1]
+    assert clock.receiver_id == "pos2"
+    assert clock.method == "offset+drift"
+    assert clock.offset_s == pytest.approx(-0.90, abs=0.02)  # "about 0.9 s apart"
+    assert -8.0 < clock.drift_ppm < -3.0  # several ppm
+    assert clock.inliers >= 100
+    assert clock.residual_rms_s < 1e-3
+    assert report.counts.packets_by_receivers[2] == 108
+    assert report.counts.ambiguous_duplicate == report.counts.ambiguous_spread == 0
+
+    # Every common hash is either matched or far (hours) from any copy at the other receiver.
+    a, b = esp32[0].frames, esp32[1].frames
+    tb = clock.to_reference_ns(b.timestamp_ns)
+    common = set(a.frame_sha256) & set(b.frame_sha256)
+    assert len(common) == 154
+    gaps = []
+    for h in common:
+        ta = a.timestamp_ns[a.frame_sha256 == h]
+        gaps.append(np.min(np.abs(ta[:, None] - tb[b.frame_sha256 == h][None, :])) / S)
+    gaps = np.asarray(gaps)
+    assert np.count_nonzero(gaps < 0.005) == 108
+    assert np.all((gaps < 0.002) | (gaps > 1000))
+
+    # A fixed window without clock estimation misses most genuine pairs.
+    _, raw, _ = match_packets(FrameRecords.concat([a, b]), ["pos1", "pos2"], tolerance_s=0.005)
+    assert raw.packets_by_receivers.get(2, 0) == 0
+
+
+def test_esp32_reference_swapped(esp32: list) -> None:
+    _, report = synchronise(esp32, SyncConfig(reference="pos2"))
+    assert report.reference == "pos2"
+    assert report.clocks[0].method == "reference"
+    assert report.clocks[1].offset_s == pytest.approx(0.90, abs=0.02)
+    assert report.counts.packets_by_receivers[2] == 108
+
+
+def test_esp32_streaming_equals_batch(esp32: list) -> None:
+    frames = FrameRecords.concat([c.frames for c in esp32])
+    receivers = ["pos1", "pos2"]
+    clocks = estimate_clocks(frames, receivers)
+    batch, counts, _ = match_packets(frames, receivers, clocks)
+    ordered = frames.take(np.argsort(frames.timestamp_ns, kind="stable"))
+    m = StreamingMatcher(receivers, clocks, max_lag_s=3600.0)
+    parts = [m.push(ordered.take(slice(k, k + 97))) for k in range(0, len(ordered), 97)]
+    parts.append(m.flush())
+    _same(_concat(parts), batch)
+    assert m.counts == counts
+
+
+# --------------------------------------------------------------------------
+# simulator round trip
+
+RX = ["rx1", "rx2", "rx3", "rx4"]
+
+
+def _scenario(n_packets: int = 1500, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.uniform(0.0, 900.0, n_packets))
+    tx = np.where(rng.random(n_packets) < 0.5, "02:00:00:00:00:0a", "02:00:00:00:00:0b")
+    rows: dict[str, list] = {
+        k: [] for k in ("packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm")
+    }
+    for i in range(n_packets):
+        for r in RX:
+            rows["packet_id"].append(str(i))
+            rows["timestamp_s"].append(t[i])
+            rows["transmitter"].append(tx[i])
+            rows["receiver_id"].append(r)
+            rows["rss_dbm"].append(rng.uniform(-95.0, -25.0))
+    return rows
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory: pytest.TempPathFactory):
+    out = tmp_path_factory.mktemp("sim")
+    sim = write_receiver_pcaps(
+        _scenario(),
+        out,
+        rng=np.random.default_rng(7),
+        clock_offset_s={"rx2": 0.35, "rx3": -0.8, "rx4": 2.1},
+        drift_ppm={"rx2": 12.0, "rx3": -7.0, "rx4": 3.0},
+        jitter_s=50e-6,
+        loss_fraction=0.1,
+        duplicate_fraction=0.02,
+        epoch_s=1_700_000_000.0,
+        fcs={"rx3": True},
+        antenna_signals={"rx4": True},
+    )
+    return out, sim
+
+
+def _canonical(packets: Packets) -> tuple[list[tuple], np.ndarray]:
+    """Packets in time order as (transmitter, receivers, RSS) and their times."""
+    groups = sorted(group_packets(packets), key=lambda g: g.timestamp_s)
+    keys = [(g.transmitter, g.receiver_ids, tuple(g.rss_dbm.tolist())) for g in groups]
+    return keys, np.array([g.timestamp_s for g in groups])
+
+
+def _assert_same_packets(a: Packets, b: Packets, time_tol_s: float = 2e-4) -> None:
+    keys_a, t_a = _canonical(a)
+    keys_b, t_b = _canonical(b)
+    assert keys_a == keys_b
+    assert np.max(np.abs(t_a - t_b), initial=0.0) < time_tol_s
+
+
+def test_simulate_sync_round_trip(simulated) -> None:
+    out, sim = simulated
+    truth = read_pcap_truth(out)
+    _same(truth, sim.truth)
+    caps = [read_capture(sim.paths[r]) for r in RX]
+    packets, report = synchronise(caps)
+    assert [c.method for c in report.clocks] == ["reference"] + ["offset+drift"] * 3
+    got = {c.receiver_id: c for c in report.clocks}
+    for r, drift in (("rx2", 12.0), ("rx3", -7.0), ("rx4", 3.0)):
+        assert got[r].drift_ppm == pytest.approx(drift, abs=0.2)
+    # Same packets, receivers and RSS; times well within the tolerance.
+    assert len(packets) > 4000
+    _assert_same_packets(packets, truth)
+    assert report.counts.ambiguous_duplicate > 0  # the duplicates were seen and dropped
+
+
+def test_simulated_streaming_equals_batch_with_bounded_memory(simulated) -> None:
+    _, sim = simulated
+    frames = FrameRecords.concat([read_pcap(sim.paths[r]).frames for r in RX])
+    clocks = estimate_clocks(frames, RX)
+    batch, counts, _ = match_packets(frames, RX, clocks)
+    # frames arrive per receiver in time order, receivers interleaved by wall-clock
+    order = np.argsort(frames.timestamp_ns, kind="stable")
+    rng = np.random.default_rng(11)
+    cuts = np.sort(rng.choice(np.arange(1, len(order)), 300, replace=False))
+    m = StreamingMatcher(RX, clocks, tolerance_s=0.005, max_lag_s=30.0)
+    parts, peak = [], 0
+    for chunk in np.split(order, cuts):
+        parts.append(m.push(frames.take(chunk)))
+        peak = max(peak, m.open_frames)
+    parts.append(m.flush())
+    _same(_concat(parts), batch)
+    assert m.counts == counts
+    assert m.open_frames == 0
+    assert peak < len(frames) / 10  # a window, not the whole capture
+
+
+def test_streaming_late_frames_are_counted() -> None:
+    m = StreamingMatcher(["a", "b"], max_lag_s=1.0)
+    m.push(_frames([("a", 0.0, "h0", -50), ("b", 0.0, "h0", -50)]))
+    m.push(_frames([("a", 10.0, "h1", -50)]))  # b lags by 10 s > 1 s: closes up to 9 s
+    m.push(_frames([("b", 5.0, "h2", -50)]))  # too late
+    out = m.flush()
+    assert m.counts.late_frames == 1
+    assert m.counts.packets_by_receivers == {1: 1, 2: 1}
+    assert len(out) == 1
+
+
+# --------------------------------------------------------------------------
+# the command
+
+
+def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def test_cli_sync_simulated(simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out_dir, sim = simulated
+    target = tmp_path / "packets.csv"
+    code, out, err = _run(
+        ["sync", *(str(sim.paths[r]) for r in RX), "-o", str(target), "--tolerance-ms", "5"],
+        capsys,
+    )
+    assert code == 0, err
+    assert "offset" in out and "drift" in out and "4 receivers:" in out
+    with open(target, newline="") as fh:
+        header = next(csv.reader(fh))
+    assert header == ["packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm"]
+    from radiopose.packets import read_packets_csv
+
+    _assert_same_packets(read_packets_csv(target), read_pcap_truth(out_dir))
+
+
+def test_cli_receiver_names_and_csv(
+    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, sim = simulated
+    target = tmp_path / "p.csv"
+    args = ["sync", str(sim.paths["rx1"]), str(sim.paths["rx2"]), "-o", str(target)]
+    code, out, err = _run([*args, "--receiver", f"north={sim.paths['rx2']}"], capsys)
+    assert code == 0, err
+    assert "north: offset" in out
+    # the CSV capture form of the same frames gives the same packets
+    frames = FrameRecords.concat([read_pcap(sim.paths[r]).frames for r in ("rx1", "rx2")])
+    cap_csv = tmp_path / "cap.csv"
+    with open(cap_csv, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["receiver_id", "timestamp_s", "frame_sha256", "transmitter", "rss_dbm"])
+        for i in range(len(frames)):
+            w.writerow(
+                [
+                    frames.receiver_id[i],
+                    f"{frames.timestamp_ns[i] / S:.9f}",
+                    frames.frame_sha256[i],
+                    frames.transmitter[i],
+                    frames.rss_dbm[i],
+                ]
+            )
+    target2 = tmp_path / "p2.csv"
+    code, _, err = _run(["sync", str(cap_csv), "-o", str(target2), "-q"], capsys)
+    assert code == 0, err
+    code, _, err = _run([*args[:3], "-o", str(target), "-q"], capsys)
+    from radiopose.packets import read_packets_csv
+
+    _assert_same_packets(read_packets_csv(target2), read_packets_csv(target), 1e-6)
+
+
+@pytest.mark.parametrize(
+    ("make", "extra", "message"),
+    [
+        (lambda d: d.joinpath("e.pcap").write_bytes(b""), [], "empty file"),
+        (lambda d: d.joinpath("e.pcap").write_bytes(b"\x93garbage" * 9), [], "not a pcap"),
+        (lambda d: None, [], "file not found"),
+        (lambda d: d.joinpath("e.pcap").write_bytes(b"\xd4\xc3\xb2\xa1\x02"), [], "truncated"),
+        (None, ["--receiver", "x=other.pcap"], "unknown capture other.pcap"),
+        (None, ["--receiver", "nonsense"], "expects ID=FILE"),
+        (None, ["--reference", "rx9"], "unknown reference receiver 'rx9'"),
+        (None, ["--tolerance-ms", "0"], "--tolerance-ms"),
+    ],
+)
+def test_cli_bad_input_one_line_no_output(
+    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str], make, extra, message
+) -> None:
+    _, sim = simulated
+    target = tmp_path / "never.csv"
+    if make is None:
+        files = [str(sim.paths["rx1"])]
+    else:
+        make(tmp_path)
+        files = [str(sim.paths["rx1"]), str(tmp_path / "e.pcap")]
+    code, _, err = _run(["sync", *files, "-o", str(target), *extra], capsys)
+    assert code == 2
+    assert message in err
+    assert err.count("\n") == 1 and err.startswith("radiopose: ")
+    assert not target.exists()
+    assert not list(tmp_path.glob(".never.csv*"))
+
+
+def test_cli_duplicate_receiver_ids(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    rows = [("1", 1.0, "02:00:00:00:00:01", "rx", -50.0)]
+    a = write_receiver_pcaps(rows, tmp_path / "a", rng=np.random.default_rng(0)).paths["rx"]
+    b = write_receiver_pcaps(rows, tmp_path / "b", rng=np.random.default_rng(0)).paths["rx"]
+    code, _, err = _run(["sync", str(a), str(b), "-o", str(tmp_path / "o.csv")], capsys)
+    assert code == 2 and "appears in both" in err
+    code, _, err = _run(
+        ["sync", str(a), str(b), "-o", str(tmp_path / "o.csv"), "--receiver", f"rx2={b}"], capsys
+    )
+    assert code == 0, err

@@ -1,0 +1,211 @@
+"""``radiopose enrol`` and ``radiopose pattern import|plot``: outputs, one-line errors."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radiopose.cli import main
+from radiopose.patterns import smartphone_like
+from radiopose.patterns.enrol import simulate_positioner_measurements, write_measurements_csv
+from radiopose.patterns.pattern import read_pattern_csv
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture
+def measurements_csv(tmp_path: Path) -> Path:
+    rng = np.random.default_rng(7)
+    true = smartphone_like(rng)
+    m = simulate_positioner_measurements(true, rng, azimuth_step_deg=5.0, samples_per_direction=3)
+    path = tmp_path / "meas.csv"
+    write_measurements_csv(m, path)
+    return path
+
+
+def _run(argv: list[str], capsys) -> tuple[int, str, str]:
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _assert_one_line_failure(code: int, err: str, *fragments: str) -> None:
+    assert code != 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("radiopose: ")
+    for f in fragments:
+        assert f in lines[0]
+
+
+def test_enrol_writes_pattern_and_plot(measurements_csv, tmp_path, capsys):
+    out, png = tmp_path / "out" / "phone.csv", tmp_path / "phone.png"
+    code, stdout, err = _run(
+        [
+            "enrol",
+            str(measurements_csv),
+            "-o",
+            str(out),
+            "--smooth-deg",
+            "3",
+            "--step-deg",
+            "2",
+            "--plot",
+            str(png),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    p = read_pattern_csv(out)
+    assert p.name == "phone" and p.is_slice and p.azimuth_deg.size == 180
+    assert png.read_bytes().startswith(PNG_MAGIC)
+    assert "dBi" in stdout
+
+
+@pytest.mark.parametrize(
+    ("content", "fragments"),
+    [
+        ("motor_azimuth_deg,rss_dbm\n0,-50\n", ("meas.csv:1", "motor_elevation_deg")),
+        ("motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,x\n", ("meas.csv:2", "rss_dbm")),
+        ("motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,nan\n", ("meas.csv:2",)),
+        ("motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,200,-50\n", ("motor_elevation_deg",)),
+    ],
+)
+def test_enrol_bad_input_one_line_no_output(tmp_path, capsys, content, fragments):
+    src = tmp_path / "meas.csv"
+    src.write_text(content)
+    out, png = tmp_path / "o" / "p.csv", tmp_path / "p.png"
+    code, _, err = _run(["enrol", str(src), "-o", str(out), "--plot", str(png)], capsys)
+    _assert_one_line_failure(code, err, *fragments)
+    assert not out.exists() and not png.exists()
+    assert not list(tmp_path.rglob("*.tmp"))
+
+
+def test_enrol_bad_options_and_missing_file(measurements_csv, tmp_path, capsys):
+    out = tmp_path / "p.csv"
+    code, _, err = _run(["enrol", str(measurements_csv), "-o", str(out), "--step-deg", "7"], capsys)
+    _assert_one_line_failure(code, err, "azimuth step 7")
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--smooth-deg", "-1"], capsys
+    )
+    _assert_one_line_failure(code, err, "smoothing half-width")
+    code, _, err = _run(["enrol", str(tmp_path / "none.csv"), "-o", str(out)], capsys)
+    _assert_one_line_failure(code, err, "file not found")
+    assert not out.exists()
+
+
+def test_enrol_existing_output_is_untouched_on_failure(tmp_path, capsys):
+    src = tmp_path / "meas.csv"
+    src.write_text("motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,-50\n5,90,bad\n")
+    out = tmp_path / "p.csv"
+    out.write_text("previous\n")
+    code, _, err = _run(["enrol", str(src), "-o", str(out)], capsys)
+    _assert_one_line_failure(code, err, "meas.csv:3")
+    assert out.read_text() == "previous\n"
+
+
+def test_pattern_import_msi_and_basta(shared_data, tmp_path, capsys):
+    files = shared_data / "antenna-files"
+    msi = next(files.glob("*.msi"))
+    out = tmp_path / "bs.csv"
+    code, _, err = _run(["pattern", "import", str(msi), "-o", str(out), "--format", "msi"], capsys)
+    assert code == 0, err
+    assert read_pattern_csv(out).range_dbi[1] == pytest.approx(19.09)
+    basta = next(files.glob("*.json"))
+    out2, png = tmp_path / "aa.csv", tmp_path / "aa.png"
+    code, _, err = _run(
+        [
+            "pattern",
+            "import",
+            str(basta),
+            "-o",
+            str(out2),
+            "--format",
+            "basta",
+            "--normalise",
+            "--plot",
+            str(png),
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    p = read_pattern_csv(out2)
+    assert p.polar_deg.size == 181 and p.range_dbi[1] == pytest.approx(15.15, abs=0.01)
+    assert png.read_bytes().startswith(PNG_MAGIC)
+
+
+def test_pattern_import_mitll_and_plot(shared_data, tmp_path, capsys):
+    src = shared_data / "phone-patterns-mitll" / "iPhone-11-2"
+    out = tmp_path / "iphone-11.csv"
+    code, _, err = _run(
+        ["pattern", "import", str(src), "-o", str(out), "--format", "mitll"], capsys
+    )
+    assert code == 0, err
+    assert read_pattern_csv(out).range_dbi == pytest.approx((-4.74, 4.88), abs=0.01)
+    png = tmp_path / "plot" / "iphone.png"
+    code, _, err = _run(["pattern", "plot", str(out), "-o", str(png)], capsys)
+    assert code == 0, err
+    assert png.read_bytes().startswith(PNG_MAGIC)
+
+
+def test_pattern_import_bad_file_one_line(tmp_path, capsys):
+    src = tmp_path / "x.msi"
+    src.write_text("NAME x\nHORIZONTAL 1\n0 0\nVERTICAL 1\n0 0\n")
+    out = tmp_path / "x.csv"
+    code, _, err = _run(["pattern", "import", str(src), "-o", str(out), "--format", "msi"], capsys)
+    _assert_one_line_failure(code, err, "x.msi", "GAIN")
+    assert not out.exists()
+    bad = tmp_path / "p.csv"
+    bad.write_text("azimuth_deg,polar_deg,directivity_dbi\n0,90,1\n0,90,2\n")
+    code, _, err = _run(["pattern", "plot", str(bad), "-o", str(tmp_path / "p.png")], capsys)
+    _assert_one_line_failure(code, err, "p.csv:3", "duplicate grid point")
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_console_script_exit_status(tmp_path):
+    src = tmp_path / "m.csv"
+    src.write_text("motor_azimuth_deg,motor_elevation_deg\n0,90\n")
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from radiopose.cli import main; sys.exit(main())",
+            "enrol",
+            str(src),
+            "-o",
+            str(tmp_path / "o.csv"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2
+    assert r.stderr.count("\n") == 1 and "column 'rss_dbm'" in r.stderr
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_plot_functions_take_and_return_axes():
+    import matplotlib.pyplot as plt
+
+    from radiopose.patterns import dipole
+    from radiopose.patterns.plot import pattern_png, plot_polar, plot_sphere
+
+    phone = smartphone_like(np.random.default_rng(3))
+    ax = plot_polar(phone)
+    assert ax.name == "polar" and len(ax.lines) == 1
+    again = plot_polar(phone.renamed("other"), ax=ax, linestyle="--")
+    assert again is ax and len(ax.lines) == 2
+    line = ax.lines[0].get_ydata()
+    np.testing.assert_allclose(line[:-1], phone.directivity_dbi[:, 0])
+    assert line[-1] == line[0]  # closed curve
+    sphere = dipole(azimuth_step_deg=5.0, polar_step_deg=5.0)
+    hm = plot_sphere(sphere)
+    assert hm.get_xlabel().startswith("pattern azimuth")
+    with pytest.raises(ValueError, match="polar Axes"):
+        plot_polar(phone, ax=hm)
+    plt.close("all")
+    assert pattern_png(sphere).startswith(PNG_MAGIC)
