@@ -213,7 +213,7 @@ def _s8(b: bytes) -> int:
     return struct.unpack("<b", b)[0]
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(_layouts(), st.binary(max_size=30))
 def test_decoder_recovers_packed_fields(spaces: list, payload: bytes) -> None:
     rt = decode_radiotap(pack_radiotap(spaces) + payload)
@@ -231,7 +231,7 @@ def test_decoder_recovers_packed_fields(spaces: list, payload: bytes) -> None:
     assert rt.complete
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(st.binary(max_size=120))
 def test_decoder_never_crashes_on_garbage(buf: bytes) -> None:
     try:
@@ -242,7 +242,7 @@ def test_decoder_never_crashes_on_garbage(buf: bytes) -> None:
     assert rt.signal_dbm is None or -128 <= rt.signal_dbm <= 127
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(_layouts(), st.data())
 def test_decoder_never_crashes_on_corrupted_headers(spaces: list, data: st.DataObject) -> None:
     buf = bytearray(pack_radiotap(spaces))

@@ -137,8 +137,15 @@ def cluster_axis_deg(
             continue
         sel = labels == lab
         centroid = float(_weighted_mean(ext[sel], w[src[sel]]))
-        if periodic and wrap_duplication and not (low_deg <= centroid < low_deg + 360.0):
-            continue  # the same cluster is kept from the copy whose centroid is canonical
+        if periodic and wrap_duplication:
+            # The copies of one cluster have centroids 360° apart: keep the copy in
+            # [low, low + 360). Rounding to 1e-9° first makes a centroid at the wrap
+            # (−1e−14 in one copy, 360 − 1e−14 in the next) land in exactly one copy.
+            c = round(centroid, 9) + 0.0
+            if not (low_deg <= c < low_deg + 360.0):
+                continue
+        if periodic:
+            centroid = float(wrap_deg(centroid - low_deg)) + low_deg
         out.append(AxisCluster(centroid, np.unique(src[sel]).astype(np.int64)))
     return tuple(sorted(out, key=lambda c: c.centroid_deg))
 

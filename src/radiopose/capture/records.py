@@ -259,7 +259,7 @@ class Capture:
 def receiver_id_from_path(path: str | os.PathLike[str]) -> str:
     """Default receiver id of a capture: the file name without its extension(s)."""
     name = Path(path).name
-    for ext in (".gz", ".pcapng", ".pcap", ".cap", ".csv"):
+    for ext in (".pcapng", ".pcap", ".cap", ".csv"):
         if name.lower().endswith(ext) and len(name) > len(ext):
             name = name[: -len(ext)]
     return name

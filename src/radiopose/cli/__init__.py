@@ -39,7 +39,7 @@ def _register() -> None:
     # Imported for their side effect of adding commands to ``app``.
     import importlib
 
-    for name in ("core", "patterns", "capture"):
+    for name in ("core", "patterns", "capture", "pipeline"):
         try:
             importlib.import_module(f"radiopose.cli.{name}")
         except ModuleNotFoundError as exc:  # an area not written yet
@@ -65,10 +65,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:
         # Usage errors of the (vendored) click layer: show their one-line message.
-        show = getattr(exc, "show", None)
+        fmt = getattr(exc, "format_message", None)
         code = getattr(exc, "exit_code", None)
-        if callable(show) and isinstance(code, int):
-            show()
+        if callable(fmt) and isinstance(code, int):
+            ctx = getattr(exc, "ctx", None)
+            where = ctx.command_path if ctx is not None else "radiopose"
+            print(f"{where}: {' '.join(str(fmt()).split())}", file=sys.stderr)
             return code
         raise
     return 0

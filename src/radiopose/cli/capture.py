@@ -41,6 +41,7 @@ def sync(
             help="Receiver captures: pcap/pcapng (radiotap) files, one per receiver, or CSV "
             "(receiver_id, timestamp_s, frame_sha256, transmitter, rss_dbm).",
             show_default=False,
+            metavar="CAPTURE",
         ),
     ],
     output: Annotated[
@@ -56,6 +57,7 @@ def sync(
         list[str] | None,
         typer.Option(
             "--receiver",
+            metavar="ID=FILE",
             help="ID=FILE: receiver id of a pcap capture (default: the file name without "
             "extension). Repeatable.",
         ),

@@ -126,6 +126,48 @@ def _heap_push(hv, hi, count, val, idx):  # pragma: no cover - compiled
 
 
 _FAST = {"contract", "reassoc", "nsz", "arcp"}  # no nnan/ninf: +inf marks empty slots
+_PRUNE_REL = np.float32(1e-4)
+"""Relative slack of the block lower bound against float32 rounding."""
+_PRUNE_ABS = np.float32(1e-6)
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
+def _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
+    """Per-receiver terms of position ``p`` into ``e, k, f, t, g``; False if excluded."""  # pragma: no cover
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        b = base[r, p]
+        if np.isnan(b):
+            return False
+        e[q] = w[q] - b
+        k[q] = off[r, p] + m * j0
+        f[q] = frac[r, p]
+        t[q] = row0[r, p]
+        g[q] = roww[r, p]
+    return True
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
+def _block_bounds(e, k, t, g, blo, bhi, blo2, bhi2, nbw, lb):
+    """Lower bounds ``lb[b]`` on Σ_r d_r² over each block ``b`` of the window.
+
+    Every looked-up directivity in a block lies between the minimum and maximum
+    of the pattern samples the block blends, so ``|d_r|`` is at least the
+    distance of ``e_r`` from that interval.
+    """  # pragma: no cover - compiled
+    for b in range(nbw):
+        lb[b] = 0.0
+    for q in range(e.shape[0]):
+        if g[q] == 0.0:
+            lo = blo[t[q], k[q]]
+            hi = bhi[t[q], k[q]]
+        else:
+            lo = blo2[t[q], k[q]]
+            hi = bhi2[t[q], k[q]]
+        eq = e[q]
+        for b in range(nbw):
+            x = max(lo[b] - eq, np.float32(0.0)) + max(eq - hi[b], np.float32(0.0))
+            lb[b] += x * x
 
 
 @numba.njit(parallel=True, cache=True, fastmath=_FAST, boundscheck=False)
@@ -139,80 +181,107 @@ def _shift_topk(
     roww,  # (n_rx, n_pos) float32  weight of the second row (0: single row)
     rows,  # (n_rows, L) float32  reversed, repeated pattern rows  Rv[k]
     drows,  # (n_rows, L) float32  Rv[k − 1] − Rv[k]
+    blo, bhi, blo2, bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
+    rmin, rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
     m,  # int  pattern samples per candidate azimuth step
     n_az,  # int  candidate azimuths
     positions,  # (n_p,) int64  positions to score
     j0,  # int  first azimuth index of the window
     cnt,  # int  window length (<= n_az)
-    kk,  # int  buffer size per chunk
+    kk,  # int  heap size per chunk
+    blk,  # int  block length (candidate azimuths) for pruning
+    thr0,  # float32  prune bound: candidates above it are not wanted (inf: none)
 ):  # pragma: no cover - compiled
     n_p = positions.shape[0]
     h = heard.shape[0]
     inv_h = np.float32(1.0 / h)
+    nbw = (cnt + blk - 1) // blk
+    slack = np.float32(1.0) + _PRUNE_REL
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
     for c in numba.prange(N_CHUNKS):
-        lo = (n_p * c) // N_CHUNKS
-        hi = (n_p * (c + 1)) // N_CHUNKS
-        acc = np.empty(cnt, dtype=np.float32)
+        acc = np.empty(blk, dtype=np.float32)
+        e = np.empty(h, np.float32)
+        k = np.empty(h, np.int64)
+        f = np.empty(h, np.float32)
+        t = np.empty(h, np.int64)
+        g = np.empty(h, np.float32)
+        lb = np.empty(nbw, np.float32)
         bv = out_v[c]
         bi = out_i[c]
         count = 0
-        for pi in range(lo, hi):
+        for pi in range((n_p * c) // N_CHUNKS, (n_p * (c + 1)) // N_CHUNKS):
             p = positions[pi]
-            ok = True
-            for q in range(h):
-                if np.isnan(base[heard[q], p]):
-                    ok = False
-            if not ok:
+            if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0,
+                                  e, k, f, t, g):
                 continue
-            for q in range(h):
-                r = heard[q]
-                # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
-                e = w[q] - base[r, p]
-                o = off[r, p] + m * j0
-                f = frac[r, p]
-                g = roww[r, p]
-                t = row0[r, p]
-                if g == 0.0 and m == 1:
-                    ra = rows[t]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
-                    rd = drows[t]
-                    sa = ra[o : o + cnt]
-                    sd = rd[o : o + cnt]
-                    if q == 0:
-                        for jj in range(cnt):
-                            d = e - sa[jj] - f * sd[jj]
-                            acc[jj] = d * d
-                    else:
-                        for jj in range(cnt):
-                            d = e - sa[jj] - f * sd[jj]
-                            acc[jj] += d * d
-                else:
-                    g1 = np.float32(1.0) - g
-                    t1 = t + 1 if g != 0.0 else t
-                    for jj in range(cnt):
-                        k1 = o + m * jj
-                        a = g1 * rows[t, k1] + g * rows[t1, k1]
-                        dl = g1 * drows[t, k1] + g * drows[t1, k1]
-                        d = e - a - f * dl
+            thr = thr0
+            if count == kk and bv[0] < thr:
+                thr = bv[0]
+            prune = thr < np.inf
+            if prune:
+                cut = (thr * slack + _PRUNE_ABS) * h
+                # whole-position bound first (row extremes), then per block
+                lb0 = np.float32(0.0)
+                for q in range(h):
+                    x = max(rmin[t[q]] - e[q], np.float32(0.0)) + max(
+                        e[q] - rmax[t[q]], np.float32(0.0)
+                    )
+                    lb0 += x * x
+                if lb0 > cut:
+                    continue
+                _block_bounds(e, k, t, g, blo, bhi, blo2, bhi2, nbw, lb)
+                best = lb[0]
+                for b in range(1, nbw):
+                    best = min(best, lb[b])
+                if best > cut:
+                    continue
+            for b in range(nbw):
+                b0 = b * blk
+                if prune and lb[b] > cut:
+                    continue
+                nb = min(blk, cnt - b0)
+                for q in range(h):
+                    # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
+                    eq = e[q]
+                    o = k[q] + m * b0
+                    fq = f[q]
+                    gq = g[q]
+                    tq = t[q]
+                    if gq == 0.0 and m == 1:
+                        ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
+                        rd = drows[tq]
+                        sa = ra[o : o + nb]
+                        sd = rd[o : o + nb]
                         if q == 0:
-                            acc[jj] = d * d
+                            for jj in range(nb):
+                                d = eq - sa[jj] - fq * sd[jj]
+                                acc[jj] = d * d
                         else:
-                            acc[jj] += d * d
-            # fused top-k: skip the scalar pass when nothing here beats the worst kept
-            mn = acc[0]
-            for jj in range(1, cnt):
-                mn = min(mn, acc[jj])
-            if count == kk and mn * inv_h > bv[0]:
-                continue
-            for jj in range(cnt):
-                v = acc[jj] * inv_h
-                j = j0 + jj
-                if j >= n_az:
-                    j -= n_az
-                idx = p * n_az + j
-                if count < kk or v <= bv[0]:
-                    count = _heap_push(bv, bi, count, v, idx)
+                            for jj in range(nb):
+                                d = eq - sa[jj] - fq * sd[jj]
+                                acc[jj] += d * d
+                    else:
+                        g1 = np.float32(1.0) - gq
+                        t1 = tq + 1 if gq != 0.0 else tq
+                        for jj in range(nb):
+                            k1 = o + m * jj
+                            a = g1 * rows[tq, k1] + gq * rows[t1, k1]
+                            dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
+                            d = eq - a - fq * dl
+                            if q == 0:
+                                acc[jj] = d * d
+                            else:
+                                acc[jj] += d * d
+                for jj in range(nb):
+                    v = acc[jj] * inv_h
+                    if v > thr0:
+                        continue
+                    if count < kk or v <= bv[0]:
+                        j = j0 + b0 + jj
+                        if j >= n_az:
+                            j -= n_az
+                        count = _heap_push(bv, bi, count, v, p * n_az + j)
     return out_v, out_i
 
 
@@ -239,6 +308,32 @@ def _upsampled_rows(pattern: Pattern, candidate_step_deg: float) -> tuple[NDArra
     return np.ascontiguousarray(grid.directivity_dbi.T), grid.azimuth_step_deg, m
 
 
+def _window_tables(
+    rv: NDArray, m: int, block: int, length: int, n_az: int
+) -> tuple[NDArray, ...]:
+    """Block bound tables ``(blo, bhi, blo2, bhi2)``, each ``(n_rows, K, n_blocks)`` float32.
+
+    ``blo[t, k, b]`` is the minimum of the samples that the ``b``-th block of
+    ``block`` candidates blends when the window starts at offset ``k``:
+    ``Rv[k + m·b·block − 1 … k + m·(b·block + block − 1)]``; ``blo2`` the same
+    over rows ``t`` and ``t + 1`` (polar blending). Laid out with the block
+    index last so that one position's bounds are contiguous reads.
+    """
+    span = m * (block - 1) + 2
+    pad = np.concatenate([rv[:, :1], rv, np.repeat(rv[:, -1:], span, axis=1)], axis=1)
+    win = np.lib.stride_tricks.sliding_window_view(pad, span, axis=1)[:, :length]
+    bmin = win.min(axis=2)
+    bmax = win.max(axis=2)
+    nxt = np.concatenate([np.arange(1, rv.shape[0]), [rv.shape[0] - 1]])
+    n_blocks = -(-n_az // block)
+    starts = np.arange(length - m * (n_az - 1))[:, None] + m * block * np.arange(n_blocks)[None]
+    starts = np.minimum(starts, length - 1)
+    return tuple(
+        np.ascontiguousarray(a[:, starts], dtype=np.float32)
+        for a in (bmin, bmax, np.minimum(bmin, bmin[nxt]), np.maximum(bmax, bmax[nxt]))
+    )
+
+
 class ShiftScorer:
     """Compiled circular-shift scorer (see module docstring).
 
@@ -253,7 +348,9 @@ class ShiftScorer:
 
     name = "numba"
 
-    def __init__(self, space: CandidateSpace, oversample: int = 64) -> None:
+    def __init__(
+        self, space: CandidateSpace, oversample: int = 64, block: int = 24, prune: bool = True
+    ) -> None:
         if not space.azimuth_only:
             raise UnsupportedSpace("the shift kernel needs azimuth-only candidates")
         az = space.orientations_deg[:, 0]
@@ -264,6 +361,8 @@ class ShiftScorer:
         self.space = space
         self.n_az = n_az
         self.oversample = int(oversample)
+        self.block = int(block)
+        self.prune = bool(prune)
         self.retries = 0
         rows, row_step, m = _upsampled_rows(space.pattern, step)
         n = rows.shape[1]
@@ -276,6 +375,13 @@ class ShiftScorer:
         drv = np.zeros_like(rv)
         drv[:, 1:] = rv[:, :-1] - rv[:, 1:]
         self.drows = np.ascontiguousarray(drv, dtype=np.float32)
+        self.bounds = _window_tables(rv, m, self.block, length, n_az)
+        nxt = np.minimum(np.arange(rv.shape[0]) + 1, rv.shape[0] - 1)
+        rmin = rv.min(axis=1)
+        rmax = rv.max(axis=1)
+        self.row_min = np.minimum(rmin, rmin[nxt]).astype(np.float32)
+        self.row_max = np.maximum(rmax, rmax[nxt]).astype(np.float32)
+        self._hint = np.empty(0, np.int64)
 
         d = space.receiver_positions_m[:, None, :] - space.positions_m[None, :, :]
         phi, theta = direction_to_pattern_angles_deg(d)  # (n_rx, n_pos)
@@ -313,9 +419,29 @@ class ShiftScorer:
         h = heard.n_heard
         return 2.0 * eps * np.sqrt(v + eps) + eps * eps + 2.0 * (h + 2) * _EPS32 * v
 
-    def _run(
-        self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int
-    ) -> TopK:
+    def _kernel_args(self) -> tuple:
+        return (self.base, self.off, self.frac, self.row0, self.roww, self.rows, self.drows,
+                *self.bounds, self.row_min, self.row_max, self.m, self.n_az)
+
+    def _threshold(
+        self, w: np.ndarray, r: np.ndarray, positions: np.ndarray, j0: int, cnt: int, kk: int
+    ) -> float:
+        """An upper bound on the ``kk``-th best screened value (inf if none found).
+
+        Scores a few positions fully — those of the previous packet's shortlist
+        when they are among ``positions`` (consecutive packets of a track are
+        near each other), else every 25th position — and returns their
+        ``kk``-th best value. Only speed depends on this choice, never the result.
+        """
+        pick = self._hint[np.isin(self._hint, positions)]
+        if pick.size * cnt < kk:
+            pick = positions[:: max(1, min(25, positions.size * cnt // (4 * kk)))]
+        pv, _ = _shift_topk(w, r, *self._kernel_args(), np.ascontiguousarray(pick), j0, cnt,
+                            kk, self.block, np.float32(np.inf))
+        vals = np.sort(pv[np.isfinite(pv)])
+        return float(vals[kk - 1]) if vals.size >= kk else np.inf
+
+    def _run(self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int) -> TopK:
         r = heard.receiver_index
         w64 = heard.rss_dbm - self.centre_db[r]
         w = w64.astype(np.float32)
@@ -323,34 +449,38 @@ class ShiftScorer:
         n_total = positions.size * cnt
         while True:
             kk_eff = int(min(kk, max(n_total, 1)))
-            out_v, out_i = _shift_topk(
-                w, r, self.base, self.off, self.frac, self.row0, self.roww, self.rows, self.drows,
-                self.m, self.n_az, positions, j0, cnt, kk_eff,
-            )
-            v = out_v.ravel()
-            i = out_i.ravel()
-            ok = i >= 0
-            v, i = v[ok].astype(np.float64), i[ok]
+            thr0 = np.inf
+            if self.prune and n_total > 8 * kk_eff:
+                thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
+            out_v, out_i = _shift_topk(w, r, *self._kernel_args(), positions, j0, cnt, kk_eff,
+                                       self.block, np.float32(thr0))
+            ok = out_i.ravel() >= 0
+            v = out_v.ravel()[ok].astype(np.float64)
+            i = out_i.ravel()[ok]
             order = np.lexsort((i, v))
             v, i = v[order], i[order]
-            if v.size <= k or kk_eff >= n_total:
-                short = i  # every scorable candidate is in the shortlist
-                break
-            short = i[:kk_eff]
-            # Every candidate not in the shortlist scored at least `excluded_lb`: it was
-            # either kept but ranked past kk_eff, or dropped by a chunk whose buffer was
-            # full (so it scored at least that chunk's worst kept value).
+            # Every candidate not kept scored above `excluded`: above the prune bound, or
+            # dropped by a chunk whose heap was full (so above its worst kept value).
             full = np.isfinite(out_v).sum(axis=1) == kk_eff
-            excluded_lb = float(out_v[full].max(axis=1).min()) if full.any() else np.inf
-            if v.size > kk_eff:
-                excluded_lb = min(excluded_lb, float(v[kk_eff]))
-            kth = float(v[k - 1])
-            if excluded_lb - self._delta(excluded_lb, heard, w64) > kth + self._delta(
-                kth, heard, w64
-            ):
+            excluded = float(thr0)
+            if full.any():
+                excluded = min(excluded, float(out_v[full].max(axis=1).min()))
+            if not np.isfinite(excluded):
+                short = i  # nothing was excluded: every scorable candidate is here
                 break
+            if v.size > kk_eff:
+                excluded = min(excluded, float(v[kk_eff]))
+            short = i[:kk_eff]
+            if v.size >= k:
+                kth = float(v[k - 1])
+                lo_ex = excluded - float(self._delta(excluded, heard, w64))
+                if lo_ex > kth + float(self._delta(kth, heard, w64)):
+                    break
             self.retries += 1
+            if kk_eff >= n_total:
+                raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
+        self._hint = np.unique(short // self.n_az)
         mse = exact_mse_db2(self.space, heard, short)
         return select_topk(short, mse, k)
 

@@ -155,8 +155,8 @@ class TableScorer:
         if heard.n_heard == n_rx:
             w[n_rx] = 1.0  # S2 of the full set is the table's last column
             v = self.table @ w
-        else:
-            v = self.table @ w
+        else:  # S2 of a subset (the last column may hold inf: leave it out of the product)
+            v = self.table[:, :n_rx] @ w[:n_rx]
             v += self._sum_squares(heard)
         v += np.float32(np.sum(w64 * w64))
         g = self.gmax_db[r]

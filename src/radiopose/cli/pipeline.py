@@ -1,0 +1,106 @@
+"""``radiopose locate`` and ``radiopose score`` (interchange contract, "CLI calls")."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from radiopose.cli import app
+
+
+@app.command()
+def locate(
+    site: Annotated[Path, typer.Argument(help="Site directory (site.toml, receivers.csv, …).")],
+    packets: Annotated[Path, typer.Argument(help="Synchronised packets.csv.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Estimates CSV to write.")],
+    method: Annotated[
+        str, typer.Option(help="full, location, orientation, top or lms.")
+    ] = "full",
+    kernel: Annotated[
+        str, typer.Option(help="Likelihood scorer: numpy (fast) or reference (exhaustive).")
+    ] = "numpy",
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Estimate position and orientation of every packet; write ESTIMATES.csv.
+
+    The run summary (packets in, estimates out, skips with reasons) goes to stderr.
+    """
+    from radiopose.errors import InputError
+    from radiopose.estimates import write_estimates_csv
+    from radiopose.likelihood import SCORERS
+    from radiopose.packets import read_packets_csv
+    from radiopose.site import load_site
+    from radiopose.tracker import METHODS, TrackerConfig
+    from radiopose.tracker import locate as run_locate
+
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    if kernel not in SCORERS:
+        raise InputError(f"--kernel must be one of {', '.join(sorted(SCORERS))}, got {kernel!r}")
+    the_site = load_site(site)
+    pk = read_packets_csv(packets)
+    config = TrackerConfig(kernel=kernel)
+    show = not quiet and sys.stderr.isatty()
+    if show:
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeRemainingColumn,
+        )
+
+        with Progress(
+            TextColumn(f"locate ({method})"), BarColumn(), MofNCompleteColumn(),
+            TimeRemainingColumn(), transient=True,
+        ) as bar:
+            task = bar.add_task("packets", total=None)
+
+            def progress(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            result = run_locate(the_site, pk, method, config, progress)
+    else:
+        result = run_locate(the_site, pk, method, config)
+    write_estimates_csv(result.estimates, out)
+    for line in result.summary.lines():
+        print(line, file=sys.stderr)
+    print(f"wrote {out}", file=sys.stderr)
+
+
+@app.command()
+def score(
+    truth: Annotated[Path, typer.Argument(help="truth.csv of the packets.")],
+    estimates: Annotated[Path, typer.Argument(help="estimates.csv to score.")],
+    as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+) -> None:
+    """Position error (m), orientation error (°) and coverage: mean, median, p95 per method."""
+    from radiopose.estimates import read_estimates_csv
+    from radiopose.evaluate.scoring import score as run_score
+    from radiopose.packets import read_truth_csv
+
+    t = read_truth_csv(truth)
+    e = read_estimates_csv(estimates)
+    scores = run_score(t, e)
+    if as_json:
+        print(json.dumps([s.to_dict() for s in scores], indent=1))
+        return
+
+    def fmt(x: float | None, d: int) -> str:
+        return "-" if x is None else f"{x:.{d}f}"
+
+    print(f"{'method':<12} {'coverage':>9} {'estimates':>10}  {'position error (m)':>24}  "
+          f"{'orientation error (deg)':>24}")
+    print(f"{'':<12} {'':>9} {'':>10}  {'mean':>7} {'median':>7} {'p95':>8}  "
+          f"{'mean':>7} {'median':>7} {'p95':>8}")
+    for s in scores:
+        p = s.position_m
+        o = s.orientation_deg
+        om, omed, op = (None, None, None) if o is None else (o.mean, o.median, o.p95)
+        print(f"{s.method:<12} {100 * s.coverage:>8.1f}% {s.n_estimates:>10}  "
+              f"{fmt(p.mean, 3):>7} {fmt(p.median, 3):>7} {fmt(p.p95, 3):>8}  "
+              f"{fmt(om, 2):>7} {fmt(omed, 2):>7} {fmt(op, 2):>8}")

@@ -1,0 +1,137 @@
+"""The compiled shift kernel returns exactly the reference's top-k."""
+
+from dataclasses import replace
+
+import numba
+import numpy as np
+import pytest
+
+from radiopose.likelihood import ReferenceScorer, candidate_space, exact_mse_db2
+from radiopose.likelihood.candidates import HeardRss
+from radiopose.likelihood.compiled import ShiftScorer, UnsupportedSpace
+from radiopose.likelihood.topk import select_topk
+from radiopose.patterns import isotropic, smartphone_like
+from radiopose.simulate import ScenarioConfig, simulate
+
+TX = "02:00:00:00:00:01"
+
+
+@pytest.fixture(scope="module")
+def space():
+    cfg = ScenarioConfig(size_m=6.0, step_m=0.25, duration_s=0.05, noise_db=1.0,
+                         min_receiver_spacing_m=2.0, n_receivers=4)
+    return candidate_space(simulate(cfg, seed=20261123).site, TX)
+
+
+def packets(space, rng, n=4):
+    """Random RSS near the expected RSS of random true candidates (+ noise)."""
+    from radiopose.likelihood.candidates import expected_rss_dbm
+
+    out = []
+    for _ in range(n):
+        c = rng.integers(space.n_candidates)
+        pos, ori = space.split(np.array([c]))
+        rss = expected_rss_dbm(space, pos, ori)[0] + rng.normal(0, 1.5, space.n_receivers)
+        out.append(HeardRss(np.arange(space.n_receivers), rss))
+    return out
+
+
+def same(a, b):
+    np.testing.assert_array_equal(a.candidate_idx, b.candidate_idx)
+    np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
+
+
+@pytest.mark.parametrize("k", [1, 100])
+def test_equals_reference(space, k):
+    rng = np.random.default_rng(1)
+    fast, ref = ShiftScorer(space), ReferenceScorer(space)
+    for heard in packets(space, rng):
+        same(fast.score_heard(heard, k), ref.score_heard(heard, k))
+
+
+def test_missing_receivers_and_no_pruning(space):
+    rng = np.random.default_rng(2)
+    fast, plain, ref = ShiftScorer(space), ShiftScorer(space, prune=False), ReferenceScorer(space)
+    for heard in packets(space, rng, 3):
+        sub = HeardRss(heard.receiver_index[[0, 2, 3]], heard.rss_dbm[[0, 2, 3]])
+        expect = ref.score_heard(sub, 50)
+        same(fast.score_heard(sub, 50), expect)
+        same(plain.score_heard(sub, 50), expect)
+
+
+def test_ties_broken_by_index(space):
+    """Isotropic pattern: all azimuths of a position tie exactly; lowest index wins."""
+    iso = replace(space, pattern=isotropic())
+    heard = packets(iso, np.random.default_rng(3), 1)[0]
+    top = ShiftScorer(iso).score_heard(heard, 100)
+    same(top, ReferenceScorer(iso).score_heard(heard, 100))
+    assert np.all(np.diff(top.candidate_idx[top.mse_db2 == top.mse_db2[0]]) > 0)
+
+
+def test_full_sphere_pattern_and_heights(space):
+    """Receivers above and below the candidates: polar angles blend pattern rows."""
+    rng = np.random.default_rng(4)
+    sphere = smartphone_like(rng, "s", polar_step_deg=5.0)
+    rx = space.receiver_positions_m.copy()
+    rx[:, 2] += np.array([1.5, -0.7, 0.3, 2.5])
+    s3 = replace(space, pattern=sphere, receiver_positions_m=rx)
+    fast, ref = ShiftScorer(s3), ReferenceScorer(s3)
+    for heard in packets(s3, rng, 3):
+        same(fast.score_heard(heard, 60), ref.score_heard(heard, 60))
+
+
+@pytest.mark.parametrize("step", [2.0, 0.5, 3.0])
+def test_other_azimuth_steps(space, step):
+    """2° and 3° candidates read a 1° pattern with a stride; 0.5° upsample it (exactly)."""
+    n = round(360 / step)
+    orient = np.column_stack([np.arange(n) * step, np.zeros(n), np.zeros(n)])
+    from radiopose.geometry import orientation_matrices
+
+    s2 = replace(space, orientations_deg=orient, rotations=orientation_matrices(*orient.T))
+    rng = np.random.default_rng(5)
+    fast, ref = ShiftScorer(s2), ReferenceScorer(s2)
+    for heard in packets(s2, rng, 2):
+        same(fast.score_heard(heard, 80), ref.score_heard(heard, 80))
+
+
+def test_excluded_positions_never_selected(space):
+    chan = space.channel_db.copy()
+    chan[1, ::3] = np.nan
+    s2 = replace(space, channel_db=chan)
+    heard = packets(s2, np.random.default_rng(6), 1)[0]
+    top = ShiftScorer(s2).score_heard(heard, 100)
+    same(top, ReferenceScorer(s2).score_heard(heard, 100))
+    assert not np.any((top.candidate_idx // s2.n_orientations) % 3 == 0)
+
+
+def test_window_equals_exhaustive_window(space):
+    rng = np.random.default_rng(7)
+    fast = ShiftScorer(space)
+    heard = packets(space, rng, 1)[0]
+    positions = rng.choice(space.n_positions, 40, replace=False)
+    for lo, span in ((350.0, 30.0), (10.0, 0.0), (0.0, 360.0), (123.4, 45.6)):
+        az = np.arange(360.0)
+        inside = ((az - lo) % 360.0 <= span + 1e-9) if span < 360 else np.ones(360, bool)
+        cand = (np.sort(positions)[:, None] * 360 + np.flatnonzero(inside)[None]).ravel()
+        expect = select_topk(cand, exact_mse_db2(space, heard, cand), 20)
+        same(fast.score_window(heard, 20, positions, lo, span), expect)
+
+
+def test_thread_count_does_not_change_results(space):
+    heard = packets(space, np.random.default_rng(8), 1)[0]
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        one = ShiftScorer(space).score_heard(heard, 100)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        many = ShiftScorer(space).score_heard(heard, 100)
+    finally:
+        numba.set_num_threads(before)
+    same(one, many)
+
+
+def test_unsupported_spaces(space):
+    o = space.orientations_deg.copy()
+    o[:, 1] = 10.0
+    with pytest.raises(UnsupportedSpace):
+        ShiftScorer(replace(space, orientations_deg=o))
