@@ -132,6 +132,27 @@ def test_thread_count_does_not_change_results(space):
 
 def test_unsupported_spaces(space):
     o = space.orientations_deg.copy()
-    o[:, 1] = 10.0
+    o[::2, 1] = 10.0  # pitch changing within an azimuth sweep
     with pytest.raises(UnsupportedSpace):
         ShiftScorer(replace(space, orientations_deg=o))
+    n = 360 // 7 + 1
+    o7 = np.column_stack([np.arange(n) * 7.0, np.zeros(n), np.zeros(n)])
+    with pytest.raises(UnsupportedSpace):
+        ShiftScorer(replace(space, orientations_deg=o7))
+
+
+@pytest.mark.parametrize("sphere", [False, True])
+def test_pitch_roll_candidates(space, sphere):
+    """3-D orientation candidates: (pitch, roll) combinations × azimuths."""
+    from radiopose.geometry import orientation_matrices
+    from radiopose.site import OrientationGrid
+
+    grid = OrientationGrid(10.0, (-20.0, 0.0, 30.0), (0.0, 15.0))
+    o = grid.orientations_deg()
+    rng = np.random.default_rng(9)
+    pat = smartphone_like(rng, "s", polar_step_deg=5.0) if sphere else space.pattern
+    s3 = replace(space, orientations_deg=o, rotations=orientation_matrices(*o.T), pattern=pat)
+    fast, ref = ShiftScorer(s3), ReferenceScorer(s3)
+    assert fast.n_q == 6 and fast.n_az == 36
+    for heard in packets(s3, rng, 3):
+        same(fast.score_heard(heard, 50), ref.score_heard(heard, 50))

@@ -14,8 +14,9 @@ Paper, "Enhanced Localisation Pipeline", steps 4 and 5.
   without the cap the constraint would vanish only at 0.5 s.)
 * Movement model: a position cluster is invalid if its centroid lies farther
   than ``max_speed_mps · dt`` (paper: 10 m/s) from the previous valid position.
-  ``max_position_gap_s`` (default: no cap) re-acquires the position without
-  constraint after a long gap.
+  The same gap cap applies (the tracker passes ``t/2`` by default): past it
+  the position is re-acquired without constraint, so one wrong first estimate
+  cannot hold the track for long.
 
 Both models accept everything when there is no previous valid estimate.
 """

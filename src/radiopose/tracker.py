@@ -89,7 +89,9 @@ class TrackerConfig:
     max_speed_mps
         Movement model (step 5): 10 m/s.
     max_position_gap_s
-        Re-acquire position without constraint past this gap (default: never).
+        Re-acquire position without constraint past this gap since the previous
+        valid position; ``None`` = ``rotation_period_s / 2``: the paper caps the
+        gap between valid *estimates* at ``t/2``, so both models lapse together.
     use_movement_model
         Apply the movement model (off only for ablation).
     primary
@@ -113,7 +115,7 @@ class TrackerConfig:
     position_eps_m: float = 0.5
     position_min_samples: int = 10
     max_speed_mps: float = 10.0
-    max_position_gap_s: float = float("inf")
+    max_position_gap_s: float | None = None
     use_movement_model: bool = True
     primary: Literal["position", "orientation"] = "position"
     min_receivers: int = 3
@@ -131,7 +133,8 @@ class TrackerConfig:
             ("position_eps_m", self.position_eps_m > 0),
             ("position_min_samples", self.position_min_samples >= 1),
             ("max_speed_mps", self.max_speed_mps > 0),
-            ("max_position_gap_s", self.max_position_gap_s >= 0),
+            ("max_position_gap_s",
+             self.max_position_gap_s is None or self.max_position_gap_s >= 0),
             ("primary", self.primary in ("position", "orientation")),
             ("min_receivers", self.min_receivers >= 1),
         ]
@@ -146,7 +149,8 @@ class TrackerConfig:
 
     @property
     def movement_model(self) -> MovementModel:
-        return MovementModel(self.max_speed_mps, self.max_position_gap_s)
+        gap = self.max_position_gap_s
+        return MovementModel(self.max_speed_mps, self.rotation_period_s / 2.0 if gap is None else gap)
 
 
 @dataclass(frozen=True)

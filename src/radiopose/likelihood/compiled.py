@@ -67,6 +67,7 @@ from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
+from radiopose.units import wrap_deg
 
 _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
@@ -148,7 +149,7 @@ def _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, 
 
 
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
-def _block_bounds(e, k, t, g, blo, bhi, blo2, bhi2, nbw, lb):
+def _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb):
     """Lower bounds ``lb[b]`` on Σ_r d_r² over each block ``b`` of the window.
 
     Every looked-up directivity in a block lies between the minimum and maximum
@@ -158,12 +159,13 @@ def _block_bounds(e, k, t, g, blo, bhi, blo2, bhi2, nbw, lb):
     for b in range(nbw):
         lb[b] = 0.0
     for q in range(e.shape[0]):
+        tq = t[q] + toff
         if g[q] == 0.0:
-            lo = blo[t[q], k[q]]
-            hi = bhi[t[q], k[q]]
+            lo = blo[tq, k[q]]
+            hi = bhi[tq, k[q]]
         else:
-            lo = blo2[t[q], k[q]]
-            hi = bhi2[t[q], k[q]]
+            lo = blo2[tq, k[q]]
+            hi = bhi2[tq, k[q]]
         eq = e[q]
         for b in range(nbw):
             x = max(lo[b] - eq, np.float32(0.0)) + max(eq - hi[b], np.float32(0.0))
@@ -185,6 +187,8 @@ def _shift_topk(
     rmin, rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
     m,  # int  pattern samples per candidate azimuth step
     n_az,  # int  candidate azimuths
+    n_q,  # int  (pitch, roll) combinations; orientation index = q·n_az + j
+    rows_per_q,  # int  pattern rows of each combination
     positions,  # (n_p,) int64  positions to score
     j0,  # int  first azimuth index of the window
     cnt,  # int  window length (<= n_az)
@@ -215,97 +219,160 @@ def _shift_topk(
             if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0,
                                   e, k, f, t, g):
                 continue
-            thr = thr0
-            if count == kk and bv[0] < thr:
-                thr = bv[0]
-            prune = thr < np.inf
-            if prune:
+            for qq in range(n_q):
+                toff = qq * rows_per_q
+                thr = thr0
+                if count == kk and bv[0] < thr:
+                    thr = bv[0]
+                prune = thr < np.inf
                 cut = (thr * slack + _PRUNE_ABS) * h
-                # whole-position bound first (row extremes), then per block
-                lb0 = np.float32(0.0)
-                for q in range(h):
-                    x = max(rmin[t[q]] - e[q], np.float32(0.0)) + max(
-                        e[q] - rmax[t[q]], np.float32(0.0)
-                    )
-                    lb0 += x * x
-                if lb0 > cut:
-                    continue
-                _block_bounds(e, k, t, g, blo, bhi, blo2, bhi2, nbw, lb)
-                best = lb[0]
-                for b in range(1, nbw):
-                    best = min(best, lb[b])
-                if best > cut:
-                    continue
-            for b in range(nbw):
-                b0 = b * blk
-                if prune and lb[b] > cut:
-                    continue
-                nb = min(blk, cnt - b0)
-                for q in range(h):
-                    # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
-                    eq = e[q]
-                    o = k[q] + m * b0
-                    fq = f[q]
-                    gq = g[q]
-                    tq = t[q]
-                    if gq == 0.0 and m == 1:
-                        ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
-                        rd = drows[tq]
-                        sa = ra[o : o + nb]
-                        sd = rd[o : o + nb]
-                        if q == 0:
-                            for jj in range(nb):
-                                d = eq - sa[jj] - fq * sd[jj]
-                                acc[jj] = d * d
-                        else:
-                            for jj in range(nb):
-                                d = eq - sa[jj] - fq * sd[jj]
-                                acc[jj] += d * d
-                    else:
-                        g1 = np.float32(1.0) - gq
-                        t1 = tq + 1 if gq != 0.0 else tq
-                        for jj in range(nb):
-                            k1 = o + m * jj
-                            a = g1 * rows[tq, k1] + gq * rows[t1, k1]
-                            dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
-                            d = eq - a - fq * dl
-                            if q == 0:
-                                acc[jj] = d * d
-                            else:
-                                acc[jj] += d * d
-                for jj in range(nb):
-                    v = acc[jj] * inv_h
-                    if v > thr0:
+                if prune:
+                    # whole-position bound first (row extremes), then per block
+                    lb0 = np.float32(0.0)
+                    for q in range(h):
+                        x = max(rmin[t[q] + toff] - e[q], np.float32(0.0)) + max(
+                            e[q] - rmax[t[q] + toff], np.float32(0.0)
+                        )
+                        lb0 += x * x
+                    if lb0 > cut:
                         continue
-                    if count < kk or v <= bv[0]:
-                        j = j0 + b0 + jj
-                        if j >= n_az:
-                            j -= n_az
-                        count = _heap_push(bv, bi, count, v, p * n_az + j)
+                    _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb)
+                for b in range(nbw):
+                    b0 = b * blk
+                    if prune and lb[b] > cut:
+                        continue
+                    nb = min(blk, cnt - b0)
+                    for q in range(h):
+                        # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
+                        eq = e[q]
+                        o = k[q] + m * b0
+                        fq = f[q]
+                        gq = g[q]
+                        tq = t[q] + toff
+                        if gq == 0.0 and m == 1:
+                            ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
+                            rd = drows[tq]
+                            sa = ra[o : o + nb]
+                            sd = rd[o : o + nb]
+                            if q == 0:
+                                for jj in range(nb):
+                                    d = eq - sa[jj] - fq * sd[jj]
+                                    acc[jj] = d * d
+                            else:
+                                for jj in range(nb):
+                                    d = eq - sa[jj] - fq * sd[jj]
+                                    acc[jj] += d * d
+                        else:
+                            g1 = np.float32(1.0) - gq
+                            t1 = tq + 1 if gq != 0.0 else tq
+                            for jj in range(nb):
+                                k1 = o + m * jj
+                                a = g1 * rows[tq, k1] + gq * rows[t1, k1]
+                                dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
+                                d = eq - a - fq * dl
+                                if q == 0:
+                                    acc[jj] = d * d
+                                else:
+                                    acc[jj] += d * d
+                    for jj in range(nb):
+                        v = acc[jj] * inv_h
+                        if v > thr0:
+                            continue
+                        if count < kk or v <= bv[0]:
+                            j = j0 + b0 + jj
+                            if j >= n_az:
+                                j -= n_az
+                            count = _heap_push(bv, bi, count, v, (p * n_q + qq) * n_az + j)
     return out_v, out_i
 
 
 # ---------------------------------------------------------------------------- tables
-def _upsampled_rows(pattern: Pattern, candidate_step_deg: float) -> tuple[NDArray, float, int]:
-    """Pattern rows ``(n_polar, n)`` on an azimuth grid whose step divides the candidate
-    step; returns (rows dBi, row step in degrees, samples per candidate step ``m``)."""
+def _row_grid(pattern: Pattern, candidate_step_deg: float) -> tuple[float, int]:
+    """Azimuth step of the kernel's pattern rows and the samples per candidate step ``m``.
+
+    The pattern's own step when the candidate step is a multiple of it; else
+    the candidate step (upsampling a bilinear pattern to finer nodes is exact).
+    """
     sp = pattern.azimuth_step_deg
     ratio = candidate_step_deg / sp
     if abs(ratio - round(ratio)) < 1e-9 and round(ratio) >= 1:
-        m = round(ratio)
-        grid = pattern
-    else:
-        up = sp / candidate_step_deg
-        if abs(up - round(up)) > 1e-9:
-            raise UnsupportedSpace(
-                f"candidate azimuth step {candidate_step_deg:g} deg and pattern step {sp:g} deg "
-                "are not integer multiples of one another"
-            )
-        grid = pattern.resampled(candidate_step_deg)  # exact for bilinear lookups
-        m = 1
-    if grid.azimuth_deg[0] != 0.0:
+        return sp, round(ratio)
+    up = sp / candidate_step_deg
+    if abs(up - round(up)) > 1e-9:
+        raise UnsupportedSpace(
+            f"candidate azimuth step {candidate_step_deg:g} deg and pattern step {sp:g} deg "
+            "are not integer multiples of one another"
+        )
+    if abs(pattern.azimuth_deg[0]) > 1e-12:
         raise UnsupportedSpace("pattern azimuths must start at 0")
-    return np.ascontiguousarray(grid.directivity_dbi.T), grid.azimuth_step_deg, m
+    return candidate_step_deg, 1
+
+
+def _rotated_rows(
+    pattern: Pattern, qs_deg: NDArray, row_step_deg: float, polar_deg: NDArray, ts_deg: float
+) -> tuple[NDArray, float]:
+    """Pattern rows seen in the azimuth-rotated frame of each (pitch, roll) combination.
+
+    With ``R = Rz(α)·A`` and ``A = Rx(pitch)·Ry(roll)``, a world direction ``d``
+    has body direction ``Aᵀ u`` where ``u = Rz(α)ᵀ d`` has angles
+    ``(φ_w − α, θ_w)``. So ``P_q(φ', θ') = D(Aᵀ u(φ', θ'))`` turns every
+    combination into a shift in ``φ'``. Rows are sampled at the grid nodes
+    ``(φ' = i·row_step, θ' = polar)``; for ``A = I`` they are the pattern's own
+    values (bilinear lookups at nodes), so the kernel is exact. For other
+    combinations the kernel interpolates the sampled rows; the largest
+    deviation from direct lookups, sampled at three points per cell and
+    doubled, is returned (dB) and widens the exactness margin.
+
+    Returns
+    -------
+    rows
+        ``(n_q · n_polar, n)`` dBi, combination-major.
+    error_db
+        The resampling error bound (0 when every combination is the identity).
+    """
+    from radiopose.geometry import orientation_matrices
+
+    n = round(360.0 / row_step_deg)
+    phi = np.arange(n) * row_step_deg
+    out = []
+    err = 0.0
+    for pitch, roll in qs_deg:
+        a = orientation_matrices(0.0, pitch, roll)[0]
+
+        def lookup(ph: NDArray, th: NDArray, a: NDArray = a) -> NDArray:
+            p, t = np.deg2rad(ph), np.deg2rad(th)
+            u = np.stack([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)], axis=-1)
+            bp, bt = direction_to_pattern_angles_deg(u @ a)  # (Aᵀ u)ᵀ = uᵀ A
+            return pattern.lookup_dbi(bp, bt)
+
+        ph, th = np.meshgrid(phi, polar_deg, indexing="xy")
+        rows_q = lookup(ph, th)  # (n_polar, n)
+        out.append(rows_q)
+        if pitch != 0.0 or roll != 0.0:
+            fp = (np.arange(3 * n) + 0.5) * row_step_deg / 3.0
+            ft = np.linspace(polar_deg[0], polar_deg[-1], 3 * max(polar_deg.size - 1, 1) + 1)
+            gp, gt = np.meshgrid(fp, ft, indexing="xy")
+            exact = lookup(gp, gt)
+            approx = _bilinear(rows_q, gp / row_step_deg, (gt - polar_deg[0]) / ts_deg)
+            err = max(err, float(np.max(np.abs(exact - approx))))
+    return np.concatenate(out, axis=0), 2.0 * err
+
+
+def _bilinear(rows: NDArray, u: NDArray, v: NDArray) -> NDArray:
+    """The kernel's interpolation of ``rows`` (n_polar, n) at fractional indices
+    ``u`` (azimuth, periodic) and ``v`` (polar, clamped)."""
+    n = rows.shape[1]
+    i0 = np.floor(u).astype(np.int64)
+    f = u - i0
+    i0 %= n
+    i1 = (i0 + 1) % n
+    if rows.shape[0] == 1:
+        return (1 - f) * rows[0, i0] + f * rows[0, i1]
+    j0 = np.clip(np.floor(v), 0, rows.shape[0] - 2).astype(np.int64)
+    g = np.clip(v - j0, 0.0, 1.0)
+    top = (1 - f) * rows[j0, i0] + f * rows[j0, i1]
+    bot = (1 - f) * rows[j0 + 1, i0] + f * rows[j0 + 1, i1]
+    return (1 - g) * top + g * bot
 
 
 def _window_tables(
@@ -340,10 +407,16 @@ class ShiftScorer:
     Parameters
     ----------
     space
-        The device's candidate space; must be azimuth-only with azimuths
-        ``0, s, 2s, …`` (azimuth fastest) — otherwise :class:`UnsupportedSpace`.
+        The device's candidate space. Orientations must be azimuths
+        ``0, s, 2s, …`` (fastest) × any (pitch, roll) combinations, with ``s``
+        and the pattern's azimuth step integer multiples of one another —
+        otherwise :class:`UnsupportedSpace`.
     oversample
-        Initial screened buffer size is ``k + oversample``.
+        The screened shortlist starts at ``k + oversample`` candidates.
+    block
+        Azimuths per pruning block.
+    prune
+        Skip positions and blocks whose lower bound cannot make the cut.
     """
 
     name = "numba"
@@ -351,26 +424,63 @@ class ShiftScorer:
     def __init__(
         self, space: CandidateSpace, oversample: int = 64, block: int = 24, prune: bool = True
     ) -> None:
-        if not space.azimuth_only:
-            raise UnsupportedSpace("the shift kernel needs azimuth-only candidates")
-        az = space.orientations_deg[:, 0]
-        n_az = az.size
+        o = space.orientations_deg
+        n_o = o.shape[0]
+        n_az = int(np.argmax(np.r_[o[1:, 0] <= o[:-1, 0], True])) + 1
         step = 360.0 / n_az
-        if not np.allclose(az, np.arange(n_az) * step, atol=1e-9):
-            raise UnsupportedSpace("candidate azimuths must be 0, s, 2s, ... covering 360")
+        if n_o % n_az:
+            raise UnsupportedSpace("orientations are not azimuths × (pitch, roll) combinations")
+        grid = o.reshape(n_o // n_az, n_az, 3)
+        if not (
+            np.allclose(grid[:, :, 0], np.arange(n_az) * step, atol=1e-9)
+            and np.all(grid[:, :, 1:] == grid[:, :1, 1:])
+        ):
+            raise UnsupportedSpace("candidate azimuths must be 0, s, 2s, ... (fastest) covering 360")
         self.space = space
         self.n_az = n_az
+        self.qs_deg = np.ascontiguousarray(grid[:, 0, 1:])  # (n_q, 2) pitch, roll
+        self.n_q = self.qs_deg.shape[0]
         self.oversample = int(oversample)
         self.block = int(block)
         self.prune = bool(prune)
         self.retries = 0
-        rows, row_step, m = _upsampled_rows(space.pattern, step)
-        n = rows.shape[1]
+        self._hint = np.empty(0, np.int64)
+
+        pattern = space.pattern
+        row_step, m = _row_grid(pattern, step)
         self.m = m
+        n = round(360.0 / row_step)
+        d = space.receiver_positions_m[:, None, :] - space.positions_m[None, :, :]
+        phi, theta = direction_to_pattern_angles_deg(d)  # world angles (n_rx, n_pos)
+        u = wrap_deg(phi) / row_step
+        i0 = np.floor(u)
+        self.frac = (u - i0).astype(np.float32)
+        i0 = i0.astype(np.int64) % n
+        self.off = (((-i0 - 1) % n) + 1).astype(np.int32)
+
+        identity = bool(np.all(self.qs_deg == 0.0))
+        if pattern.is_slice and identity:
+            polar = np.array([90.0])  # one row serves every polar angle
+            ts = 1.0
+        else:
+            ts = pattern.polar_step_deg if not pattern.is_slice else 1.0
+            lo = np.floor(np.min(theta) / ts + 1e-9) * ts
+            hi = np.ceil(np.max(theta) / ts - 1e-9) * ts
+            polar = lo + ts * np.arange(round((hi - lo) / ts) + 1)
+        self.rows_per_q = polar.size
+        if polar.size == 1:
+            self.row0 = np.zeros(phi.shape, np.int32)
+            self.roww = np.zeros(phi.shape, np.float32)
+        else:
+            tt = (np.clip(theta, 0.0, 180.0) - polar[0]) / ts
+            t0 = np.clip(np.floor(tt), 0, polar.size - 2)
+            self.row0 = t0.astype(np.int32)
+            self.roww = np.clip(tt - t0, 0.0, 1.0).astype(np.float32)
+        rows, self.resample_error_db = _rotated_rows(pattern, self.qs_deg, row_step, polar, ts)
+
         # Reversed, repeated rows: Rv[k] = S[(-k) mod n], long enough for any window.
         length = n + m * 2 * n_az + 2
-        k = np.arange(length)
-        rv = rows[:, (-k) % n]
+        rv = rows[:, (-np.arange(length)) % n]
         self.rows = np.ascontiguousarray(rv, dtype=np.float32)
         drv = np.zeros_like(rv)
         drv[:, 1:] = rv[:, :-1] - rv[:, 1:]
@@ -381,23 +491,7 @@ class ShiftScorer:
         rmax = rv.max(axis=1)
         self.row_min = np.minimum(rmin, rmin[nxt]).astype(np.float32)
         self.row_max = np.maximum(rmax, rmax[nxt]).astype(np.float32)
-        self._hint = np.empty(0, np.int64)
 
-        d = space.receiver_positions_m[:, None, :] - space.positions_m[None, :, :]
-        phi, theta = direction_to_pattern_angles_deg(d)  # (n_rx, n_pos)
-        u = np.mod(phi, 360.0) / row_step
-        i0 = np.floor(u)
-        self.frac = (u - i0).astype(np.float32)
-        i0 = i0.astype(np.int64) % n
-        self.off = (((-i0 - 1) % n) + 1).astype(np.int32)
-        if space.pattern.is_slice:
-            self.row0 = np.zeros(phi.shape, np.int32)
-            self.roww = np.zeros(phi.shape, np.float32)
-        else:
-            t = np.clip(theta, 0.0, 180.0) / space.pattern.polar_step_deg
-            t0 = np.minimum(np.floor(t), rows.shape[0] - 2).astype(np.int64)
-            self.row0 = t0.astype(np.int32)
-            self.roww = (t - t0).astype(np.float32)
         valid = np.isfinite(space.channel_db)
         base = space.channel_db + space.tx_power_dbm
         self.centre_db = np.array(
@@ -410,18 +504,27 @@ class ShiftScorer:
         self.d_max = float(np.max(np.abs(rows)))
         self.all_positions = np.arange(space.n_positions, dtype=np.int64)
 
+    @property
+    def nbytes(self) -> int:
+        """Memory held by the precomputed tables, bytes."""
+        arrays = (self.rows, self.drows, *self.bounds, self.base, self.off, self.frac,
+                  self.row0, self.roww)
+        return int(sum(a.nbytes for a in arrays))
+
     # ------------------------------------------------------------------ scoring
     def _delta(self, v: np.ndarray | float, heard: HeardRss, w: np.ndarray) -> np.ndarray:
         """Bound on |screened − exact| MSE at screened value(s) ``v`` (dB²)."""
         r = heard.receiver_index
         eps = 6.0 * _EPS32 * float(np.max(np.abs(w) + self.base_max[r] + self.d_max + 1.0))
+        eps += self.resample_error_db
         v = np.maximum(np.asarray(v, np.float64), 0.0)
         h = heard.n_heard
         return 2.0 * eps * np.sqrt(v + eps) + eps * eps + 2.0 * (h + 2) * _EPS32 * v
 
     def _kernel_args(self) -> tuple:
         return (self.base, self.off, self.frac, self.row0, self.roww, self.rows, self.drows,
-                *self.bounds, self.row_min, self.row_max, self.m, self.n_az)
+                *self.bounds, self.row_min, self.row_max, self.m, self.n_az, self.n_q,
+                self.rows_per_q)
 
     def _threshold(
         self, w: np.ndarray, r: np.ndarray, positions: np.ndarray, j0: int, cnt: int, kk: int
@@ -434,8 +537,9 @@ class ShiftScorer:
         ``kk``-th best value. Only speed depends on this choice, never the result.
         """
         pick = self._hint[np.isin(self._hint, positions)]
-        if pick.size * cnt < kk:
-            pick = positions[:: max(1, min(25, positions.size * cnt // (4 * kk)))]
+        per_pos = cnt * self.n_q
+        if pick.size * per_pos < kk:
+            pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
         pv, _ = _shift_topk(w, r, *self._kernel_args(), np.ascontiguousarray(pick), j0, cnt,
                             kk, self.block, np.float32(np.inf))
         vals = np.sort(pv[np.isfinite(pv)])
@@ -446,7 +550,7 @@ class ShiftScorer:
         w64 = heard.rss_dbm - self.centre_db[r]
         w = w64.astype(np.float32)
         kk = k + self.oversample
-        n_total = positions.size * cnt
+        n_total = positions.size * cnt * self.n_q
         while True:
             kk_eff = int(min(kk, max(n_total, 1)))
             thr0 = np.inf
@@ -480,7 +584,7 @@ class ShiftScorer:
             if kk_eff >= n_total:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
-        self._hint = np.unique(short // self.n_az)
+        self._hint = np.unique(short // (self.n_az * self.n_q))
         mse = exact_mse_db2(self.space, heard, short)
         return select_topk(short, mse, k)
 
