@@ -41,24 +41,30 @@ def bounds_report(rows) -> list[str]:  # type: ignore[no-untyped-def]
         r = by.get(("full", s))
         if r and r.orientation_deg.mean is not None:
             ok = r.orientation_deg.mean <= bound
-            out.append(f"- σ = {s:g} dB: `full` mean orientation error "
-                       f"{r.orientation_deg.mean:.1f}° (paper ≤ {bound}°): {'met' if ok else 'NOT met'}")
+            out.append(
+                f"- σ = {s:g} dB: `full` mean orientation error "
+                f"{r.orientation_deg.mean:.1f}° (paper ≤ {bound}°): {'met' if ok else 'NOT met'}"
+            )
     for s, frac in PAPER_POSITION_REDUCTION.items():
         f, lms = by.get(("full", s)), by.get(("lms", s))
         if f and lms and f.position_m.mean is not None and lms.position_m.mean:
             red = 1.0 - f.position_m.mean / lms.position_m.mean
-            out.append(f"- σ = {s:g} dB: `full` mean position error {f.position_m.mean:.2f} m is "
-                       f"{100 * red:.0f} % below `lms` ({lms.position_m.mean:.2f} m; paper ≥ "
-                       f"{100 * frac:.0f} %): {'met' if red >= frac else 'NOT met'}")
+            out.append(
+                f"- σ = {s:g} dB: `full` mean position error {f.position_m.mean:.2f} m is "
+                f"{100 * red:.0f} % below `lms` ({lms.position_m.mean:.2f} m; paper ≥ "
+                f"{100 * frac:.0f} %): {'met' if red >= frac else 'NOT met'}"
+            )
     for s in sorted({r.noise_db for r in rows}):
         f, t = by.get(("full", s)), by.get(("top", s))
         if f and t and f.position_m.mean is not None:
             better_p = f.position_m.mean < t.position_m.mean
             better_o = f.orientation_deg.mean < t.orientation_deg.mean
-            out.append(f"- σ = {s:g} dB: `full` vs `top`: position {f.position_m.mean:.2f} vs "
-                       f"{t.position_m.mean:.2f} m, orientation {f.orientation_deg.mean:.1f} vs "
-                       f"{t.orientation_deg.mean:.1f}°: "
-                       f"{'better on both' if better_p and better_o else 'NOT better on both'}")
+            out.append(
+                f"- σ = {s:g} dB: `full` vs `top`: position {f.position_m.mean:.2f} vs "
+                f"{t.position_m.mean:.2f} m, orientation {f.orientation_deg.mean:.1f} vs "
+                f"{t.orientation_deg.mean:.1f}°: "
+                f"{'better on both' if better_p and better_o else 'NOT better on both'}"
+            )
     return out
 
 
@@ -84,9 +90,13 @@ def main(argv: list[str] | None = None) -> int:
             res = run_methods(sim, METHODS, scorer=scorer)
             for m, r in res.items():
                 runs.setdefault((m, sigma), []).append(r)
-            print(f"seed {seed} σ {sigma:g}: "
-                  + ", ".join(f"{m} {100 * r.summary.coverage:.0f}%" for m, r in res.items())
-                  + f"  [{time.perf_counter() - t0:.0f} s]", file=sys.stderr, flush=True)
+            print(
+                f"seed {seed} σ {sigma:g}: "
+                + ", ".join(f"{m} {100 * r.summary.coverage:.0f}%" for m, r in res.items())
+                + f"  [{time.perf_counter() - t0:.0f} s]",
+                file=sys.stderr,
+                flush=True,
+            )
         del scorer
     rows = [summarise(runs[(m, s)], s) for s in args.sigmas for m in METHODS]
     n_packets = sum(r.n_packets for r in runs[("full", args.sigmas[0])])

@@ -28,8 +28,13 @@ from radiopose.site import OrientationGrid
 def tiny_sim():
     """6 m area, 0.25 m / 2° grid (625 × 180 candidates), 20 % packet loss."""
     cfg = ScenarioConfig(
-        size_m=6.0, step_m=0.25, azimuth_step_deg=2.0, duration_s=0.06, noise_db=1.0,
-        loss_fraction=0.2, min_receiver_spacing_m=2.0,
+        size_m=6.0,
+        step_m=0.25,
+        azimuth_step_deg=2.0,
+        duration_s=0.06,
+        noise_db=1.0,
+        loss_fraction=0.2,
+        min_receiver_spacing_m=2.0,
     )
     return simulate(cfg, seed=11)
 
@@ -52,17 +57,32 @@ def test_registry_names_and_unknown():
 def test_noise_free_packet_at_a_survey_point_has_zero_mse_at_truth():
     # Survey points (1 m grid) reproduce the channel exactly, so a noise-free packet
     # from a survey point at a grid azimuth matches its own candidate exactly.
-    sim = simulate(ScenarioConfig(size_m=4.0, step_m=0.5, azimuth_step_deg=10.0,
-                                  duration_s=0.01, min_receiver_spacing_m=1.5), seed=2)
+    sim = simulate(
+        ScenarioConfig(
+            size_m=4.0,
+            step_m=0.5,
+            azimuth_step_deg=10.0,
+            duration_s=0.01,
+            min_receiver_spacing_m=1.5,
+        ),
+        seed=2,
+    )
     site = sim.site
     space = _space(sim)
     pos = np.array([[2.0, 3.0, site.area.z_m]])
     ori = np.array([[40.0, 0.0, 0.0]])
     rx = site.receiver_positions_m()
     rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
-    rss = link_rss_dbm(sim.config.channel, pos, ori, site.patterns["device"],
-                       sim.config.tx_power_dbm, rx, rx_o,
-                       tuple(site.patterns[r.pattern] for r in site.receivers))[0]
+    rss = link_rss_dbm(
+        sim.config.channel,
+        pos,
+        ori,
+        site.patterns["device"],
+        sim.config.tx_power_dbm,
+        rx,
+        rx_o,
+        tuple(site.patterns[r.pattern] for r in site.receivers),
+    )[0]
     pkt = PacketObservation("0", 0.0, space.transmitter, site.receiver_ids, rss)
     top = ReferenceScorer(space).score_topk(pkt, k=5)
     ipos = int(np.flatnonzero(np.all(np.isclose(space.positions_m, pos), axis=1))[0])

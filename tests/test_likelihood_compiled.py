@@ -8,7 +8,7 @@ import pytest
 
 from radiopose.likelihood import ReferenceScorer, candidate_space, exact_mse_db2
 from radiopose.likelihood.candidates import HeardRss
-from radiopose.likelihood.compiled import ShiftScorer, UnsupportedSpace
+from radiopose.likelihood.compiled import ShiftScorer, UnsupportedSpaceError
 from radiopose.likelihood.topk import select_topk
 from radiopose.patterns import isotropic, smartphone_like
 from radiopose.simulate import ScenarioConfig, simulate
@@ -18,8 +18,14 @@ TX = "02:00:00:00:00:01"
 
 @pytest.fixture(scope="module")
 def space():
-    cfg = ScenarioConfig(size_m=6.0, step_m=0.25, duration_s=0.05, noise_db=1.0,
-                         min_receiver_spacing_m=2.0, n_receivers=4)
+    cfg = ScenarioConfig(
+        size_m=6.0,
+        step_m=0.25,
+        duration_s=0.05,
+        noise_db=1.0,
+        min_receiver_spacing_m=2.0,
+        n_receivers=4,
+    )
     return candidate_space(simulate(cfg, seed=20261123).site, TX)
 
 
@@ -133,11 +139,11 @@ def test_thread_count_does_not_change_results(space):
 def test_unsupported_spaces(space):
     o = space.orientations_deg.copy()
     o[::2, 1] = 10.0  # pitch changing within an azimuth sweep
-    with pytest.raises(UnsupportedSpace):
+    with pytest.raises(UnsupportedSpaceError):
         ShiftScorer(replace(space, orientations_deg=o))
     n = 360 // 7 + 1
     o7 = np.column_stack([np.arange(n) * 7.0, np.zeros(n), np.zeros(n)])
-    with pytest.raises(UnsupportedSpace):
+    with pytest.raises(UnsupportedSpaceError):
         ShiftScorer(replace(space, orientations_deg=o7))
 
 

@@ -25,13 +25,33 @@ def scenario(small_sim, tmp_path: Path) -> Path:
 @pytest.mark.parametrize("method", ["full", "lms"])
 def test_locate_then_score(scenario, capsys, method):
     est = scenario / f"est_{method}.csv"
-    code, _, err = run(["locate", str(scenario / "site"), str(scenario / "packets.csv"),
-                        "-o", str(est), "--method", method], capsys)
+    code, _, err = run(
+        [
+            "locate",
+            str(scenario / "site"),
+            str(scenario / "packets.csv"),
+            "-o",
+            str(est),
+            "--method",
+            method,
+        ],
+        capsys,
+    )
     assert code == 0, err
     assert f"method {method}: 60 packets in" in err and "coverage" in err
     header = est.read_text().splitlines()[0].split(",")
-    assert set(header) == {"timestamp_s", "transmitter", "packet_id", "x_m", "y_m", "z_m",
-                           "azimuth_deg", "pitch_deg", "roll_deg", "method"}
+    assert set(header) == {
+        "timestamp_s",
+        "transmitter",
+        "packet_id",
+        "x_m",
+        "y_m",
+        "z_m",
+        "azimuth_deg",
+        "pitch_deg",
+        "roll_deg",
+        "method",
+    }
     code, out, err = run(["score", str(scenario / "truth.csv"), str(est), "--json"], capsys)
     assert code == 0, err
     (row,) = json.loads(out)
@@ -44,8 +64,9 @@ def test_locate_then_score(scenario, capsys, method):
 
 def test_locate_errors_are_one_line(scenario, capsys, tmp_path):
     site, pk = str(scenario / "site"), scenario / "packets.csv"
-    code, _, err = run(["locate", site, str(pk), "-o", str(tmp_path / "e.csv"),
-                        "--method", "magic"], capsys)
+    code, _, err = run(
+        ["locate", site, str(pk), "-o", str(tmp_path / "e.csv"), "--method", "magic"], capsys
+    )
     assert code == 2 and err.count("\n") == 1 and "--method must be one of" in err
     lines = pk.read_text().splitlines()
     bad = tmp_path / "bad.csv"

@@ -24,9 +24,12 @@ def _est(truth, rows, method="full", dpos=(0, 0, 0), daz=0.0) -> Estimates:
     rows = np.asarray(rows)
     n = rows.size
     return Estimates(
-        truth.timestamp_s[rows] + 1e-10, np.full(n, TX.upper(), object),
-        np.array([str(r) for r in rows], object), truth.position_m[rows] + np.array(dpos),
-        truth.orientation_deg[rows] + np.array([daz, 0, 0]), np.full(n, method, object),
+        truth.timestamp_s[rows] + 1e-10,
+        np.full(n, TX.upper(), object),
+        np.array([str(r) for r in rows], object),
+        truth.position_m[rows] + np.array(dpos),
+        truth.orientation_deg[rows] + np.array([daz, 0, 0]),
+        np.full(n, method, object),
     )
 
 
@@ -41,9 +44,19 @@ def test_errors_and_coverage():
 def test_per_method_rows_and_position_only_lms():
     tr = _truth()
     a, b = _est(tr, [1, 2]), _est(tr, [1, 2, 3], method="lms", daz=90.0)
-    est = Estimates(*(np.concatenate([getattr(a, f), getattr(b, f)]) for f in
-                      ("timestamp_s", "transmitter", "packet_id", "position_m",
-                       "orientation_deg", "method")))
+    est = Estimates(
+        *(
+            np.concatenate([getattr(a, f), getattr(b, f)])
+            for f in (
+                "timestamp_s",
+                "transmitter",
+                "packet_id",
+                "position_m",
+                "orientation_deg",
+                "method",
+            )
+        )
+    )
     full, lms = score(tr, est)
     assert (full.method, lms.method) == ("full", "lms")
     assert lms.coverage == pytest.approx(0.3) and lms.orientation_deg is None
@@ -59,9 +72,13 @@ def test_empty_estimates_score_zero_coverage():
 def test_estimate_without_truth_is_an_error():
     tr = _truth()
     e = _est(tr, [1])
-    e = Estimates(e.timestamp_s + 1.0, *(getattr(e, f) for f in
-                                         ("transmitter", "packet_id", "position_m",
-                                          "orientation_deg", "method")))
+    e = Estimates(
+        e.timestamp_s + 1.0,
+        *(
+            getattr(e, f)
+            for f in ("transmitter", "packet_id", "position_m", "orientation_deg", "method")
+        ),
+    )
     with pytest.raises(InputError, match="no truth row"):
         score(tr, e)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from radiopose.errors import InputError
-from radiopose.packets import Packets, PacketObservation, group_packets
+from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.tracker import (
     METHODS,
     SKIP_TOO_FEW_RECEIVERS,
@@ -60,8 +60,9 @@ def test_rotation_model_keeps_the_track_on_the_reachable_mode():
     cand = _two_mode_candidates()
     out = step_full(cand, 0.01, state, TrackerConfig(use_movement_model=False))
     assert out.ok and abs(out.orientation_deg[0] - 12.0) < 1.5  # 3.6° allowed in 10 ms
-    free = step_full(cand, 0.01, state,
-                     TrackerConfig(use_movement_model=False, use_rotation_model=False))
+    free = step_full(
+        cand, 0.01, state, TrackerConfig(use_movement_model=False, use_rotation_model=False)
+    )
     assert abs(free.orientation_deg[0] - 200.0) < 1.5
     # past the gap cap (0.25 s) the orientation is re-acquired without constraint
     late = step_full(cand, 0.3, state, TrackerConfig(use_movement_model=False))
@@ -114,8 +115,15 @@ def test_streaming_equals_batch(small_sim):
 
 def _packets(rows, path="p.csv") -> Packets:
     pid, t, tx, rx, rss = zip(*rows, strict=True)
-    return Packets(np.array(pid, object), np.array(t, float), np.array(tx, object),
-                   np.array(rx, object), np.array(rss, float), np.arange(2, 2 + len(rows)), path)
+    return Packets(
+        np.array(pid, object),
+        np.array(t, float),
+        np.array(tx, object),
+        np.array(rx, object),
+        np.array(rss, float),
+        np.arange(2, 2 + len(rows)),
+        path,
+    )
 
 
 def _rows(sim, n=4, drop=()):
@@ -131,14 +139,20 @@ def _rows(sim, n=4, drop=()):
 def test_bad_input_errors(small_sim):
     site = small_sim.site
     with pytest.raises(InputError, match="no packets"):
-        locate(site, _packets([("0", 0.0, "x", "rx1", -50.0)]).__class__(
-            *(np.empty(0, object),) * 5, np.empty(0, int), "p.csv"))
+        locate(
+            site,
+            _packets([("0", 0.0, "x", "rx1", -50.0)]).__class__(
+                *(np.empty(0, object),) * 5, np.empty(0, int), "p.csv"
+            ),
+        )
     rows = _rows(small_sim)
-    bad_rx = rows[:3] + [(rows[3][0], rows[3][1], rows[3][2], "rx99", rows[3][4])]
-    with pytest.raises(InputError, match=r"p\.csv:5, column 'receiver_id'.*'rx99' is not in the site"):
+    bad_rx = [*rows[:3], (rows[3][0], rows[3][1], rows[3][2], "rx99", rows[3][4])]
+    with pytest.raises(
+        InputError, match=r"p\.csv:5, column 'receiver_id'.*'rx99' is not in the site"
+    ):
         locate(site, _packets(bad_rx))
     backwards = [r for r in rows if r[0] == "1"] + [r for r in rows if r[0] == "0"]
-    with pytest.raises(InputError, match="timestamp_s.*earlier than the previous packet"):
+    with pytest.raises(InputError, match=r"timestamp_s.*earlier than the previous packet"):
         locate(site, _packets(backwards))
     stranger = [(p, t, "aa:bb:cc:dd:ee:ff", rx, v) for p, t, _, rx, v in rows]
     with pytest.raises(InputError, match="no packet is from an enrolled transmitter"):

@@ -114,7 +114,9 @@ class LmsLocator:
     def for_site(cls, site: Site, init_step_m: float = 1.0) -> LmsLocator:
         a = site.area
         return cls(
-            fit_log_distance(site), (a.x_min_m, a.x_max_m, a.y_min_m, a.y_max_m), a.z_m,
+            fit_log_distance(site),
+            (a.x_min_m, a.x_max_m, a.y_min_m, a.y_max_m),
+            a.z_m,
             init_step_m,
         )
 

@@ -89,8 +89,12 @@ class Estimates:
     def select(self, mask: np.ndarray) -> Estimates:
         """The rows where ``mask`` is true."""
         return Estimates(
-            self.timestamp_s[mask], self.transmitter[mask], self.packet_id[mask],
-            self.position_m[mask], self.orientation_deg[mask], self.method[mask],
+            self.timestamp_s[mask],
+            self.transmitter[mask],
+            self.packet_id[mask],
+            self.position_m[mask],
+            self.orientation_deg[mask],
+            self.method[mask],
         )
 
 

@@ -21,17 +21,23 @@ from matplotlib.figure import Figure
 
 from radiopose.estimates import Estimates
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
+from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.packets import PacketObservation
 from radiopose.units import FloatArray
 
 
 def mse_map_db2(
-    space: CandidateSpace, packet: PacketObservation, receiver_id: str | None = None
+    space: CandidateSpace,
+    packet: PacketObservation,
+    receiver_id: str | None = None,
+    table: TableScorer | None = None,
 ) -> FloatArray:
     """MSE over the area ``(nx, ny)``, dB², minimised over orientations.
 
     ``receiver_id=None`` combines every receiver that heard the packet; a
-    receiver id uses that receiver alone (its squared error).
+    receiver id uses that receiver alone (its squared error). With ``table``
+    (a :class:`~radiopose.likelihood.TableScorer` of the same space) the map is
+    read from its float32 table — fast; otherwise computed exactly in float64.
     """
     heard = space.heard(packet)
     if receiver_id is not None:
@@ -41,6 +47,15 @@ def mse_map_db2(
             raise ValueError(f"receiver {receiver_id!r} did not hear packet {packet.packet_id!r}")
         heard = HeardRss(heard.receiver_index[sel], heard.rss_dbm[sel])
     n_pos, n_o = space.n_positions, space.n_orientations
+    xs = np.unique(space.positions_m[:, 0])
+    if table is not None:
+        acc = np.zeros(space.n_candidates, dtype=np.float32)
+        for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
+            d = np.float32(rss - table.centre_db[r]) - table.table[:, r]
+            acc += d * d
+        per_pos = (acc / heard.n_heard).reshape(n_pos, n_o).min(axis=1).astype(np.float64)
+        per_pos[~np.all(table.valid[:, heard.receiver_index], axis=1)] = np.inf
+        return per_pos.reshape(xs.size, -1)
     best = np.full(n_pos, np.inf)
     chunk = max(1, 1_000_000 // max(n_o * space.n_receivers, 1))
     for start in range(0, n_pos, chunk):
@@ -52,7 +67,6 @@ def mse_map_db2(
         for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
             acc += (rss - exp[:, r]) ** 2
         best[start:stop] = (acc / heard.n_heard).reshape(-1, n_o).min(axis=1)
-    xs = np.unique(space.positions_m[:, 0])
     return best.reshape(xs.size, -1)
 
 
@@ -62,12 +76,13 @@ def plot_mse_map(
     receiver_id: str | None = None,
     *,
     truth_xy_m: FloatArray | None = None,
+    table: TableScorer | None = None,
     ax: Axes | None = None,
 ) -> Axes:
     """Image of :func:`mse_map_db2` (dB², log colour scale), receivers as triangles."""
     if ax is None:
         _, ax = plt.subplots(figsize=(5, 4.5))
-    m = mse_map_db2(space, packet, receiver_id)
+    m = mse_map_db2(space, packet, receiver_id, table)
     xs = np.unique(space.positions_m[:, 0])
     ys = np.unique(space.positions_m[:, 1])
     img = ax.pcolormesh(xs, ys, np.log10(m.T + 1e-3), shading="auto", cmap="viridis_r")
@@ -84,7 +99,11 @@ def plot_mse_map(
 
 
 def mse_map_figure(
-    space: CandidateSpace, packet: PacketObservation, *, truth_xy_m: FloatArray | None = None
+    space: CandidateSpace,
+    packet: PacketObservation,
+    *,
+    truth_xy_m: FloatArray | None = None,
+    table: TableScorer | None = None,
 ) -> Figure:
     """One MSE map per receiver that heard the packet, and the combined map."""
     ids = [space.receiver_ids[r] for r in space.heard(packet).receiver_index]
@@ -93,7 +112,7 @@ def mse_map_figure(
     rows = -(-n // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 4.0 * rows), squeeze=False)
     for ax, rid in zip(axes.flat, [*ids, None], strict=False):
-        plot_mse_map(space, packet, rid, truth_xy_m=truth_xy_m, ax=ax)
+        plot_mse_map(space, packet, rid, truth_xy_m=truth_xy_m, table=table, ax=ax)
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
     fig.suptitle(f"MSE of packet {packet.packet_id} (best orientation per position)")
@@ -119,13 +138,25 @@ def plot_trajectory(
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (name, est) in enumerate(estimates.items()):
         c = colours[i % len(colours)]
-        ax.plot(est.position_m[:, 0], est.position_m[:, 1], ".", ms=3, color=c,
-                label=f"{name} ({len(est)} estimates)")
+        ax.plot(
+            est.position_m[:, 0],
+            est.position_m[:, 1],
+            ".",
+            ms=3,
+            color=c,
+            label=f"{name} ({len(est)} estimates)",
+        )
         if len(est):
             _arrows(ax, est.position_m[:, :2], est.orientation_deg[:, 0], arrows, c)
     if receivers_xy_m is not None:
-        ax.scatter(receivers_xy_m[:, 0], receivers_xy_m[:, 1], marker="^", s=70, c="grey",
-                   label="receivers")
+        ax.scatter(
+            receivers_xy_m[:, 0],
+            receivers_xy_m[:, 1],
+            marker="^",
+            s=70,
+            c="grey",
+            label="receivers",
+        )
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_aspect("equal")
@@ -140,8 +171,17 @@ def _arrows(ax: Axes, xy: FloatArray, azimuth_deg: FloatArray, n: int, colour: s
     idx = np.unique(np.linspace(0, xy.shape[0] - 1, min(n, xy.shape[0])).astype(int))
     # Body +y (top of the device) points to world azimuth + 90° from +x.
     a = np.deg2rad(np.asarray(azimuth_deg)[idx] + 90.0)
-    ax.quiver(xy[idx, 0], xy[idx, 1], np.cos(a), np.sin(a), color=colour, angles="xy",
-              scale_units="xy", scale=2.0, width=0.004)
+    ax.quiver(
+        xy[idx, 0],
+        xy[idx, 1],
+        np.cos(a),
+        np.sin(a),
+        color=colour,
+        angles="xy",
+        scale_units="xy",
+        scale=2.0,
+        width=0.004,
+    )
 
 
 def plot_orientation_error(

@@ -467,21 +467,12 @@ def write_site_toml(
         fh.write("\n".join(lines))
 
 
-def write_site(
-    directory: str | os.PathLike[str],
-    *,
-    name: str,
-    area: AreaGrid,
-    orientations: OrientationGrid,
-    survey_config: SurveyConfig,
-    receivers: tuple[Receiver, ...],
-    devices: tuple[Device, ...],
-    patterns: Mapping[str, Pattern],
-    survey_rows: SurveyRows,
-) -> None:
-    """Write a site directory in the contract layout."""
+def write_site(site: Site, directory: str | os.PathLike[str]) -> None:
+    """Write a site directory in the contract layout (each file atomically)."""
     root = Path(directory)
-    write_site_toml(root / "site.toml", name, area, orientations, survey_config)
+    receivers, devices, survey_rows = site.receivers, site.devices, site.survey_rows
+    write_site_toml(root / "site.toml", site.name, site.area, site.orientations,
+                    site.survey_config)
     write_table(
         root / "receivers.csv",
         {
@@ -501,7 +492,7 @@ def write_site(
             "tx_power_dbm": np.array([d.tx_power_dbm for d in devices], float),
         },
     )
-    for pname, pat in patterns.items():
+    for pname, pat in site.patterns.items():
         write_pattern_csv(pat.renamed(pname), root / "patterns" / f"{pname}.csv")
     write_table(
         root / "survey.csv",

@@ -128,29 +128,35 @@ class TrackerConfig:
             ("orientation_min_samples", self.orientation_min_samples >= 1),
             ("max_rotation_deg", self.max_rotation_deg > 0),
             ("rotation_period_s", self.rotation_period_s > 0),
-            ("max_orientation_gap_s",
-             self.max_orientation_gap_s is None or self.max_orientation_gap_s >= 0),
+            (
+                "max_orientation_gap_s",
+                self.max_orientation_gap_s is None or self.max_orientation_gap_s >= 0,
+            ),
             ("position_eps_m", self.position_eps_m > 0),
             ("position_min_samples", self.position_min_samples >= 1),
             ("max_speed_mps", self.max_speed_mps > 0),
-            ("max_position_gap_s",
-             self.max_position_gap_s is None or self.max_position_gap_s >= 0),
+            ("max_position_gap_s", self.max_position_gap_s is None or self.max_position_gap_s >= 0),
             ("primary", self.primary in ("position", "orientation")),
             ("min_receivers", self.min_receivers >= 1),
         ]
         for name, ok in checks:
             if not ok:
-                raise InputError(f"tracker setting {name} = {getattr(self, name)!r} is out of range")
+                raise InputError(
+                    f"tracker setting {name} = {getattr(self, name)!r} is out of range"
+                )
 
     @property
     def rotation_model(self) -> RotationModel:
-        return RotationModel(self.max_rotation_deg, self.rotation_period_s,
-                             self.max_orientation_gap_s)
+        return RotationModel(
+            self.max_rotation_deg, self.rotation_period_s, self.max_orientation_gap_s
+        )
 
     @property
     def movement_model(self) -> MovementModel:
         gap = self.max_position_gap_s
-        return MovementModel(self.max_speed_mps, self.rotation_period_s / 2.0 if gap is None else gap)
+        return MovementModel(
+            self.max_speed_mps, self.rotation_period_s / 2.0 if gap is None else gap
+        )
 
 
 @dataclass(frozen=True)
@@ -243,8 +249,11 @@ def orientation_clusters(
             continue
         per_axis.append(
             cluster_axis_deg(
-                vals, weights, eps_deg=config.orientation_eps_deg,
-                min_samples=config.orientation_min_samples, periodic=PERIODIC_AXES[axis],
+                vals,
+                weights,
+                eps_deg=config.orientation_eps_deg,
+                min_samples=config.orientation_min_samples,
+                periodic=PERIODIC_AXES[axis],
                 wrap_duplication=config.wrap_duplication,
             )
         )
@@ -264,13 +273,19 @@ def _dt(t_s: float, since_s: float | None) -> float:
 
 
 def _position_stage(
-    cand: Candidates, w: FloatArray, subset: np.ndarray, state: TrackState, t_s: float,
+    cand: Candidates,
+    w: FloatArray,
+    subset: np.ndarray,
+    state: TrackState,
+    t_s: float,
     config: TrackerConfig,
 ) -> tuple[list[tuple[FloatArray, np.ndarray]], str | None]:
     """Position clusters of ``subset`` surviving the movement model, as (centroid, members)."""
     clusters = cluster_positions_m(
-        cand.positions_m[subset], w[subset],
-        eps_m=config.position_eps_m, min_samples=config.position_min_samples,
+        cand.positions_m[subset],
+        w[subset],
+        eps_m=config.position_eps_m,
+        min_samples=config.position_min_samples,
     )
     if not clusters:
         return [], SKIP_NO_POSITION_CLUSTER
@@ -485,8 +500,12 @@ class Tracker:
         if not out.ok:
             return None, out.reason
         est = PoseEstimate(
-            t, dev.space.transmitter, packet.packet_id,
-            out.position_m, out.orientation_deg, self.method,  # type: ignore[arg-type]
+            t,
+            dev.space.transmitter,
+            packet.packet_id,
+            out.position_m,
+            out.orientation_deg,
+            self.method,  # type: ignore[arg-type]
         )
         return est, None
 
@@ -541,8 +560,9 @@ class LocateResult:
 
 def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
     if len(packets) == 0:
-        raise InputError("no packets (the file has a header but no rows)", path=packets.path,
-                         line=2)
+        raise InputError(
+            "no packets (the file has a header but no rows)", path=packets.path, line=2
+        )
     known = set(site.receiver_ids)
     for i, rid in enumerate(packets.receiver_id):
         if rid not in known:
@@ -550,7 +570,9 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
             raise InputError(
                 f"receiver {rid!r} is not in the site (site receivers: "
                 f"{', '.join(site.receiver_ids)})",
-                path=packets.path, line=line, column="receiver_id",
+                path=packets.path,
+                line=line,
+                column="receiver_id",
             )
     obs = group_packets(packets)
     last: dict[str, tuple[float, str]] = {}
@@ -560,7 +582,9 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
             if rid in seen:
                 raise InputError(
                     f"packet {o.packet_id!r} of {o.transmitter} has two rows for receiver {rid!r}",
-                    path=packets.path, line=o.line, column="receiver_id",
+                    path=packets.path,
+                    line=o.line,
+                    column="receiver_id",
                 )
             seen.add(rid)
         key = o.transmitter.lower()
@@ -570,7 +594,9 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
                 f"timestamp {o.timestamp_s:.9g} s of packet {o.packet_id!r} is earlier than the "
                 f"previous packet {prev[1]!r} of {o.transmitter} ({prev[0]:.9g} s); packets of "
                 "a transmitter must be in time order",
-                path=packets.path, line=o.line, column="timestamp_s",
+                path=packets.path,
+                line=o.line,
+                column="timestamp_s",
             )
         last[key] = (o.timestamp_s, o.packet_id)
     enrolled = {d.transmitter.lower() for d in site.devices}
@@ -578,7 +604,8 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
         raise InputError(
             f"no packet is from an enrolled transmitter (first: {obs[0].transmitter!r}; "
             f"devices.csv has {', '.join(d.transmitter for d in site.devices) or 'none'})",
-            path=packets.path, column="transmitter",
+            path=packets.path,
+            column="transmitter",
         )
     return obs
 

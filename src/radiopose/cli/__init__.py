@@ -39,7 +39,7 @@ def _register() -> None:
     # Imported for their side effect of adding commands to ``app``.
     import importlib
 
-    for name in ("core", "patterns", "capture", "pipeline"):
+    for name in ("core", "patterns", "capture", "pipeline", "server", "evaluate", "security"):
         try:
             importlib.import_module(f"radiopose.cli.{name}")
         except ModuleNotFoundError as exc:  # an area not written yet

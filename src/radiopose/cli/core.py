@@ -87,8 +87,23 @@ def demo(
     duration_s: Annotated[
         float, typer.Option("--duration-s", help="Length of the simulated trace, seconds.")
     ] = 1.0,
+    live: Annotated[
+        bool,
+        typer.Option(
+            "--live",
+            help="Run the live system instead: a server and one replaying receiver agent per "
+            "receiver (a 60 s trace unless --duration-s is longer than 1); Ctrl-C stops.",
+        ),
+    ] = False,
+    port: Annotated[int, typer.Option(help="--live: the server's port on 127.0.0.1.")] = 8000,
 ) -> None:
     """Simulate the paper's standard scenario, localise it, and write figures and a table."""
+    if live:
+        from radiopose.server.demo import run_live_demo
+
+        run_live_demo(out, seed=seed, noise_db=noise_db,
+                      duration_s=duration_s if duration_s > 1.0 else 60.0, port=port, echo=print)
+        return
     from radiopose.demo import run_demo
 
     run_demo(out, seed=seed, noise_db=noise_db, duration_s=duration_s, echo=print)

@@ -17,9 +17,7 @@ def locate(
     site: Annotated[Path, typer.Argument(help="Site directory (site.toml, receivers.csv, …).")],
     packets: Annotated[Path, typer.Argument(help="Synchronised packets.csv.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Estimates CSV to write.")],
-    method: Annotated[
-        str, typer.Option(help="full, location, orientation, top or lms.")
-    ] = "full",
+    method: Annotated[str, typer.Option(help="full, location, orientation, top or lms.")] = "full",
     kernel: Annotated[
         str, typer.Option(help="Likelihood scorer: numpy (fast) or reference (exhaustive).")
     ] = "numpy",
@@ -55,8 +53,11 @@ def locate(
         )
 
         with Progress(
-            TextColumn(f"locate ({method})"), BarColumn(), MofNCompleteColumn(),
-            TimeRemainingColumn(), transient=True,
+            TextColumn(f"locate ({method})"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+            transient=True,
         ) as bar:
             task = bar.add_task("packets", total=None)
 
@@ -93,14 +94,20 @@ def score(
     def fmt(x: float | None, d: int) -> str:
         return "-" if x is None else f"{x:.{d}f}"
 
-    print(f"{'method':<12} {'coverage':>9} {'estimates':>10}  {'position error (m)':>24}  "
-          f"{'orientation error (deg)':>24}")
-    print(f"{'':<12} {'':>9} {'':>10}  {'mean':>7} {'median':>7} {'p95':>8}  "
-          f"{'mean':>7} {'median':>7} {'p95':>8}")
+    print(
+        f"{'method':<12} {'coverage':>9} {'estimates':>10}  {'position error (m)':>24}  "
+        f"{'orientation error (deg)':>24}"
+    )
+    print(
+        f"{'':<12} {'':>9} {'':>10}  {'mean':>7} {'median':>7} {'p95':>8}  "
+        f"{'mean':>7} {'median':>7} {'p95':>8}"
+    )
     for s in scores:
         p = s.position_m
         o = s.orientation_deg
         om, omed, op = (None, None, None) if o is None else (o.mean, o.median, o.p95)
-        print(f"{s.method:<12} {100 * s.coverage:>8.1f}% {s.n_estimates:>10}  "
-              f"{fmt(p.mean, 3):>7} {fmt(p.median, 3):>7} {fmt(p.p95, 3):>8}  "
-              f"{fmt(om, 2):>7} {fmt(omed, 2):>7} {fmt(op, 2):>8}")
+        print(
+            f"{s.method:<12} {100 * s.coverage:>8.1f}% {s.n_estimates:>10}  "
+            f"{fmt(p.mean, 3):>7} {fmt(p.median, 3):>7} {fmt(p.p95, 3):>8}  "
+            f"{fmt(om, 2):>7} {fmt(omed, 2):>7} {fmt(op, 2):>8}"
+        )

@@ -19,7 +19,7 @@ import numpy as np
 from radiopose.estimates import POSITION_ONLY_METHODS, Estimates, write_estimates_csv
 from radiopose.evaluate.scoring import ErrorStats, error_stats, match_truth
 from radiopose.geometry import orientation_error_deg
-from radiopose.likelihood import MemoScorer, Scorer, candidate_space, make_scorer
+from radiopose.likelihood import MemoScorer, Scorer, TableScorer, candidate_space, make_scorer
 from radiopose.packets import group_packets
 from radiopose.simulate import Simulation
 from radiopose.tracker import METHODS, RunSummary, TrackerConfig, locate
@@ -145,8 +145,12 @@ def summarise(runs: Iterable[MethodRun], noise_db: float = float("nan")) -> Tabl
     pos = np.concatenate([r.position_error_m for r in runs])
     ori = np.concatenate([r.orientation_error_deg for r in runs])
     return TableRow(
-        runs[0].method, noise_db, n_est / n_pk if n_pk else 0.0, error_stats(pos),
-        error_stats(ori), len(runs),
+        runs[0].method,
+        noise_db,
+        n_est / n_pk if n_pk else 0.0,
+        error_stats(pos),
+        error_stats(ori),
+        len(runs),
     )
 
 
@@ -209,12 +213,16 @@ def run_demo_pipeline(
         written.append(p)
 
     first = group_packets(sim.packets)[0]
-    fig = plots.mse_map_figure(scorer.space, first, truth_xy_m=sim.truth.position_m[0, :2])
+    table = scorer if isinstance(scorer, TableScorer) else None
+    fig = plots.mse_map_figure(
+        scorer.space, first, truth_xy_m=sim.truth.position_m[0, :2], table=table
+    )
     written.append(_save(fig, out / "mse_map.png"))
     plt.close(fig)
 
     ax = plots.plot_trajectory(
-        sim.truth.position_m, sim.truth.orientation_deg[:, 0],
+        sim.truth.position_m,
+        sim.truth.orientation_deg[:, 0],
         {m: runs[m].estimates for m in ("full", "top")},
         receivers_xy_m=sim.site.receiver_positions_m()[:, :2],
     )
@@ -222,8 +230,10 @@ def run_demo_pipeline(
     plt.close(ax.figure)
 
     ax = plots.plot_orientation_error(
-        {m: (runs[m].estimates.timestamp_s, runs[m].orientation_error_deg)
-         for m in ("full", "location", "orientation", "top")}
+        {
+            m: (runs[m].estimates.timestamp_s, runs[m].orientation_error_deg)
+            for m in ("full", "location", "orientation", "top")
+        }
     )
     written.append(_save(ax.figure, out / "orientation_error.png"))
     plt.close(ax.figure)

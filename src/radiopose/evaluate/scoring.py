@@ -87,7 +87,7 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
         An estimate without a truth row.
     """
     out = np.empty(len(estimates), dtype=np.int64)
-    tol_ns = int(round(tolerance_s * 1e9))
+    tol_ns = round(tolerance_s * 1e9)
     t_ns = seconds_to_ns(truth.timestamp_s)
     tx = np.array([str(s).lower() for s in truth.transmitter], dtype=object)
     by_tx: dict[str, tuple[NDArray, NDArray]] = {}
@@ -107,11 +107,11 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
         j = int(np.searchsorted(times, e_ns[i]))
         best = None
         for c in (j - 1, j):
-            if 0 <= c < times.size and abs(int(times[c]) - int(e_ns[i])) <= tol_ns:
-                if best is None or abs(int(times[c]) - int(e_ns[i])) < abs(
-                    int(times[best]) - int(e_ns[i])
-                ):
-                    best = c
+            if not 0 <= c < times.size:
+                continue
+            gap = abs(int(times[c]) - int(e_ns[i]))
+            if gap <= tol_ns and (best is None or gap < abs(int(times[best]) - int(e_ns[i]))):
+                best = c
         if best is None:
             raise InputError(
                 f"estimate {i + 1} (packet {estimates.packet_id[i]!r}, "
@@ -139,11 +139,18 @@ def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tupl
         if m not in POSITION_ONLY_METHODS:
             ori = error_stats(
                 orientation_error_deg(estimates.orientation_deg[sel], truth.orientation_deg[rows])
-                if rows.size else np.empty(0)
+                if rows.size
+                else np.empty(0)
             )
         n_est = int(sel.sum())
         out.append(
-            MethodScore(m, n_packets, n_est, n_est / n_packets if n_packets else 0.0,
-                        error_stats(pos_err), ori)
+            MethodScore(
+                m,
+                n_packets,
+                n_est,
+                n_est / n_packets if n_packets else 0.0,
+                error_stats(pos_err),
+                ori,
+            )
         )
     return tuple(out)

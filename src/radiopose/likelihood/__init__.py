@@ -11,7 +11,11 @@ Registry (:data:`SCORERS`):
 
 * ``"reference"`` — exhaustive float64 (:mod:`~radiopose.likelihood.reference`);
 * ``"numpy"`` — float32 table screen + exact rescoring
-  (:mod:`~radiopose.likelihood.numpy_kernel`), same output as the reference.
+  (:mod:`~radiopose.likelihood.numpy_kernel`), same output as the reference;
+* ``"numba"`` — compiled circular-shift kernel with fused, pruned top-k and
+  exact rescoring (:mod:`~radiopose.likelihood.compiled`), same output as the
+  reference at a few ms per packet (falls back to ``"numpy"`` for candidate
+  sets without the azimuth-sweep structure).
 
 Example
 -------
@@ -51,9 +55,20 @@ class Scorer(Protocol):
     def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK: ...
 
 
+def _compiled(space: CandidateSpace) -> Scorer:
+    """The compiled shift kernel; the numpy scorer where the space lacks its structure."""
+    from radiopose.likelihood.compiled import ShiftScorer, UnsupportedSpaceError
+
+    try:
+        return ShiftScorer(space)
+    except UnsupportedSpaceError:
+        return TableScorer(space)
+
+
 SCORERS: dict[str, Callable[[CandidateSpace], Scorer]] = {
     "reference": ReferenceScorer,
     "numpy": TableScorer,
+    "numba": _compiled,
 }
 """Scorer name → constructor taking a :class:`CandidateSpace`."""
 

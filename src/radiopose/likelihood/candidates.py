@@ -143,13 +143,15 @@ class CandidateSpace:
             except ValueError:
                 raise InputError(
                     f"packet {packet.packet_id!r}: receiver {rid!r} is not in the site",
-                    line=packet.line, column="receiver_id",
+                    line=packet.line,
+                    column="receiver_id",
                 ) from None
         ridx = np.asarray(idx, dtype=np.int64)
         if np.unique(ridx).size != ridx.size:
             raise InputError(
                 f"packet {packet.packet_id!r}: a receiver appears more than once",
-                line=packet.line, column="receiver_id",
+                line=packet.line,
+                column="receiver_id",
             )
         order = np.argsort(ridx)
         return HeardRss(ridx[order], np.asarray(packet.rss_dbm, dtype=np.float64)[order])

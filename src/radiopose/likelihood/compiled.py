@@ -74,7 +74,7 @@ N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
 
 
-class UnsupportedSpace(ValueError):
+class UnsupportedSpaceError(ValueError):
     """The candidate space lacks the structure this kernel needs."""
 
 
@@ -134,7 +134,7 @@ _PRUNE_ABS = np.float32(1e-6)
 
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
 def _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
-    """Per-receiver terms of position ``p`` into ``e, k, f, t, g``; False if excluded."""  # pragma: no cover
+    """Per-receiver terms of position ``p`` into ``e, k, f, t, g``; False if excluded."""
     for q in range(heard.shape[0]):
         r = heard[q]
         b = base[r, p]
@@ -183,8 +183,12 @@ def _shift_topk(
     roww,  # (n_rx, n_pos) float32  weight of the second row (0: single row)
     rows,  # (n_rows, L) float32  reversed, repeated pattern rows  Rv[k]
     drows,  # (n_rows, L) float32  Rv[k − 1] − Rv[k]
-    blo, bhi, blo2, bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
-    rmin, rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
+    blo,
+    bhi,
+    blo2,
+    bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
+    rmin,
+    rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
     m,  # int  pattern samples per candidate azimuth step
     n_az,  # int  candidate azimuths
     n_q,  # int  (pitch, roll) combinations; orientation index = q·n_az + j
@@ -216,8 +220,7 @@ def _shift_topk(
         count = 0
         for pi in range((n_p * c) // N_CHUNKS, (n_p * (c + 1)) // N_CHUNKS):
             p = positions[pi]
-            if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0,
-                                  e, k, f, t, g):
+            if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
                 continue
             for qq in range(n_q):
                 toff = qq * rows_per_q
@@ -299,12 +302,12 @@ def _row_grid(pattern: Pattern, candidate_step_deg: float) -> tuple[float, int]:
         return sp, round(ratio)
     up = sp / candidate_step_deg
     if abs(up - round(up)) > 1e-9:
-        raise UnsupportedSpace(
+        raise UnsupportedSpaceError(
             f"candidate azimuth step {candidate_step_deg:g} deg and pattern step {sp:g} deg "
             "are not integer multiples of one another"
         )
     if abs(pattern.azimuth_deg[0]) > 1e-12:
-        raise UnsupportedSpace("pattern azimuths must start at 0")
+        raise UnsupportedSpaceError("pattern azimuths must start at 0")
     return candidate_step_deg, 1
 
 
@@ -375,9 +378,7 @@ def _bilinear(rows: NDArray, u: NDArray, v: NDArray) -> NDArray:
     return (1 - g) * top + g * bot
 
 
-def _window_tables(
-    rv: NDArray, m: int, block: int, length: int, n_az: int
-) -> tuple[NDArray, ...]:
+def _window_tables(rv: NDArray, m: int, block: int, length: int, n_az: int) -> tuple[NDArray, ...]:
     """Block bound tables ``(blo, bhi, blo2, bhi2)``, each ``(n_rows, K, n_blocks)`` float32.
 
     ``blo[t, k, b]`` is the minimum of the samples that the ``b``-th block of
@@ -410,7 +411,7 @@ class ShiftScorer:
         The device's candidate space. Orientations must be azimuths
         ``0, s, 2s, …`` (fastest) × any (pitch, roll) combinations, with ``s``
         and the pattern's azimuth step integer multiples of one another —
-        otherwise :class:`UnsupportedSpace`.
+        otherwise :class:`UnsupportedSpaceError`.
     oversample
         The screened shortlist starts at ``k + oversample`` candidates.
     block
@@ -429,13 +430,17 @@ class ShiftScorer:
         n_az = int(np.argmax(np.r_[o[1:, 0] <= o[:-1, 0], True])) + 1
         step = 360.0 / n_az
         if n_o % n_az:
-            raise UnsupportedSpace("orientations are not azimuths × (pitch, roll) combinations")
+            raise UnsupportedSpaceError(
+                "orientations are not azimuths × (pitch, roll) combinations"
+            )
         grid = o.reshape(n_o // n_az, n_az, 3)
         if not (
             np.allclose(grid[:, :, 0], np.arange(n_az) * step, atol=1e-9)
             and np.all(grid[:, :, 1:] == grid[:, :1, 1:])
         ):
-            raise UnsupportedSpace("candidate azimuths must be 0, s, 2s, ... (fastest) covering 360")
+            raise UnsupportedSpaceError(
+                "candidate azimuths must be 0, s, 2s, ... (fastest) covering 360"
+            )
         self.space = space
         self.n_az = n_az
         self.qs_deg = np.ascontiguousarray(grid[:, 0, 1:])  # (n_q, 2) pitch, roll
@@ -495,8 +500,10 @@ class ShiftScorer:
         valid = np.isfinite(space.channel_db)
         base = space.channel_db + space.tx_power_dbm
         self.centre_db = np.array(
-            [float(np.mean(base[r][valid[r]])) if valid[r].any() else 0.0
-             for r in range(space.n_receivers)]
+            [
+                float(np.mean(base[r][valid[r]])) if valid[r].any() else 0.0
+                for r in range(space.n_receivers)
+            ]
         )
         self.base = np.ascontiguousarray(base - self.centre_db[:, None], dtype=np.float32)
         with np.errstate(invalid="ignore"):
@@ -507,8 +514,16 @@ class ShiftScorer:
     @property
     def nbytes(self) -> int:
         """Memory held by the precomputed tables, bytes."""
-        arrays = (self.rows, self.drows, *self.bounds, self.base, self.off, self.frac,
-                  self.row0, self.roww)
+        arrays = (
+            self.rows,
+            self.drows,
+            *self.bounds,
+            self.base,
+            self.off,
+            self.frac,
+            self.row0,
+            self.roww,
+        )
         return int(sum(a.nbytes for a in arrays))
 
     # ------------------------------------------------------------------ scoring
@@ -522,9 +537,22 @@ class ShiftScorer:
         return 2.0 * eps * np.sqrt(v + eps) + eps * eps + 2.0 * (h + 2) * _EPS32 * v
 
     def _kernel_args(self) -> tuple:
-        return (self.base, self.off, self.frac, self.row0, self.roww, self.rows, self.drows,
-                *self.bounds, self.row_min, self.row_max, self.m, self.n_az, self.n_q,
-                self.rows_per_q)
+        return (
+            self.base,
+            self.off,
+            self.frac,
+            self.row0,
+            self.roww,
+            self.rows,
+            self.drows,
+            *self.bounds,
+            self.row_min,
+            self.row_max,
+            self.m,
+            self.n_az,
+            self.n_q,
+            self.rows_per_q,
+        )
 
     def _threshold(
         self, w: np.ndarray, r: np.ndarray, positions: np.ndarray, j0: int, cnt: int, kk: int
@@ -540,8 +568,17 @@ class ShiftScorer:
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
-        pv, _ = _shift_topk(w, r, *self._kernel_args(), np.ascontiguousarray(pick), j0, cnt,
-                            kk, self.block, np.float32(np.inf))
+        pv, _ = _shift_topk(
+            w,
+            r,
+            *self._kernel_args(),
+            np.ascontiguousarray(pick),
+            j0,
+            cnt,
+            kk,
+            self.block,
+            np.float32(np.inf),
+        )
         vals = np.sort(pv[np.isfinite(pv)])
         return float(vals[kk - 1]) if vals.size >= kk else np.inf
 
@@ -556,8 +593,9 @@ class ShiftScorer:
             thr0 = np.inf
             if self.prune and n_total > 8 * kk_eff:
                 thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
-            out_v, out_i = _shift_topk(w, r, *self._kernel_args(), positions, j0, cnt, kk_eff,
-                                       self.block, np.float32(thr0))
+            out_v, out_i = _shift_topk(
+                w, r, *self._kernel_args(), positions, j0, cnt, kk_eff, self.block, np.float32(thr0)
+            )
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
             i = out_i.ravel()[ok]
@@ -613,8 +651,8 @@ class ShiftScorer:
         if azimuth_span_deg >= 360.0 - 1e-9:
             j0, cnt = 0, self.n_az
         else:
-            j0 = int(math.ceil((azimuth_lo_deg % 360.0) / step - 1e-9)) % self.n_az
-            cnt = min(self.n_az, int(math.floor(azimuth_span_deg / step + 1e-9)) + 1)
+            j0 = math.ceil((azimuth_lo_deg % 360.0) / step - 1e-9) % self.n_az
+            cnt = min(self.n_az, math.floor(azimuth_span_deg / step + 1e-9) + 1)
         pos = np.ascontiguousarray(np.unique(np.asarray(positions, np.int64)))
         if pos.size == 0:
             return TopK(np.empty(0, np.int64), np.empty(0))

@@ -161,7 +161,9 @@ class TableScorer:
         v += np.float32(np.sum(w64 * w64))
         g = self.gmax_db[r]
         delta = (
-            4.0 * (heard.n_heard + 4) * _EPS32
+            4.0
+            * (heard.n_heard + 4)
+            * _EPS32
             * float(np.sum(g * g) + 2.0 * np.sum(np.abs(w64) * g) + np.sum(w64 * w64))
         )
         pos_min = v.reshape(s.n_positions, n_o).min(axis=1)

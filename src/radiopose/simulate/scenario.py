@@ -147,18 +147,7 @@ class Simulation:
     def write(self, directory: str | os.PathLike[str]) -> list[Path]:
         """Write ``DIR/site/``, ``DIR/packets.csv`` and ``DIR/truth.csv``; return the paths."""
         root = Path(directory)
-        s = self.site
-        write_site(
-            root / "site",
-            name=s.name,
-            area=s.area,
-            orientations=s.orientations,
-            survey_config=s.survey_config,
-            receivers=s.receivers,
-            devices=s.devices,
-            patterns=s.patterns,
-            survey_rows=s.survey_rows,
-        )
+        write_site(self.site, root / "site")
         write_packets_csv(self.packets, root / "packets.csv")
         write_truth_csv(self.truth, root / "truth.csv")
         return [root / "site", root / "packets.csv", root / "truth.csv"]

@@ -1,0 +1,243 @@
+"""``radiopose serve``, ``token create``, ``receiver`` and ``db export``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from radiopose.cli import app
+from radiopose.errors import InputError
+
+DEFAULT_DB = "radiopose.db"
+
+token_app = typer.Typer(help="Bearer tokens of the live server.", no_args_is_help=True)
+db_app = typer.Typer(help="The live server's database.", no_args_is_help=True)
+app.add_typer(token_app, name="token")
+app.add_typer(db_app, name="db")
+
+
+def _url(db: str) -> str:
+    """A SQLAlchemy URL; a plain path means a SQLite file."""
+    return db if "://" in db else f"sqlite:///{db}"
+
+
+def _database(db: str):  # type: ignore[no-untyped-def]
+    try:
+        from radiopose.server.db import Database
+    except ModuleNotFoundError as exc:
+        raise InputError(
+            f"the live server needs the 'server' extra ({exc.name} is missing): "
+            "pip install 'radiopose[server]'"
+        ) from None
+    return Database(_url(db))
+
+
+def _partition(value: str) -> tuple[int, int]:
+    try:
+        k, n = (int(v) for v in value.split("/"))
+    except ValueError:
+        raise InputError(f"--partition must be K/N, e.g. 0/2, got {value!r}") from None
+    if not (n >= 1 and 0 <= k < n):
+        raise InputError(f"--partition {value}: need 0 <= K < N")
+    return k, n
+
+
+@app.command()
+def serve(
+    site: Annotated[Path, typer.Argument(help="Site directory, imported into the database.")],
+    db: Annotated[
+        str, typer.Option(help="SQLAlchemy URL or SQLite file (default ./radiopose.db).")
+    ] = DEFAULT_DB,
+    host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="TCP port.")] = 8000,
+    method: Annotated[str, typer.Option(help="Tracker method.")] = "full",
+    partition: Annotated[
+        str, typer.Option(help="K/N: track the K-th of N transmitter partitions.")
+    ] = "0/1",
+    ssl_certfile: Annotated[
+        Path | None, typer.Option("--ssl-certfile", help="TLS certificate (PEM).")
+    ] = None,
+    ssl_keyfile: Annotated[
+        Path | None, typer.Option("--ssl-keyfile", help="TLS private key (PEM).")
+    ] = None,
+    calibration_s: Annotated[
+        float, typer.Option("--calibration-s", help="Clock calibration window, seconds.")
+    ] = 3.0,
+    idle_flush_s: Annotated[
+        float, typer.Option("--idle-flush-s", help="Close open packets after this pause, s.")
+    ] = 5.0,
+    no_pipeline: Annotated[
+        bool, typer.Option("--no-pipeline", help="API only: leave localisation to others.")
+    ] = False,
+    log_level: Annotated[str, typer.Option("--log-level", help="Log level.")] = "info",
+) -> None:
+    """The central server: API, live localisation and dashboard (Ctrl-C stops)."""
+    from radiopose.server.app import create_app, import_site_dir
+    from radiopose.server.jsonlog import configure_logging
+    from radiopose.server.live import LiveConfig
+    from radiopose.tracker import METHODS
+
+    if method not in METHODS:
+        raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    k, n = _partition(partition)
+    if (ssl_certfile is None) != (ssl_keyfile is None):
+        raise InputError("--ssl-certfile and --ssl-keyfile go together")
+    if not (calibration_s > 0 and idle_flush_s > 0):
+        raise InputError("--calibration-s and --idle-flush-s must be > 0")
+    if not 0 < port < 65536:
+        raise InputError(f"--port must be 1-65535, got {port}")
+    import uvicorn
+
+    configure_logging(log_level)
+    database = _database(db)
+    status = import_site_dir(database, site)
+    scheme = "https" if ssl_certfile else "http"
+    print(
+        f"site {site}: {status} (version {database.site_version()}); database {database.url}",
+        flush=True,
+    )
+    print(f"serving on {scheme}://{host}:{port}/ (API docs: /docs)", flush=True)
+    live = LiveConfig(
+        method=method,
+        partition=k,
+        partitions=n,
+        calibration_s=calibration_s,
+        idle_flush_s=idle_flush_s,
+    )
+    application = create_app(database, live, run_pipeline=not no_pipeline, pipeline_mode="process")
+    try:
+        uvicorn.run(
+            application,
+            host=host,
+            port=port,
+            log_config=None,
+            access_log=False,
+            timeout_graceful_shutdown=3,
+            ssl_certfile=None if ssl_certfile is None else str(ssl_certfile),
+            ssl_keyfile=None if ssl_keyfile is None else str(ssl_keyfile),
+        )
+    finally:
+        database.close()
+
+
+@token_app.command("create")
+def token_create(
+    db: Annotated[str, typer.Option(help="SQLAlchemy URL or SQLite file of the server.")],
+    role: Annotated[str, typer.Option(help="admin, receiver or viewer.")],
+    receiver: Annotated[
+        str | None, typer.Option(help="The receiver a receiver token may post as.")
+    ] = None,
+) -> None:
+    """Print a new bearer token on stdout (stored hashed)."""
+    from radiopose.server.auth import check_role, create_token
+
+    check_role(role, receiver)
+    database = _database(db)
+    try:
+        print(create_token(database, role, receiver))
+    finally:
+        database.close()
+
+
+@app.command()
+def receiver(
+    server: Annotated[str, typer.Option(help="Server URL, e.g. http://127.0.0.1:8000.")],
+    token: Annotated[str, typer.Option(help="This receiver's bearer token.")],
+    id: Annotated[str, typer.Option("--id", help="Receiver id (as in receivers.csv).")],
+    replay: Annotated[
+        Path | None, typer.Option(help="Send this capture (pcap, pcapng or CSV), then exit.")
+    ] = None,
+    speed: Annotated[float, typer.Option(help="Replay speed, times real time.")] = 1.0,
+    interface: Annotated[
+        str | None, typer.Option(help="Capture live from this monitor-mode interface.")
+    ] = None,
+    spool: Annotated[
+        Path, typer.Option(help="Directory for batches the server has not acknowledged.")
+    ] = Path("radiopose-spool"),
+    batch_ms: Annotated[float, typer.Option("--batch-ms", help="Batching period, ms.")] = 100.0,
+    quiet: Annotated[bool, typer.Option("-q", "--quiet", help="No summary line.")] = False,
+) -> None:
+    """Ship one receiver's frame reports to the central server."""
+    import threading
+
+    if (replay is None) == (interface is None):
+        raise InputError("give exactly one of --replay CAPTURE or --interface IFACE")
+    if not server.startswith(("http://", "https://")):
+        raise InputError(f"--server must be an http:// or https:// URL, got {server!r}")
+    if not 1.0 <= batch_ms <= 10_000.0:
+        raise InputError(f"--batch-ms must be 1-10000, got {batch_ms}")
+    if replay is not None and not speed > 0:
+        raise InputError(f"--speed must be > 0, got {speed}")
+    try:
+        from radiopose.receiver import (
+            AgentConfig,
+            ReceiverAgent,
+            capture_interface,
+            replay_frames,
+            run_replay,
+        )
+
+        frames = replay_frames(replay, id) if replay is not None else None
+        agent = ReceiverAgent(
+            AgentConfig(server, token, id, spool_dir=spool, batch_interval_s=batch_ms / 1000.0)
+        )
+    except ModuleNotFoundError as exc:
+        raise InputError(
+            f"the receiver needs httpx ({exc.name} is missing): pip install 'radiopose[server]'"
+        ) from None
+    stop = threading.Event()
+    try:
+        if not agent.refresh_transmitters():
+            print(
+                f"radiopose: {server} unreachable; spooling to {agent.spool.dir} until it answers",
+                file=sys.stderr,
+            )
+        if frames is not None:
+            run_replay(agent, frames, speed=speed, stop=stop)
+        else:
+            capture_interface(agent, interface or "", stop=stop)
+        agent.drain()
+    except KeyboardInterrupt:
+        stop.set()
+        agent.close()
+        left = agent.pending()
+        print(
+            f"radiopose: interrupted; {left} batches kept in {agent.spool.dir} "
+            "(sent on the next run)",
+            file=sys.stderr,
+        )
+        raise typer.Exit(130) from None
+    agent.close()
+    st = agent.stats
+    if not quiet:
+        print(
+            f"receiver {id}: {st.frames_in} frames, {st.batches_acked} batches acknowledged "
+            f"({st.duplicates} already stored, {st.resends} retries, {st.spooled} spooled, "
+            f"{st.rejected} rejected, {st.frames_filtered} frames of unenrolled transmitters "
+            "not sent)",
+            file=sys.stderr,
+        )
+    if st.rejected:
+        raise InputError(
+            f"{st.rejected} batches were rejected by the server; kept in "
+            f"{agent.spool.dir / 'rejected'}"
+        )
+
+
+@db_app.command("export")
+def db_export(
+    db: Annotated[str, typer.Option(help="SQLAlchemy URL or SQLite file of the server.")],
+    out: Annotated[Path, typer.Option("-o", "--out", help="Output directory.")],
+) -> None:
+    """Export the run: site/, frames.csv, packets.csv, estimates.csv (replayable)."""
+    from radiopose.server.export import export_run
+
+    database = _database(db)
+    try:
+        for p in export_run(database, out):
+            print(p)
+    finally:
+        database.close()

@@ -1,0 +1,612 @@
+"""The evaluation report: figures, tables, the paper's numbers beside ours, timing.
+
+:func:`write_report` turns the tidy results of :func:`radiopose.evaluate.runner.run_experiments`
+into ``report.md`` (figures as PNG files in ``figures/``) and a self-contained
+``report.html`` (figures embedded), both built from the same blocks. The
+report opens with the exact command and version, compares the ``noise``
+experiment with the paper's headline numbers (:data:`PAPER`) and says where
+they differ, then gives every experiment's figures and per-condition tables,
+and ends with measured run times and the estimated time of a full run.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+import re
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from radiopose.evaluate.experiments import Experiment
+from radiopose.evaluate.statistics import condition_summary, figure_table, mean_ci, ratio_ci
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pandas as pd
+
+    from radiopose.evaluate.runner import RunTask
+
+
+@dataclass(frozen=True)
+class PaperPoint:
+    """The paper's headline numbers at one noise level (4 receivers, 5 ms)."""
+
+    noise_db: float
+    orientation_mean_deg: float
+    position_reduction_pct: float
+
+
+PAPER: tuple[PaperPoint, ...] = (
+    PaperPoint(0.5, 7.6, 82.28),
+    PaperPoint(3.0, 61.8, 35.94),
+)
+"""Mean orientation error of the full pipeline and its mean position error
+reduction versus LMS, as reported in the paper at σ = 0.5 and 3.0 dB."""
+
+
+@dataclass(frozen=True)
+class Invocation:
+    """One ``radiopose evaluate`` invocation on an output directory.
+
+    Attributes
+    ----------
+    elapsed_s
+        Its wall time, seconds.
+    n_computed
+        Runs it computed (the others were resumed).
+    workers
+        Dask workers (0 = in process).
+    scheduler
+        ``"local"``, ``"serial"`` or the scheduler's address.
+    """
+
+    elapsed_s: float
+    n_computed: int
+    workers: int
+    scheduler: str
+
+
+def record_invocation(out_dir: str | Path, inv: Invocation) -> None:
+    """Append an invocation to ``out_dir/invocations.jsonl``."""
+    path = Path(out_dir) / "invocations.jsonl"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(asdict(inv)) + "\n")
+
+
+def read_invocations(out_dir: str | Path) -> tuple[Invocation, ...]:
+    """The invocations recorded in ``out_dir`` (unreadable lines skipped)."""
+    path = Path(out_dir) / "invocations.jsonl"
+    if not path.exists():
+        return ()
+    out = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            out.append(Invocation(**json.loads(line)))
+        except (ValueError, TypeError):
+            continue
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """How the results were produced (the report's header).
+
+    Attributes
+    ----------
+    command
+        The exact command line.
+    version
+        radiopose version (and commit, when known).
+    quick
+        Whether ``--quick`` was in effect.
+    n_tasks
+        Runs in the plan.
+    invocations
+        The invocations that produced the results, oldest first.
+    """
+
+    command: str
+    version: str
+    quick: bool
+    n_tasks: int
+    invocations: tuple[Invocation, ...]
+
+    @property
+    def workers(self) -> int:
+        """Workers of the last invocation that computed runs (else of the last one)."""
+        busy = [i for i in self.invocations if i.n_computed] or list(self.invocations)
+        return busy[-1].workers if busy else 0
+
+
+# ----------------------------------------------------------------------------- blocks
+Block = tuple  # ("h", level, text) | ("p", text) | ("ul", items) | ("table", head, rows)
+#              | ("img", path, alt) | ("code", text)
+
+
+def _inline_html(text: str) -> str:
+    out = html.escape(text)
+    out = re.sub(r"`([^`]+)`", r"<code>\1</code>", out)
+    return re.sub(r"\*\*([^*]+)\*\*", r"<strong>\1</strong>", out)
+
+
+def render_markdown(blocks: Sequence[Block]) -> str:
+    """Markdown of the blocks."""
+    out: list[str] = []
+    for b in blocks:
+        kind = b[0]
+        if kind == "h":
+            out.append("#" * b[1] + " " + b[2])
+        elif kind == "p":
+            out.append(b[1])
+        elif kind == "ul":
+            out.append("\n".join(f"- {item}" for item in b[1]))
+        elif kind == "code":
+            out.append(f"```\n{b[1]}\n```")
+        elif kind == "img":
+            out.append(f"![{b[2]}]({b[1]})")
+        elif kind == "table":
+            head, rows = b[1], b[2]
+            lines = [
+                "| " + " | ".join(head) + " |",
+                "|" + "|".join(":---" if i == 0 else "---:" for i in range(len(head))) + "|",
+            ]
+            lines += ["| " + " | ".join(r) + " |" for r in rows]
+            out.append("\n".join(lines))
+    return "\n\n".join(out) + "\n"
+
+
+def render_html(blocks: Sequence[Block], base: Path, title: str) -> str:
+    """A self-contained HTML page of the blocks (images embedded from ``base``)."""
+    body: list[str] = []
+    for b in blocks:
+        kind = b[0]
+        if kind == "h":
+            body.append(f"<h{b[1]}>{_inline_html(b[2])}</h{b[1]}>")
+        elif kind == "p":
+            body.append(f"<p>{_inline_html(b[1])}</p>")
+        elif kind == "ul":
+            body.append("<ul>" + "".join(f"<li>{_inline_html(i)}</li>" for i in b[1]) + "</ul>")
+        elif kind == "code":
+            body.append(f"<pre><code>{html.escape(b[1])}</code></pre>")
+        elif kind == "img":
+            data = base64.b64encode((base / b[1]).read_bytes()).decode("ascii")
+            body.append(
+                f'<figure><img alt="{html.escape(b[2])}" '
+                f'src="data:image/png;base64,{data}"></figure>'
+            )
+        elif kind == "table":
+            head = "".join(f"<th>{_inline_html(h)}</th>" for h in b[1])
+            rows = "".join(
+                "<tr>" + "".join(f"<td>{_inline_html(c)}</td>" for c in r) + "</tr>" for r in b[2]
+            )
+            body.append(f"<table><thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>")
+    style = (
+        "body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
+        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;"
+        "padding:2px 6px;text-align:right}td:first-child,th:first-child{text-align:left}"
+        "img{max-width:100%}code{background:#f4f4f4}"
+    )
+    return (
+        f'<!DOCTYPE html>\n<html><head><meta charset="utf-8"><title>{html.escape(title)}'
+        f"</title><style>{style}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n"
+    )
+
+
+# ----------------------------------------------------------------------------- numbers
+def _f(x: float, digits: int) -> str:
+    return "—" if x is None or not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def _pm(value: float, low: float, high: float, digits: int) -> str:
+    if not math.isfinite(value):
+        return "—"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return _f(value, digits)
+    return f"{value:.{digits}f} ± {(high - low) / 2:.{digits}f}"
+
+
+def _ci(value: float, low: float, high: float, digits: int) -> str:
+    if not math.isfinite(value):
+        return "—"
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return _f(value, digits)
+    return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
+
+
+def paper_comparison(results: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
+    """Ours beside the paper's, per σ of the ``noise`` experiment.
+
+    Columns: ``noise_db``, the full pipeline's mean orientation error (mean of
+    per-run means, with 95 % CI), its mean position error reduction versus
+    ``lms`` (ratio of means over runs paired by seed, bootstrap 95 % CI), the
+    coverage of ``full`` and ``lms``, the runs used, and the paper's values
+    where it gives them (NaN elsewhere).
+    """
+    import pandas as pd
+
+    df = results[results["experiment"] == "noise"]
+    paper = {p.noise_db: p for p in PAPER}
+    rows = []
+    for s in dict.fromkeys(df["noise_db"].tolist()):
+        at = df[np.isclose(df["noise_db"].astype(float), float(s))]
+        full = at[at["method"] == "full"].set_index("seed")
+        lms = at[at["method"] == "lms"].set_index("seed")
+        o = mean_ci(full["orientation_mean_deg"].to_numpy(float))
+        a, b = full["position_mean_m"].align(lms["position_mean_m"], join="inner")
+        r = ratio_ci(a.to_numpy(float), b.to_numpy(float), rng)
+        p = next((v for k, v in paper.items() if abs(k - float(s)) < 1e-9), None)
+        rows.append(
+            {
+                "noise_db": float(s),
+                "orientation_deg": o.value,
+                "orientation_low_deg": max(o.low, 0.0),  # errors are >= 0
+                "orientation_high_deg": o.high,
+                "orientation_runs": o.n,
+                "paper_orientation_deg": p.orientation_mean_deg if p else np.nan,
+                "reduction_pct": 100 * (1 - r.value),
+                "reduction_low_pct": 100 * (1 - r.high),
+                "reduction_high_pct": 100 * (1 - r.low),
+                "reduction_runs": r.n,
+                "paper_reduction_pct": p.position_reduction_pct if p else np.nan,
+                "coverage_full": float(full["coverage"].mean()) if len(full) else np.nan,
+                "coverage_lms": float(lms["coverage"].mean()) if len(lms) else np.nan,
+                "position_full_m": float(a.mean()) if len(a) else np.nan,
+                "position_lms_m": float(b.mean()) if len(b) else np.nan,
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def differences(cmp: pd.DataFrame) -> list[str]:
+    """Plain statements of where the numbers differ from the paper's (one per point)."""
+    out = []
+    for _, r in cmp.iterrows():
+        s = r["noise_db"]
+        if math.isfinite(r["paper_orientation_deg"]):
+            ours, paper = r["orientation_deg"], r["paper_orientation_deg"]
+            inside = r["orientation_low_deg"] <= paper <= r["orientation_high_deg"]
+            if not math.isfinite(ours):
+                out.append(
+                    f"σ = {s:g} dB: `full` gave no orientation estimate in any run "
+                    f"(paper {paper:g}°)."
+                )
+            else:
+                verdict = (
+                    "within our 95 % CI"
+                    if inside
+                    else f"{'higher' if ours > paper else 'lower'} than the paper's by "
+                    f"{abs(ours - paper):.1f}° ({ours / paper:.2g}×), outside our 95 % CI"
+                )
+                out.append(
+                    f"σ = {s:g} dB: mean orientation error of `full` "
+                    f"{_ci(ours, r['orientation_low_deg'], r['orientation_high_deg'], 1)}° "
+                    f"vs the paper's {paper:g}°: {verdict}."
+                )
+        if math.isfinite(r["paper_reduction_pct"]):
+            ours, paper = r["reduction_pct"], r["paper_reduction_pct"]
+            inside = r["reduction_low_pct"] <= paper <= r["reduction_high_pct"]
+            if math.isfinite(ours):
+                verdict = (
+                    "within our 95 % CI"
+                    if inside
+                    else f"{'more' if ours > paper else 'less'} than the paper's by "
+                    f"{abs(ours - paper):.1f} points, outside our 95 % CI"
+                )
+                out.append(
+                    f"σ = {s:g} dB: `full` reduces the mean position error of `lms` "
+                    f"({_f(r['position_lms_m'], 2)} m → {_f(r['position_full_m'], 2)} m) "
+                    f"by {_ci(ours, r['reduction_low_pct'], r['reduction_high_pct'], 1)} "
+                    f"% vs the paper's {paper:g} %: {verdict}."
+                )
+        if math.isfinite(r["paper_orientation_deg"]) and math.isfinite(r["coverage_full"]):
+            out.append(
+                f"σ = {s:g} dB: `full` produced an estimate for "
+                f"{100 * r['coverage_full']:.1f} % of packets (`lms` "
+                f"{100 * r['coverage_lms']:.1f} %); errors are over those estimates only."
+            )
+    return out
+
+
+WHY = [
+    "**Scenario.** The paper does not state its path-loss parameters, its receivers' "
+    "patterns or the exact trajectory distributions; radiopose's simulator uses log-distance "
+    "path loss (40 dB at 1 m, exponent 3), seeded smartphone-like synthetic patterns "
+    "(device range 14–20 dB) and the ranges in docs/simulation.md. Errors scale with how "
+    "distinctive the device pattern is relative to σ, so a different pattern family moves "
+    "every number.",
+    "**Coverage.** The full pipeline only outputs an estimate when a position and an "
+    "orientation cluster survive the motion models; our errors average over those packets "
+    "only, and `lms`/`top` always answer. The paper does not report coverage, so a pipeline "
+    "that rejects more packets (or fewer) is not compared like for like.",
+    "**Averaging.** Our mean is the mean over runs of each run's mean error (each run counts "
+    "once, which gives the confidence intervals); pooling all estimates, as "
+    "docs/accuracy.md does, weights runs by their number of estimates.",
+    "**Run length and runs.** A `--quick` report uses fewer runs and shorter traces "
+    "(see the experiment's [quick] table); the trackers spend a larger share of a short trace "
+    "acquiring the first estimate, and its confidence intervals are wide.",
+]
+
+
+def estimate_seconds(results: pd.DataFrame, tasks: Sequence[RunTask]) -> float:
+    """Core-seconds the ``tasks`` would take, from the measured task times in ``results``.
+
+    Fits ``task_s ≈ a + b·packets + c·packets·receivers`` (non-negative, least
+    squares over the measured tasks; scoring grows with receivers, clustering
+    with packets) and sums its prediction over ``tasks``.
+    """
+    from scipy.optimize import nnls
+
+    t = results.drop_duplicates("task_key")
+    if t.empty:
+        return float("nan")
+    n = t["n_packets"].to_numpy(float)
+    rx = t["n_receivers"].to_numpy(float)
+    A = np.column_stack([np.ones_like(n), n, n * rx])
+    coef, _ = nnls(A, t["task_s"].to_numpy(float))
+    pk = np.array([task.n_packets for task in tasks], float)
+    prx = np.array([task.scenario.n_receivers for task in tasks], float)
+    return float((np.column_stack([np.ones_like(pk), pk, pk * prx]) @ coef).sum())
+
+
+def _hours(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "—"
+    if seconds < 120:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
+# ----------------------------------------------------------------------------- report
+def _provenance(info: RunInfo) -> str:
+    runs = [
+        f"{i.n_computed} runs in {_hours(i.elapsed_s)} "
+        f"{'in process' if i.workers == 0 else f'on {i.workers} Dask workers'} ({i.scheduler})"
+        for i in info.invocations
+        if i.n_computed
+    ]
+    idle = sum(1 for i in info.invocations if not i.n_computed)
+    text = f"radiopose {info.version}; {info.n_tasks} runs: " + ("; ".join(runs) or "none computed")
+    if len(runs) > 1:
+        text += f" (resumed {len(runs) - 1} times)"
+    if idle:
+        text += f"; {idle} later invocation{'s' if idle > 1 else ''} only regenerated the report"
+    return text + "."
+
+
+def _method_table(
+    summary: pd.DataFrame, value: str, digits: int, scale: float = 1.0, ci: bool = True
+) -> tuple[list[str], list[list[str]]]:
+    methods = list(dict.fromkeys(summary["method"].tolist()))
+    conds = list(dict.fromkeys(summary["condition"].tolist()))
+    head = ["condition", *methods]
+    rows = []
+    for c in conds:
+        row = [c]
+        for m in methods:
+            g = summary[(summary["condition"] == c) & (summary["method"] == m)]
+            if g.empty:
+                row.append("—")
+                continue
+            r = g.iloc[0]
+            if ci:
+                base = value.rsplit("_", 1)
+                low, high = f"{base[0]}_low_{base[1]}", f"{base[0]}_high_{base[1]}"
+                row.append(_pm(r[value], r[low], r[high], digits))
+            else:
+                row.append(_f(scale * r[value], digits))
+        rows.append(row)
+    return head, rows
+
+
+def _experiment_blocks(
+    exp: Experiment, results: pd.DataFrame, out: Path, rng: np.random.Generator
+) -> tuple[list[Block], list[Path]]:
+    import matplotlib.pyplot as plt
+
+    from radiopose.evaluate.figures import plot_spec
+
+    blocks: list[Block] = [("h", 2, f"{exp.title} (`{exp.name}`)")]
+    if exp.description:
+        blocks.append(("p", exp.description))
+    df = results[results["experiment"] == exp.name]
+    sc = exp.conditions[0].scenario
+    blocks.append(
+        (
+            "p",
+            (
+                f"{len(exp.conditions)} conditions × {exp.runs} runs (experiment seed {exp.seed}), "
+                f"methods {', '.join(exp.methods)}; {sc.size_m:g} m area, {sc.step_m:g} m / "
+                f"{sc.azimuth_step_deg:g}° candidates, {sc.duration_s:g} s traces"
+                f"{' ([quick] settings)' if exp.quick_applied else ''}. Mean errors are means over "
+                f"runs of each run's mean error, ± half the 95 % confidence interval (Student t); "
+                f"reductions and ratios use a paired bootstrap over runs."
+            ),
+        )
+    )
+    written: list[Path] = []
+    if df.empty:
+        blocks.append(("p", "No results yet."))
+        return blocks, written
+    for spec in exp.figures:
+        ax = plot_spec(df, spec, rng=rng)
+        rel = Path("figures") / f"{exp.name}-{spec.slug}.png"
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        ax.figure.savefig(out / rel, dpi=110)
+        plt.close(ax.figure)
+        written.append(out / rel)
+        blocks.append(("img", rel.as_posix(), ax.get_title()))
+        if spec.kind in ("reduction", "relative"):
+            t = figure_table(df, spec, np.random.default_rng(0))
+            unit = " (%)" if spec.kind == "reduction" else ""
+            blocks.append(
+                (
+                    "table",
+                    [spec.x, spec.hue, f"{spec.kind}{unit} [95 % CI]", "runs"],
+                    [
+                        [
+                            str(r.x),
+                            str(r.hue),
+                            _ci(r.value, r.low, r.high, 2 if unit == "" else 1),
+                            str(r.n),
+                        ]
+                        for r in t.itertuples()
+                    ],
+                )
+            )
+    summary = condition_summary(df)
+    for title, value, digits in (
+        ("Mean position error (m)", "position_m", 2),
+        ("Mean orientation error (°)", "orientation_deg", 1),
+    ):
+        head, rows = _method_table(summary, value, digits)
+        blocks += [("p", f"**{title}**, ± half the 95 % CI:"), ("table", head, rows)]
+    head, rows = _method_table(summary, "coverage", 1, scale=100.0, ci=False)
+    blocks += [
+        ("p", "**Coverage (%)** — estimates ÷ packets, mean over runs:"),
+        ("table", head, rows),
+    ]
+    return blocks, written
+
+
+def write_report(
+    results: pd.DataFrame,
+    experiments: Sequence[Experiment],
+    out_dir: str | Path,
+    info: RunInfo,
+    full_tasks: Sequence[RunTask] | None = None,
+    rng: np.random.Generator | None = None,
+) -> list[Path]:
+    """Write ``report.md``, ``report.html`` and ``figures/*.png`` into ``out_dir``.
+
+    Parameters
+    ----------
+    results
+        Tidy results of the experiments.
+    experiments
+        The experiments, in report order.
+    out_dir
+        Output directory.
+    info
+        Command, version and timing of the run.
+    full_tasks
+        The tasks of a full (non-quick) run, to estimate its time from the
+        measured task times (omitted: no estimate).
+    rng
+        Random generator of the bootstrap intervals (default ``default_rng(0)``).
+
+    Returns
+    -------
+    The paths written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = rng if rng is not None else np.random.default_rng(0)
+    title = "radiopose evaluation" + (" (quick)" if info.quick else "")
+    blocks: list[Block] = [
+        ("h", 1, title),
+        ("p", "Produced by (do not edit by hand):"),
+        ("code", info.command),
+        ("p", _provenance(info)),
+    ]
+    if "noise" in set(results["experiment"]):
+        cmp = paper_comparison(results, rng)
+        rows = [
+            [
+                f"{r.noise_db:g}",
+                _ci(r.orientation_deg, r.orientation_low_deg, r.orientation_high_deg, 1),
+                _f(r.paper_orientation_deg, 1),
+                _ci(r.reduction_pct, r.reduction_low_pct, r.reduction_high_pct, 1),
+                _f(r.paper_reduction_pct, 2),
+                _f(100 * r.coverage_full, 1),
+                str(r.orientation_runs),
+            ]
+            for r in cmp.itertuples()
+        ]
+        blocks += [
+            ("h", 2, "radiopose beside the paper"),
+            (
+                "p",
+                "Experiment `noise` (4 receivers, a packet every 5 ms). Orientation: mean "
+                "orientation error of the full pipeline. Reduction: how much lower the full "
+                "pipeline's mean position error is than log-distance least squares (`lms`), "
+                "100 (1 − full / lms). Brackets: 95 % confidence intervals over runs. The "
+                "paper gives these numbers at σ = 0.5 and 3.0 dB only.",
+            ),
+            (
+                "table",
+                [
+                    "σ (dB)",
+                    "orientation, radiopose (°)",
+                    "orientation, paper (°)",
+                    "reduction vs lms, radiopose (%)",
+                    "reduction vs lms, paper (%)",
+                    "coverage of full (%)",
+                    "runs",
+                ],
+                rows,
+            ),
+            ("h", 3, "Where the numbers differ"),
+            ("ul", differences(cmp)),
+            ("h", 3, "Why they can differ"),
+            ("ul", WHY),
+        ]
+    written: list[Path] = []
+    for exp in experiments:
+        b, w = _experiment_blocks(exp, results, out, rng)
+        blocks += b
+        written += w
+
+    t = results.drop_duplicates("task_key") if len(results) else results
+    timing = []
+    if len(t):
+        per_packet = 1000 * t["task_s"].sum() / max(float(t["n_packets"].sum()), 1.0)
+        timing.append(
+            f"Measured: {len(t)} runs took {t['task_s'].sum():.0f} s of worker time "
+            f"(mean {t['task_s'].mean():.1f} s per run, {per_packet:.1f} ms per packet "
+            "for all methods together, simulation and scoring included)."
+        )
+        for name, g in t.groupby("experiment", sort=False):
+            timing.append(
+                f"`{name}`: {len(g)} runs, mean {g['task_s'].mean():.1f} s per run "
+                f"({g['n_packets'].mean():.0f} packets per run)."
+            )
+    if full_tasks is not None and len(t):
+        core_s = estimate_seconds(results, full_tasks)
+        w = max(info.workers, 1)
+        timing.append(
+            f"Estimated full run ({len(full_tasks)} runs): {core_s / 3600:.1f} "
+            f"core-hours, about {_hours(core_s / w)} on {w} worker"
+            f"{'s' if w > 1 else ''} (fitted to the measured run times above; "
+            "measured on a shared machine, so an idle one is faster)."
+        )
+    blocks += [("h", 2, "Run time"), ("ul", timing or ["No runs."])]
+    blocks += [
+        ("h", 2, "Files"),
+        (
+            "ul",
+            [
+                "`results.csv`, `results.parquet`: one row per run and method (experiment, "
+                "condition, seed, method, mean/median/p95 position and orientation error, "
+                "coverage, run time).",
+                "`parts/<experiment>.csv`: the rows as the runs finished (used to resume).",
+                "`figures/`: the figures above.",
+            ],
+        ),
+    ]
+
+    md = out / "report.md"
+    md.write_text(render_markdown(blocks), encoding="utf-8")
+    page = out / "report.html"
+    page.write_text(render_html(blocks, out, title), encoding="utf-8")
+    return [md, page, *written]

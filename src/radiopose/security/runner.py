@@ -1,0 +1,154 @@
+"""Where the spoofing runs execute: in this process, or on Dask like the evaluation.
+
+:func:`map_runs` runs ``run_experiment(experiment, run, config)`` for every
+task — serially for ``workers=0``, otherwise on the same kind of Dask cluster as
+the evaluation sweeps (:mod:`radiopose.evaluate.runner`): a local cluster of
+single-threaded worker processes with the evaluation's worker environment
+(``NUMBA_NUM_THREADS=1`` …), or an existing scheduler (``scheduler=``). Without
+``dask.distributed`` installed it falls back to a local process pool. Results do
+not depend on the number of workers: every run is seeded by its index.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from contextlib import ExitStack
+
+from radiopose.errors import InputError, RadioposeError
+from radiopose.security.experiments import RunOutput, SpoofConfig, run_experiment
+
+
+def default_workers() -> int:
+    """Worker processes by default: the usable cores."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _worker_env() -> dict[str, str]:
+    try:
+        from radiopose.evaluate.runner import WORKER_ENV
+    except ImportError:  # pragma: no cover - evaluation runner absent
+        return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    return dict(WORKER_ENV)
+
+
+def map_runs(
+    tasks: Sequence[tuple[str, int]],
+    config: SpoofConfig,
+    workers: int = 0,
+    on_done: Callable[[RunOutput], None] | None = None,
+    scheduler: str | None = None,
+) -> tuple[list[RunOutput], str]:
+    """Run every ``(experiment, run)`` task; return outputs in task order and where they ran.
+
+    Parameters
+    ----------
+    tasks
+        ``(experiment, run)`` pairs (:func:`~radiopose.security.experiments.plan_tasks`).
+    config
+        Settings shared by every run.
+    workers
+        Local worker processes; 0 runs in this process. Ignored with ``scheduler``.
+    on_done
+        Called with each finished run (e.g. to advance a progress bar).
+    scheduler
+        Address of an existing Dask scheduler.
+    """
+    if workers < 0:
+        raise InputError(f"--workers must be >= 0, got {workers}")
+    out: dict[tuple[str, int], RunOutput] = {}
+
+    def record(res: RunOutput) -> None:
+        out[(res.experiment, res.run)] = res
+        if on_done is not None:
+            on_done(res)
+
+    if scheduler is None and (workers == 0 or len(tasks) <= 1):
+        for exp, run in tasks:
+            record(run_experiment(exp, run, config))
+        where = "serial"
+    else:
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            if scheduler is not None:
+                raise RadioposeError(
+                    "dask.distributed is not installed: cannot use --scheduler"
+                ) from None
+            where = _run_pool(tasks, config, workers, record)
+        else:
+            where = _run_dask(tasks, config, workers, record, scheduler)
+    return [out[t] for t in tasks], where
+
+
+def _run_pool(
+    tasks: Sequence[tuple[str, int]],
+    config: SpoofConfig,
+    workers: int,
+    record: Callable[[RunOutput], None],
+) -> str:
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+        futures = [pool.submit(run_experiment, exp, run, config) for exp, run in tasks]
+        for fut in as_completed(futures):
+            record(fut.result())
+    return f"process pool ({workers})"
+
+
+def _run_dask(
+    tasks: Sequence[tuple[str, int]],
+    config: SpoofConfig,
+    workers: int,
+    record: Callable[[RunOutput], None],
+    scheduler: str | None,
+) -> str:
+    from distributed import Client, LocalCluster
+    from distributed import as_completed as dask_completed
+
+    with ExitStack() as stack:
+        if scheduler is not None:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="10s"))
+            except (OSError, TimeoutError, ValueError) as exc:
+                raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            where = scheduler
+        else:
+            n = min(workers, len(tasks))
+            cluster = stack.enter_context(
+                LocalCluster(
+                    n_workers=n,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                    env=_worker_env(),
+                )
+            )
+            client = stack.enter_context(Client(cluster))
+            where = f"dask local ({n} workers)"
+        futures = {
+            client.submit(
+                run_experiment, exp, run, config, pure=False, key=f"radiopose-spoof-{exp}-{run}"
+            ): (exp, run)
+            for exp, run in tasks
+        }
+        try:
+            for fut in dask_completed(futures):
+                try:
+                    res = fut.result()
+                except Exception as exc:
+                    exp, run = futures[fut]
+                    raise RadioposeError(
+                        f"spoof {exp} run {run} failed: {type(exc).__name__}: {exc}"
+                    ) from exc
+                record(res)
+                fut.release()
+        finally:
+            client.cancel(list(futures))
+    return where

@@ -1,0 +1,12 @@
+"""The live system's central server (``radiopose serve``).
+
+Modules, in the order a report travels: :mod:`~radiopose.server.schemas`
+(request bodies and limits), :mod:`~radiopose.server.auth` (bearer tokens
+and roles), :mod:`~radiopose.server.db` (SQLAlchemy models and repository),
+:mod:`~radiopose.server.sitestore` (the site in the database),
+:mod:`~radiopose.server.live` (matcher and tracker pipeline),
+:mod:`~radiopose.server.app` (the FastAPI app), :mod:`~radiopose.server.export`
+(replayable export), :mod:`~radiopose.server.demo` (``radiopose demo --live``)
+and ``static/`` (the dashboard). Needs the ``server`` extra
+(``pip install 'radiopose[server]'``). See ``docs/server.md``.
+"""

@@ -1,0 +1,647 @@
+"""The central server's database: SQLAlchemy 2 models and one repository class.
+
+Everything the server knows lives here, so that any number of server
+processes can share one database (see ``docs/server.md``, "Beyond one
+machine"):
+
+* **site** — ``site_files`` (``site.toml``, ``survey.csv`` as text),
+  ``receivers``, ``devices``, ``patterns`` (pattern CSV text) and
+  ``site_meta`` (a version counter bumped on every change, the hash of the
+  last imported directory);
+* **tokens** — SHA-256 of each bearer token with its role;
+* **raw reports** — ``batches`` and ``frames``, append-only: a batch is stored
+  whole in one transaction together with its frames, keyed by
+  ``(receiver_id, batch_id)`` so a resend stores nothing new;
+* **live output** — ``packets`` (synchronised packets), ``estimates`` and
+  ``checkpoints`` (the pickled pipeline state of each partition, written in
+  the same transaction as the outputs it produced: exactly-once after a crash).
+
+SQLite (default) runs in WAL mode with ``synchronous=FULL`` and writes in
+``BEGIN IMMEDIATE`` transactions; PostgreSQL takes a transaction-level
+advisory lock while storing a batch so that batch ids become visible in id
+order (the pipeline reads batches by increasing id and must never skip one).
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Float,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    String,
+    Text,
+    UniqueConstraint,
+    create_engine,
+    delete,
+    event,
+    func,
+    insert,
+    select,
+    text,
+)
+from sqlalchemy.engine import Engine
+from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, OperationalError
+from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column
+
+from radiopose.errors import InputError
+
+# SQLite only auto-increments an INTEGER PRIMARY KEY.
+_BigId = BigInteger().with_variant(Integer, "sqlite")
+_PG_BATCH_LOCK = 7_346_201  # advisory lock key serialising batch inserts
+
+
+class Base(DeclarativeBase):
+    """Declarative base of all tables."""
+
+
+class TokenRow(Base):
+    __tablename__ = "tokens"
+    id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    token_sha256: Mapped[str] = mapped_column(String(64), unique=True)
+    role: Mapped[str] = mapped_column(String(16))
+    receiver_id: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    created_s: Mapped[float] = mapped_column(Float)
+
+
+class SiteMetaRow(Base):
+    __tablename__ = "site_meta"
+    key: Mapped[str] = mapped_column(String(64), primary_key=True)
+    value: Mapped[str] = mapped_column(Text)
+
+
+class SiteFileRow(Base):
+    __tablename__ = "site_files"
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    text: Mapped[str] = mapped_column(Text)
+
+
+class ReceiverRow(Base):
+    __tablename__ = "receivers"
+    receiver_id: Mapped[str] = mapped_column(String(64), primary_key=True)
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    z_m: Mapped[float] = mapped_column(Float)
+    azimuth_deg: Mapped[float] = mapped_column(Float)
+    pitch_deg: Mapped[float] = mapped_column(Float)
+    roll_deg: Mapped[float] = mapped_column(Float)
+    pattern: Mapped[str] = mapped_column(String(128))
+
+
+class DeviceRow(Base):
+    __tablename__ = "devices"
+    transmitter: Mapped[str] = mapped_column(String(64), primary_key=True)
+    pattern: Mapped[str] = mapped_column(String(128))
+    tx_power_dbm: Mapped[float] = mapped_column(Float)
+
+
+class PatternRow(Base):
+    __tablename__ = "patterns"
+    name: Mapped[str] = mapped_column(String(128), primary_key=True)
+    csv: Mapped[str] = mapped_column(Text)
+
+
+class BatchRow(Base):
+    __tablename__ = "batches"
+    __table_args__ = (UniqueConstraint("receiver_id", "batch_id"),)
+    id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    receiver_id: Mapped[str] = mapped_column(String(64), index=True)
+    batch_id: Mapped[str] = mapped_column(String(128))
+    received_s: Mapped[float] = mapped_column(Float, index=True)
+    n_frames: Mapped[int] = mapped_column(Integer)
+
+
+class FrameRow(Base):
+    __tablename__ = "frames"
+    seq: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    batch_pk: Mapped[int] = mapped_column(ForeignKey("batches.id"), index=True)
+    receiver_id: Mapped[str] = mapped_column(String(64))
+    timestamp_ns: Mapped[int] = mapped_column(BigInteger)
+    frame_sha256: Mapped[str] = mapped_column(String(64))
+    transmitter: Mapped[str] = mapped_column(String(17))
+    rss_dbm: Mapped[float] = mapped_column(Float)
+
+
+class PacketRow(Base):
+    __tablename__ = "packets"
+    __table_args__ = (UniqueConstraint("transmitter", "packet_id"),)
+    id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    packet_id: Mapped[str] = mapped_column(String(32))
+    transmitter: Mapped[str] = mapped_column(String(64), index=True)
+    timestamp_s: Mapped[float] = mapped_column(Float)
+    receiver_ids: Mapped[list[str]] = mapped_column(JSON)
+    rss_dbm: Mapped[list[float]] = mapped_column(JSON)
+    reason: Mapped[str | None] = mapped_column(String(64), nullable=True)
+
+
+class EstimateRow(Base):
+    __tablename__ = "estimates"
+    __table_args__ = (UniqueConstraint("transmitter", "packet_id"),)
+    id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    timestamp_s: Mapped[float] = mapped_column(Float, index=True)
+    transmitter: Mapped[str] = mapped_column(String(64), index=True)
+    packet_id: Mapped[str] = mapped_column(String(32))
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    z_m: Mapped[float] = mapped_column(Float)
+    azimuth_deg: Mapped[float] = mapped_column(Float)
+    pitch_deg: Mapped[float] = mapped_column(Float)
+    roll_deg: Mapped[float] = mapped_column(Float)
+    method: Mapped[str] = mapped_column(String(16))
+    last_report_s: Mapped[float] = mapped_column(Float)
+    estimated_s: Mapped[float] = mapped_column(Float)
+
+
+class CheckpointRow(Base):
+    __tablename__ = "checkpoints"
+    partition: Mapped[str] = mapped_column(String(32), primary_key=True)
+    cursor_batch: Mapped[int] = mapped_column(BigInteger)
+    state: Mapped[bytes] = mapped_column(LargeBinary)
+    summary: Mapped[dict[str, Any]] = mapped_column(JSON)
+    updated_s: Mapped[float] = mapped_column(Float)
+
+
+ESTIMATE_FIELDS = (
+    "timestamp_s",
+    "transmitter",
+    "packet_id",
+    "x_m",
+    "y_m",
+    "z_m",
+    "azimuth_deg",
+    "pitch_deg",
+    "roll_deg",
+    "method",
+)
+
+
+@dataclass(frozen=True)
+class StoredBatch:
+    """A batch read back for processing: its key, arrival and frame columns."""
+
+    id: int
+    receiver_id: str
+    received_s: float
+    timestamp_ns: tuple[int, ...]
+    frame_sha256: tuple[str, ...]
+    transmitter: tuple[str, ...]
+    rss_dbm: tuple[float, ...]
+
+
+def default_sqlite_url(path: str = "radiopose.db") -> str:
+    """SQLAlchemy URL of a SQLite file."""
+    return f"sqlite:///{path}"
+
+
+class Database:
+    """Repository over one SQLAlchemy engine (thread-safe; no module-level state).
+
+    Parameters
+    ----------
+    url
+        Any SQLAlchemy URL; ``sqlite:///FILE`` or ``postgresql+psycopg://...``
+        (``postgresql://`` is taken to mean psycopg 3).
+    create
+        Create missing tables.
+
+    Raises
+    ------
+    InputError
+        Unusable URL or unreachable database (one line).
+    """
+
+    def __init__(self, url: str, *, create: bool = True) -> None:
+        if url.startswith("postgresql://") or url.startswith("postgres://"):
+            url = "postgresql+psycopg://" + url.split("://", 1)[1]
+        self.url = url
+        try:
+            self.engine, self._read_engine = _make_engines(url)
+            self.dialect = self.engine.dialect.name
+            if create:
+                Base.metadata.create_all(self.engine)
+        except (ArgumentError, NoSuchModuleError) as exc:
+            raise InputError(f"--db {url!r}: not a usable database URL ({exc})") from None
+        except OperationalError as exc:
+            reason = " ".join(str(exc.orig).split())[:200]
+            raise InputError(f"--db {url!r}: cannot open the database: {reason}") from None
+        self._write_lock = threading.Lock()
+
+    def close(self) -> None:
+        """Release all connections."""
+        self.engine.dispose()
+        self._read_engine.dispose()
+
+    # ------------------------------------------------------------------ sessions
+    @contextmanager
+    def read(self) -> Iterator[Session]:
+        """A session for reading (no commit)."""
+        with Session(self._read_engine) as s:
+            yield s
+
+    @contextmanager
+    def write(self) -> Iterator[Session]:
+        """A write transaction, committed on success (serialised within the process)."""
+        with self._write_lock, Session(self.engine) as s, s.begin():
+            yield s
+
+    # ------------------------------------------------------------------ tokens
+    def add_token(self, token_sha256: str, role: str, receiver_id: str | None) -> None:
+        with self.write() as s:
+            s.add(
+                TokenRow(
+                    token_sha256=token_sha256,
+                    role=role,
+                    receiver_id=receiver_id,
+                    created_s=time.time(),
+                )
+            )
+
+    def find_token(self, token_sha256: str) -> tuple[str, str | None] | None:
+        """``(role, receiver_id)`` of a token hash, or ``None``."""
+        with self.read() as s:
+            row = s.execute(
+                select(TokenRow.role, TokenRow.receiver_id).where(
+                    TokenRow.token_sha256 == token_sha256
+                )
+            ).first()
+        return None if row is None else (row[0], row[1])
+
+    # ------------------------------------------------------------------ site
+    def meta(self, key: str, default: str | None = None) -> str | None:
+        with self.read() as s:
+            row = s.get(SiteMetaRow, key)
+            return default if row is None else row.value
+
+    def site_version(self) -> int:
+        return int(self.meta("site_version", "0") or 0)
+
+    def known_ids(self) -> tuple[list[str], list[str]]:
+        """Receiver ids (site order) and enrolled transmitter addresses."""
+        order = [r for r in (self.meta("receiver_order", "") or "").split(",") if r]
+        with self.read() as s:
+            rx = list(s.scalars(select(ReceiverRow.receiver_id)))
+            tx = list(s.scalars(select(DeviceRow.transmitter)))
+        rank = {r: i for i, r in enumerate(order)}
+        return sorted(rx, key=lambda r: (rank.get(r, len(rank)), r)), tx
+
+    def site_rows(self) -> dict[str, Any]:
+        """Everything of the site as plain values (see :mod:`radiopose.server.sitestore`)."""
+        with self.read() as s:
+            return {
+                "files": {r.name: r.text for r in s.scalars(select(SiteFileRow))},
+                "receivers": [
+                    _row_dict(r, ReceiverRow)
+                    for r in s.scalars(select(ReceiverRow).order_by(ReceiverRow.receiver_id))
+                ],
+                "devices": [
+                    _row_dict(r, DeviceRow)
+                    for r in s.scalars(select(DeviceRow).order_by(DeviceRow.transmitter))
+                ],
+                "patterns": {r.name: r.csv for r in s.scalars(select(PatternRow))},
+                "order": self.meta("receiver_order", "") or "",
+            }
+
+    def replace_site(self, parts: dict[str, Any], *, source_hash: str | None = None) -> int:
+        """Replace the whole site with ``parts`` (same shape as :meth:`site_rows`); new version."""
+        with self.write() as s:
+            for model in (SiteFileRow, ReceiverRow, DeviceRow, PatternRow):
+                s.execute(delete(model))
+            for name, txt in parts["files"].items():
+                s.add(SiteFileRow(name=name, text=txt))
+            for r in parts["receivers"]:
+                s.add(ReceiverRow(**r))
+            for d in parts["devices"]:
+                s.add(DeviceRow(**d))
+            for name, csv in parts["patterns"].items():
+                s.add(PatternRow(name=name, csv=csv))
+            version = _bump_version(s)
+            _set_meta(s, "receiver_order", parts.get("order", ""))
+            if source_hash is not None:
+                _set_meta(s, "source_hash", source_hash)
+        return version
+
+    # ------------------------------------------------------------------ reports
+    def store_batch(
+        self,
+        receiver_id: str,
+        batch_id: str,
+        frames: Sequence[tuple[int, str, str, float]],
+    ) -> tuple[bool, int]:
+        """Store a batch and its frames in one transaction.
+
+        ``frames`` are ``(timestamp_ns, frame_sha256, transmitter, rss_dbm)``.
+        Returns ``(new, batch pk)``; a known ``(receiver_id, batch_id)`` stores
+        nothing and returns ``(False, pk)``.
+        """
+        existing = self._batch_pk(receiver_id, batch_id)
+        if existing is not None:
+            return False, existing
+        try:
+            with self.write() as s:
+                if self.dialect == "postgresql":
+                    s.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _PG_BATCH_LOCK})
+                pk = s.execute(
+                    insert(BatchRow)
+                    .values(
+                        receiver_id=receiver_id,
+                        batch_id=batch_id,
+                        received_s=time.time(),
+                        n_frames=len(frames),
+                    )
+                    .returning(BatchRow.id)
+                ).scalar_one()
+                if frames:
+                    s.execute(
+                        insert(FrameRow),
+                        [
+                            {
+                                "batch_pk": pk,
+                                "receiver_id": receiver_id,
+                                "timestamp_ns": t,
+                                "frame_sha256": h,
+                                "transmitter": tx,
+                                "rss_dbm": r,
+                            }
+                            for t, h, tx, r in frames
+                        ],
+                    )
+        except IntegrityError:  # a concurrent resend of the same batch won the race
+            pk2 = self._batch_pk(receiver_id, batch_id)
+            if pk2 is None:
+                raise
+            return False, pk2
+        return True, pk
+
+    def _batch_pk(self, receiver_id: str, batch_id: str) -> int | None:
+        with self.read() as s:
+            return s.execute(
+                select(BatchRow.id).where(
+                    BatchRow.receiver_id == receiver_id, BatchRow.batch_id == batch_id
+                )
+            ).scalar_one_or_none()
+
+    def batches_after(self, cursor: int, limit: int) -> list[StoredBatch]:
+        """Up to ``limit`` batches with id > ``cursor``, by id, with their frames in time order."""
+        with self.read() as s:
+            heads = s.execute(
+                select(BatchRow.id, BatchRow.receiver_id, BatchRow.received_s)
+                .where(BatchRow.id > cursor)
+                .order_by(BatchRow.id)
+                .limit(limit)
+            ).all()
+            if not heads:
+                return []
+            rows = s.execute(
+                select(
+                    FrameRow.batch_pk,
+                    FrameRow.timestamp_ns,
+                    FrameRow.frame_sha256,
+                    FrameRow.transmitter,
+                    FrameRow.rss_dbm,
+                )
+                .where(FrameRow.batch_pk >= heads[0][0], FrameRow.batch_pk <= heads[-1][0])
+                .order_by(FrameRow.batch_pk, FrameRow.timestamp_ns, FrameRow.seq)
+            ).all()
+        by_batch: dict[int, list[Any]] = {h[0]: [] for h in heads}
+        for r in rows:
+            by_batch[r[0]].append(r)
+        out = []
+        for pk, rid, rec in heads:
+            fr = by_batch[pk]
+            out.append(
+                StoredBatch(
+                    pk,
+                    rid,
+                    rec,
+                    tuple(r[1] for r in fr),
+                    tuple(r[2] for r in fr),
+                    tuple(r[3] for r in fr),
+                    tuple(r[4] for r in fr),
+                )
+            )
+        return out
+
+    def last_batch_id(self) -> int:
+        with self.read() as s:
+            return int(s.execute(select(func.coalesce(func.max(BatchRow.id), 0))).scalar_one())
+
+    def count_frames(self) -> int:
+        with self.read() as s:
+            return int(s.execute(select(func.count()).select_from(FrameRow)).scalar_one())
+
+    def receiver_activity(self, window_s: float) -> dict[str, dict[str, float]]:
+        """Per receiver: last report time (server clock) and frames/s over the last window."""
+        now = time.time()
+        with self.read() as s:
+            last = dict(
+                s.execute(
+                    select(BatchRow.receiver_id, func.max(BatchRow.received_s)).group_by(
+                        BatchRow.receiver_id
+                    )
+                ).all()
+            )
+            recent = dict(
+                s.execute(
+                    select(BatchRow.receiver_id, func.sum(BatchRow.n_frames))
+                    .where(BatchRow.received_s >= now - window_s)
+                    .group_by(BatchRow.receiver_id)
+                ).all()
+            )
+        return {
+            rid: {"last_report_s": float(t), "frames_per_s": float(recent.get(rid) or 0) / window_s}
+            for rid, t in last.items()
+        }
+
+    # ------------------------------------------------------------------ live output
+    def load_checkpoint(self, partition: str) -> tuple[int, bytes] | None:
+        with self.read() as s:
+            row = s.get(CheckpointRow, partition)
+            return None if row is None else (int(row.cursor_batch), bytes(row.state))
+
+    def summaries(self) -> dict[str, dict[str, Any]]:
+        with self.read() as s:
+            return {
+                r.partition: {
+                    **r.summary,
+                    "cursor_batch": int(r.cursor_batch),
+                    "updated_s": r.updated_s,
+                }
+                for r in s.scalars(select(CheckpointRow))
+            }
+
+    def commit_step(
+        self,
+        partition: str,
+        cursor: int,
+        state: bytes,
+        summary: dict[str, Any],
+        packets: Sequence[dict[str, Any]],
+        estimates: Sequence[dict[str, Any]],
+    ) -> None:
+        """Store one pipeline step's packets and estimates with its checkpoint, atomically."""
+        with self.write() as s:
+            if packets:
+                s.execute(insert(PacketRow), list(packets))
+            if estimates:
+                s.execute(insert(EstimateRow), list(estimates))
+            row = s.get(CheckpointRow, partition)
+            if row is None:
+                s.add(
+                    CheckpointRow(
+                        partition=partition,
+                        cursor_batch=cursor,
+                        state=state,
+                        summary=summary,
+                        updated_s=time.time(),
+                    )
+                )
+            else:
+                row.cursor_batch = cursor
+                row.state = state
+                row.summary = summary
+                row.updated_s = time.time()
+
+    def estimates(
+        self,
+        transmitter: str | None = None,
+        since_s: float | None = None,
+        after_id: int | None = None,
+        limit: int = 10_000,
+    ) -> list[dict[str, Any]]:
+        """Estimates in time order (or id order with ``after_id``), as dicts with ``id``."""
+        q = select(EstimateRow)
+        if transmitter is not None:
+            q = q.where(func.lower(EstimateRow.transmitter) == transmitter.lower())
+        if since_s is not None:
+            q = q.where(EstimateRow.timestamp_s >= since_s)
+        if after_id is not None:
+            q = q.where(EstimateRow.id > after_id).order_by(EstimateRow.id)
+        else:
+            q = q.order_by(EstimateRow.timestamp_s, EstimateRow.id)
+        with self.read() as s:
+            rows = s.scalars(q.limit(limit)).all()
+            return [
+                {
+                    "id": int(r.id),
+                    **{f: getattr(r, f) for f in ESTIMATE_FIELDS},
+                    "last_report_s": r.last_report_s,
+                    "estimated_s": r.estimated_s,
+                }
+                for r in rows
+            ]
+
+    def recent_latencies_s(self, n: int = 1_000) -> list[float]:
+        """Report-to-estimate latency of the last ``n`` estimates, seconds."""
+        with self.read() as s:
+            rows = (
+                s.execute(
+                    select(EstimateRow.estimated_s - EstimateRow.last_report_s)
+                    .order_by(EstimateRow.id.desc())
+                    .limit(n)
+                )
+                .scalars()
+                .all()
+            )
+        return [float(v) for v in rows]
+
+    def last_estimate_id(self) -> int:
+        with self.read() as s:
+            return int(s.execute(select(func.coalesce(func.max(EstimateRow.id), 0))).scalar_one())
+
+    def packets(self) -> list[dict[str, Any]]:
+        """Stored packets in processing order."""
+        with self.read() as s:
+            return [
+                {
+                    "packet_id": r.packet_id,
+                    "transmitter": r.transmitter,
+                    "timestamp_s": r.timestamp_s,
+                    "receiver_ids": list(r.receiver_ids),
+                    "rss_dbm": list(r.rss_dbm),
+                    "reason": r.reason,
+                }
+                for r in s.scalars(select(PacketRow).order_by(PacketRow.id))
+            ]
+
+    def iter_frames(self, chunk: int = 50_000) -> Iterator[list[tuple[Any, ...]]]:
+        """All frames in arrival order, in chunks of ``(receiver_id, ns, sha, tx, rss)``."""
+        last = 0
+        while True:
+            with self.read() as s:
+                rows = s.execute(
+                    select(
+                        FrameRow.seq,
+                        FrameRow.receiver_id,
+                        FrameRow.timestamp_ns,
+                        FrameRow.frame_sha256,
+                        FrameRow.transmitter,
+                        FrameRow.rss_dbm,
+                    )
+                    .where(FrameRow.seq > last)
+                    .order_by(FrameRow.seq)
+                    .limit(chunk)
+                ).all()
+            if not rows:
+                return
+            last = rows[-1][0]
+            yield [tuple(r[1:]) for r in rows]
+
+
+def _row_dict(row: Any, model: type[Base]) -> dict[str, Any]:
+    return {c.key: getattr(row, c.key) for c in model.__table__.columns}
+
+
+def _set_meta(s: Session, key: str, value: str) -> None:
+    row = s.get(SiteMetaRow, key)
+    if row is None:
+        s.add(SiteMetaRow(key=key, value=value))
+    else:
+        row.value = value
+
+
+def _bump_version(s: Session) -> int:
+    row = s.get(SiteMetaRow, "site_version")
+    version = (int(row.value) if row is not None else 0) + 1
+    _set_meta(s, "site_version", str(version))
+    return version
+
+
+def _sqlite_engine(url: str, begin: str) -> Engine:
+    engine = create_engine(url, connect_args={"timeout": 30.0})
+
+    @event.listens_for(engine, "connect")
+    def _on_connect(dbapi_conn: Any, _record: Any) -> None:
+        dbapi_conn.isolation_level = None  # BEGIN is issued below
+        cur = dbapi_conn.cursor()
+        cur.execute("PRAGMA journal_mode=WAL")
+        cur.execute("PRAGMA synchronous=FULL")
+        cur.execute("PRAGMA foreign_keys=ON")
+        cur.close()
+
+    @event.listens_for(engine, "begin")
+    def _on_begin(conn: Any) -> None:
+        conn.exec_driver_sql(begin)
+
+    return engine
+
+
+def _make_engines(url: str) -> tuple[Engine, Engine]:
+    """(write engine, read engine); the same engine except for SQLite."""
+    if url.startswith("sqlite"):
+        # writers take the lock up front (no deadlock on upgrade); readers never block in WAL
+        engines = (_sqlite_engine(url, "BEGIN IMMEDIATE"), _sqlite_engine(url, "BEGIN"))
+    else:
+        engine = create_engine(url, pool_pre_ping=True)
+        engines = (engine, engine)
+    with engines[0].connect() as c:  # fail early on a bad path or server
+        c.execute(text("SELECT 1"))
+    return engines

@@ -1,0 +1,168 @@
+"""``radiopose demo --live``: a server and one replaying receiver agent per receiver.
+
+Simulates a small site (10 m × 10 m, 4 receivers, a packet every 100 ms),
+writes one pcap per receiver (each with its own clock offset and drift),
+creates a fresh SQLite database with tokens, starts ``radiopose serve`` and
+one ``radiopose receiver --replay`` per receiver as child processes, prints
+the dashboard URL (with a viewer token) and an admin token, and waits for
+Ctrl-C, which stops every child cleanly.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+
+def run_live_demo(
+    out_dir: str | Path,
+    *,
+    seed: int = 7,
+    noise_db: float = 1.0,
+    duration_s: float = 60.0,
+    speed: float = 1.0,
+    port: int = 8000,
+    echo: Callable[[str], None] = print,
+    stop_after_s: float | None = None,
+) -> dict[str, str]:
+    """Run the live demo until Ctrl-C (or ``stop_after_s``); return URL and tokens."""
+    import httpx
+    import numpy as np
+
+    from radiopose.capture.writer import write_receiver_pcaps
+    from radiopose.errors import InputError
+    from radiopose.server.auth import create_token
+    from radiopose.server.db import Database
+    from radiopose.simulate import ScenarioConfig, simulate
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cfg = ScenarioConfig(
+        size_m=10.0,
+        step_m=0.25,
+        n_receivers=4,
+        duration_s=duration_s,
+        interval_ms=100.0,
+        azimuth_step_deg=3.0,
+        noise_db=noise_db,
+        min_receiver_spacing_m=4.0,
+    )
+    sim = simulate(cfg, seed=seed)
+    sim.write(out / "scenario")
+    ids = [r.receiver_id for r in sim.site.receivers]
+    rng = np.random.default_rng(seed)
+    pcaps = write_receiver_pcaps(
+        sim.packets,
+        out / "pcaps",
+        rng=rng,
+        clock_offset_s={r: float(rng.uniform(-0.5, 0.5)) for r in ids[1:]},
+        drift_ppm={r: float(rng.uniform(-10, 10)) for r in ids[1:]},
+        jitter_s=5e-6,
+        epoch_s=1_000.0,
+    )
+    db_path = out / "live.db"
+    for p in out.glob("live.db*"):
+        p.unlink()
+    db_url = f"sqlite:///{db_path}"
+    db = Database(db_url)
+    tokens = {"admin": create_token(db, "admin"), "viewer": create_token(db, "viewer")}
+    for r in ids:
+        tokens[r] = create_token(db, "receiver", r)
+    db.close()
+
+    base = f"http://127.0.0.1:{port}"
+    py = [sys.executable, "-m", "radiopose"]
+    children: list[subprocess.Popen[bytes]] = []
+    log = open(out / "server.log", "wb")  # noqa: SIM115
+    try:
+        server = subprocess.Popen(
+            [
+                *py,
+                "serve",
+                str(out / "scenario" / "site"),
+                "--db",
+                db_url,
+                "--port",
+                str(port),
+                "--calibration-s",
+                "2",
+                "--idle-flush-s",
+                "3",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
+        children.append(server)
+        end = time.monotonic() + 60
+        while True:
+            if server.poll() is not None:
+                raise InputError(
+                    f"the server stopped (see {out / 'server.log'}); "
+                    f"is port {port} free? try --port"
+                )
+            try:
+                if (
+                    httpx.get(
+                        base + "/health",
+                        timeout=1.0,
+                        headers={"Authorization": f"Bearer {tokens['viewer']}"},
+                    ).status_code
+                    == 200
+                ):
+                    break
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > end:
+                raise InputError("the server did not start within 60 s")
+            time.sleep(0.2)
+        echo(f"dashboard: {base}/#token={tokens['viewer']}")
+        echo(f"admin token: {tokens['admin']}")
+        echo(f"API docs: {base}/docs · database {db_path} · server log {out / 'server.log'}")
+        for r in ids:
+            children.append(
+                subprocess.Popen(
+                    [
+                        *py,
+                        "receiver",
+                        "--server",
+                        base,
+                        "--token",
+                        tokens[r],
+                        "--id",
+                        r,
+                        "--replay",
+                        str(pcaps.paths[r]),
+                        "--speed",
+                        str(speed),
+                        "--spool",
+                        str(out / "spool"),
+                        "-q",
+                    ],
+                )
+            )
+        echo(
+            f"{len(ids)} receiver agents replaying {duration_s:g} s of packets at "
+            f"{speed:g}x; Ctrl-C stops"
+        )
+        t0 = time.monotonic()
+        while stop_after_s is None or time.monotonic() - t0 < stop_after_s:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        echo("stopping…")
+    finally:
+        for child in reversed(children):
+            if child.poll() is None:
+                child.send_signal(signal.SIGINT)
+        for child in children:
+            try:
+                child.wait(15)
+            except subprocess.TimeoutExpired:
+                child.kill()
+                child.wait()
+        log.close()
+    echo("stopped")
+    return {"url": f"{base}/", **tokens}

@@ -1,0 +1,535 @@
+"""Live processing: stored frame reports -> synchronised packets -> pose estimates.
+
+The pipeline reads the append-only ``batches`` table in id order (the order
+the server stored them) and carries all of its state in one picklable
+:class:`PipelineState`:
+
+1. **calibration** — frames are buffered until the reference receiver (the
+   first site receiver that reported) spans ``calibration_s`` of its clock
+   (or the buffer is full, or reports pause); then each receiver's clock
+   offset and drift are estimated (:func:`radiopose.capture.estimate_clocks`);
+2. **matching** — the buffered and every later frame go through the bounded
+   incremental matcher (:class:`radiopose.capture.StreamingMatcher`, clock
+   corrected; chains close when every receiver has moved past them or after
+   ``max_lag_s``); when reports pause for ``idle_flush_s`` the open chains
+   are closed so the last packets are not held back;
+3. **tracking** — each packet of a transmitter this partition owns goes to
+   the streaming :class:`radiopose.tracker.Tracker` (one
+   :class:`~radiopose.tracker.TrackState` per transmitter).
+
+Each step's packets and estimates are stored in the same transaction as the
+new state (a checkpoint keyed by partition), so after a crash the pipeline
+resumes from the last checkpoint and re-derives exactly the outputs that were
+not committed: nothing twice, nothing lost. Packet ids are the pipeline's
+own running counter, so they stay unique across re-calibrations.
+
+Partitions: with ``partitions = N`` each of N server processes runs the
+matcher over all frames (cheap and deterministic, so all agree on packet
+ids) but tracks and stores only transmitters with
+``sha256(address) mod N == partition``. Nothing here is process-global.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import pickle
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from radiopose.capture.records import FrameRecords
+from radiopose.capture.sync import ClockModel, StreamingMatcher, SyncConfig, estimate_clocks
+from radiopose.packets import PacketObservation, Packets, group_packets
+from radiopose.server.db import Database, StoredBatch
+from radiopose.server.sitestore import build_site
+
+if TYPE_CHECKING:  # the tracker (and scikit-learn) load with the first site, not at import
+    from radiopose.site import Site
+    from radiopose.tracker import Tracker, TrackerConfig, TrackState
+
+log = logging.getLogger("radiopose.server.live")
+
+_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Settings of the live pipeline.
+
+    Attributes
+    ----------
+    method
+        Tracker method (:data:`radiopose.tracker.METHODS`).
+    tracker
+        Tracker parameters (``None``: the tracker's defaults, kernel included).
+    tolerance_s
+        Matching tolerance on the reference clock, seconds.
+    max_lag_s
+        A packet is closed at the latest when the most advanced receiver is
+        this far past it (bounds memory and the wait for a silent receiver), s.
+    calibration_s
+        Reference-receiver clock span buffered before estimating clocks, s.
+    calibration_max_frames
+        Buffer at most this many frames before estimating clocks.
+    idle_flush_s
+        Close open packets (and end calibration) after this long without a
+        new batch, wall seconds.
+    checkpoint_s
+        A step without new packets writes its checkpoint at most this often,
+        seconds (a step with packets always does, with them).
+    batches_per_step
+        Batches read per step.
+    poll_s
+        Wait between polls of the database when idle, seconds.
+    partition, partitions
+        This worker's partition of the transmitters (see module docstring).
+    """
+
+    method: str = "full"
+    tracker: TrackerConfig | None = None
+    tolerance_s: float = 0.005
+    max_lag_s: float = 5.0
+    calibration_s: float = 3.0
+    calibration_max_frames: int = 20_000
+    idle_flush_s: float = 5.0
+    checkpoint_s: float = 1.0
+    batches_per_step: int = 200
+    poll_s: float = 0.05
+    partition: int = 0
+    partitions: int = 1
+
+    @property
+    def partition_key(self) -> str:
+        return f"{self.partition}/{self.partitions}"
+
+    def owns(self, transmitter: str) -> bool:
+        """Whether this partition tracks ``transmitter``."""
+        if self.partitions == 1:
+            return True
+        digest = hashlib.sha256(transmitter.lower().encode()).digest()
+        return int.from_bytes(digest[:8], "big") % self.partitions == self.partition
+
+
+@dataclass
+class PipelineState:
+    """Everything the pipeline remembers (pickled into the checkpoint).
+
+    Attributes
+    ----------
+    cursor
+        Id of the last batch processed.
+    receivers
+        Site receivers the matcher was built for, in site order.
+    calibration
+        Buffered frames ``(receiver_id, timestamp_ns, sha256, transmitter, rss_dbm)``
+        while clocks are not yet estimated; ``None`` once matching runs.
+    matcher
+        The streaming matcher (``None`` while calibrating).
+    clocks
+        Clock models by receiver id.
+    track_states
+        Tracker state per transmitter (lower-case address).
+    next_packet_id
+        Next packet id to assign.
+    arrivals
+        Per receiver, ``(reference-clock ns of the batch's last frame, server
+        arrival time)`` of recent batches, for latency.
+    counts
+        Running counters (frames, packets, estimates, late frames, ...).
+    """
+
+    cursor: int = 0
+    receivers: tuple[str, ...] = ()
+    calibration: list[tuple[str, int, str, str, float]] | None = field(default_factory=list)
+    matcher: StreamingMatcher | None = None
+    clocks: dict[str, ClockModel] = field(default_factory=dict)
+    track_states: dict[str, TrackState] = field(default_factory=dict)
+    next_packet_id: int = 0
+    arrivals: dict[str, deque[tuple[int, float]]] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)
+    last_batch_wall_s: float = 0.0
+    flushed: bool = True
+
+
+def _frames(rows: list[tuple[str, int, str, str, float]]) -> FrameRecords:
+    n = len(rows)
+    if n == 0:
+        return FrameRecords.empty()
+    rid, ts, sha, tx, rss = zip(*rows, strict=True)
+    obj = lambda v: np.asarray(v, dtype=object).reshape(n)  # noqa: E731
+    return FrameRecords(
+        obj(rid), np.asarray(ts, np.int64), obj(sha), obj(tx), np.asarray(rss, np.float64)
+    )
+
+
+class LivePipeline:
+    """One partition's live pipeline over a :class:`Database` (see module docstring).
+
+    Parameters
+    ----------
+    db
+        The database.
+    config
+        Settings.
+    """
+
+    def __init__(self, db: Database, config: LiveConfig | None = None) -> None:
+        self.db = db
+        self.config = config or LiveConfig()
+        self.site: Site | None = None
+        self.site_version = -1
+        self.tracker: Tracker | None = None
+        self.state = PipelineState()
+        self.latencies_s: deque[float] = deque(maxlen=5_000)
+        self._last_commit_s = 0.0
+        self._committed_cursor = -1
+        self._load()
+
+    # ------------------------------------------------------------------ state
+    def _load(self) -> None:
+        """(Re)load the last checkpoint; a fresh state if there is none."""
+        ck = self.db.load_checkpoint(self.config.partition_key)
+        self.state = pickle.loads(ck[1]) if ck is not None else PipelineState()
+        self.site_version = -1
+        self.tracker = None
+        self._committed_cursor = self.state.cursor
+        # after a restart, give the receivers time to resend before an idle flush
+        self.state.last_batch_wall_s = time.time()
+
+    def _refresh_site(self) -> list[dict[str, Any]]:
+        """Rebuild site and tracker after a site change; return packets a flush emitted."""
+        version = self.db.site_version()
+        if version == self.site_version and self.site is not None:
+            return []
+        from radiopose.tracker import Tracker
+
+        self.site = build_site(self.db.site_rows())
+        self.site_version = version
+        self.tracker = Tracker(self.site, self.config.method, self.config.tracker)
+        self.tracker.states = self.state.track_states
+        out: list[dict[str, Any]] = []
+        receivers = self.site.receiver_ids
+        st = self.state
+        if receivers != st.receivers:
+            if st.matcher is not None:  # close what is open against the old receivers
+                out = self._handle(st.matcher.flush(), time.time())
+            st.receivers = receivers
+            st.matcher = None
+            st.calibration = []
+            st.clocks = {}
+            log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
+        return out
+
+    # ------------------------------------------------------------------ steps
+    def step(self) -> int:
+        """Process the batches available now; return how many were processed."""
+        emitted = self._refresh_site()
+        st = self.state
+        batches = self.db.batches_after(st.cursor, self.config.batches_per_step)
+        now = time.time()
+        for b in batches:
+            emitted += self._batch(b)
+            st.cursor = b.id
+            st.last_batch_wall_s = now
+            st.flushed = False
+        idle_s = now - st.last_batch_wall_s
+        if not batches and not st.flushed and idle_s >= self.config.idle_flush_s:
+            emitted += self._idle_flush(now)
+        if emitted or (
+            st.cursor != self._committed_cursor
+            and now - self._last_commit_s >= self.config.checkpoint_s
+        ):
+            self._commit(emitted)
+        return len(batches)
+
+    def _batch(self, b: StoredBatch) -> list[dict[str, Any]]:
+        st = self.state
+        c = st.counts
+        c["frames"] = c.get("frames", 0) + len(b.timestamp_ns)
+        if b.receiver_id not in st.receivers:
+            c["frames_unknown_receiver"] = c.get("frames_unknown_receiver", 0) + len(b.timestamp_ns)
+            return []
+        rows = [
+            (b.receiver_id, t, h, tx, r)
+            for t, h, tx, r in zip(
+                b.timestamp_ns, b.frame_sha256, b.transmitter, b.rss_dbm, strict=True
+            )
+        ]
+        last_ns = max(b.timestamp_ns) if rows else None
+        if st.matcher is None:
+            assert st.calibration is not None
+            st.calibration.extend(rows)
+            if last_ns is not None:
+                st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append(
+                    (last_ns, b.received_s)  # receiver clock; converted at calibration
+                )
+            if self._calibration_ready():
+                return self._calibrate(b.received_s)
+            return []
+        if last_ns is not None:
+            ref = int(st.clocks[b.receiver_id].to_reference_ns(np.array([last_ns]))[0])
+            st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append((ref, b.received_s))
+        return self._handle(st.matcher.push(_frames(rows)), b.received_s)
+
+    def _calibration_ready(self) -> bool:
+        buf = self.state.calibration or []
+        if len(buf) >= self.config.calibration_max_frames:
+            return True
+        ref = self._reference()
+        if ref is None:
+            return False
+        times = [f[1] for f in buf if f[0] == ref]
+        return (max(times) - min(times)) >= self.config.calibration_s * _NS
+
+    def _reference(self) -> str | None:
+        heard = {f[0] for f in self.state.calibration or []}
+        return next((r for r in self.state.receivers if r in heard), None)
+
+    def _calibrate(self, wall_s: float) -> list[dict[str, Any]]:
+        """Estimate clocks from the buffer, start the matcher and push the buffer."""
+        st = self.state
+        buf = st.calibration or []
+        ref = self._reference()
+        heard = [r for r in st.receivers if any(f[0] == r for f in buf)]
+        frames = _frames(buf)
+        clocks: dict[str, ClockModel] = {}
+        if ref is not None and len(frames):
+            cfg = SyncConfig(
+                tolerance_s=self.config.tolerance_s, reference=ref, max_lag_s=self.config.max_lag_s
+            )
+            clocks = estimate_clocks(frames, heard, cfg)
+        st.clocks = {r: clocks.get(r, ClockModel(r, method="none")) for r in st.receivers}
+        if ref is not None:
+            st.clocks[ref] = clocks.get(ref, ClockModel(ref))
+        for rid, dq in st.arrivals.items():
+            if rid in st.clocks and dq:
+                ns = np.array([a[0] for a in dq], dtype=np.int64)
+                ref_ns = st.clocks[rid].to_reference_ns(ns)
+                st.arrivals[rid] = deque(
+                    ((int(t), a[1]) for t, a in zip(ref_ns, dq, strict=True)), maxlen=20_000
+                )
+        st.matcher = StreamingMatcher(
+            st.receivers,
+            st.clocks,
+            tolerance_s=self.config.tolerance_s,
+            max_lag_s=self.config.max_lag_s,
+        )
+        st.calibration = None
+        log.info(
+            "clocks estimated",
+            extra={
+                "clocks": {r: [m.offset_s, m.drift_ppm, m.method] for r, m in st.clocks.items()}
+            },
+        )
+        return self._handle(st.matcher.push(frames), wall_s)
+
+    def _idle_flush(self, wall_s: float) -> list[dict[str, Any]]:
+        st = self.state
+        st.flushed = True
+        if st.matcher is None:
+            if not st.calibration:
+                return []
+            out = self._calibrate(wall_s)
+        else:
+            out = []
+        assert st.matcher is not None
+        return out + self._handle(st.matcher.flush(), wall_s)
+
+    # ------------------------------------------------------------------ packets
+    def _handle(self, packets: Packets, wall_s: float) -> list[dict[str, Any]]:
+        """Track the packets this partition owns; return packet and estimate rows."""
+        if len(packets) == 0:
+            return []
+        st = self.state
+        assert self.tracker is not None
+        out: list[dict[str, Any]] = []
+        tol_ns = round(self.config.tolerance_s * _NS)
+        for obs in group_packets(packets):
+            pid = str(st.next_packet_id)
+            st.next_packet_id += 1
+            if not self.config.owns(obs.transmitter):
+                continue
+            obs = PacketObservation(
+                pid, obs.timestamp_s, obs.transmitter, obs.receiver_ids, obs.rss_dbm
+            )
+            est, reason = self.tracker.update(obs)
+            t_ns = round(obs.timestamp_s * _NS)
+            last_report = max(self._arrival(r, t_ns - tol_ns, wall_s) for r in obs.receiver_ids)
+            c = st.counts
+            c["packets"] = c.get("packets", 0) + 1
+            out.append(
+                {
+                    "kind": "packet",
+                    "packet_id": pid,
+                    "transmitter": obs.transmitter,
+                    "timestamp_s": obs.timestamp_s,
+                    "receiver_ids": list(obs.receiver_ids),
+                    "rss_dbm": [float(v) for v in obs.rss_dbm],
+                    "reason": reason,
+                }
+            )
+            if est is not None:
+                c["estimates"] = c.get("estimates", 0) + 1
+                out.append(
+                    {
+                        "kind": "estimate",
+                        "timestamp_s": est.timestamp_s,
+                        "transmitter": est.transmitter,
+                        "packet_id": pid,
+                        "x_m": est.position_m[0],
+                        "y_m": est.position_m[1],
+                        "z_m": est.position_m[2],
+                        "azimuth_deg": est.orientation_deg[0],
+                        "pitch_deg": est.orientation_deg[1],
+                        "roll_deg": est.orientation_deg[2],
+                        "method": est.method,
+                        "last_report_s": last_report,
+                    }
+                )
+        return out
+
+    def _arrival(self, receiver_id: str, t_ns: int, default: float) -> float:
+        """Server arrival time of the first recent batch of a receiver reaching ``t_ns``."""
+        dq = self.state.arrivals.get(receiver_id)
+        if not dq:
+            return default
+        keep_from = t_ns - 2 * round(self.config.max_lag_s * _NS)
+        while len(dq) > 1 and dq[0][0] < keep_from:
+            dq.popleft()
+        for tau_ns, arrived_s in dq:
+            if tau_ns >= t_ns:
+                return arrived_s
+        return default
+
+    def _commit(self, emitted: list[dict[str, Any]]) -> None:
+        now = time.time()
+        packets = [
+            {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "packet"
+        ]
+        estimates = [
+            {**{k: v for k, v in e.items() if k != "kind"}, "estimated_s": now}
+            for e in emitted
+            if e["kind"] == "estimate"
+        ]
+        for e in estimates:
+            self.latencies_s.append(now - e["last_report_s"])
+        st = self.state
+        matcher = st.matcher
+        summary = {
+            "phase": "calibrating" if matcher is None else "matching",
+            "calibration_frames": len(st.calibration or []),
+            "open_frames": 0 if matcher is None else matcher.open_frames,
+            "late_frames": 0 if matcher is None else matcher.counts.late_frames,
+            "clocks": {
+                r: {"offset_s": m.offset_s, "drift_ppm": m.drift_ppm, "method": m.method}
+                for r, m in st.clocks.items()
+            },
+            "counts": dict(st.counts),
+            "transmitters": len(st.track_states),
+        }
+        self.db.commit_step(
+            self.config.partition_key, st.cursor, pickle.dumps(st), summary, packets, estimates
+        )
+        self._last_commit_s = now
+        self._committed_cursor = st.cursor
+
+
+class LiveWorker:
+    """Runs a :class:`LivePipeline` until :meth:`stop`, in a thread or a child process.
+
+    ``mode="process"`` (what ``radiopose serve`` uses) runs the pipeline in a
+    child process with its own database connection, so tracking never
+    competes with the API for the interpreter lock; the child exits when its
+    parent dies (even by ``kill -9``). ``mode="thread"`` keeps it in this
+    process (tests). ``wake()`` (called after a batch is stored) cuts the
+    polling delay. Any error is logged and the pipeline restarts from its
+    last checkpoint.
+    """
+
+    def __init__(
+        self, db: Database, config: LiveConfig | None = None, mode: str = "thread"
+    ) -> None:
+        if mode not in ("thread", "process"):
+            raise ValueError(f"mode must be 'thread' or 'process', got {mode!r}")
+        self.db = db
+        self.config = config or LiveConfig()
+        self.mode = mode
+        self.pipeline: LivePipeline | None = None
+        if mode == "process":
+            import multiprocessing
+
+            ctx = multiprocessing.get_context("spawn")
+            self._stop: Any = ctx.Event()
+            self._wake: Any = ctx.Event()
+            self._runner: Any = ctx.Process(
+                target=_process_main,
+                args=(db.url, self.config, self._stop, self._wake),
+                name="radiopose-live",
+                daemon=True,
+            )
+        else:
+            self._stop = threading.Event()
+            self._wake = threading.Event()
+            self._runner = threading.Thread(target=self._run, name="radiopose-live", daemon=True)
+
+    def start(self) -> None:
+        self._runner.start()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._runner.ident is not None:
+            self._runner.join(timeout_s)
+        if self.mode == "process" and self._runner.is_alive():
+            self._runner.terminate()
+            self._runner.join(timeout_s)
+
+    def _run(self) -> None:
+        _loop(self.db, self.config, self._stop, self._wake, self)
+
+
+def _loop(
+    db: Database, config: LiveConfig, stop: Any, wake: Any, holder: LiveWorker | None = None
+) -> None:
+    import os
+
+    parent = os.getppid()
+    pipeline: LivePipeline | None = None
+    while not stop.is_set():
+        if holder is None and os.getppid() != parent:  # the server died: so do we
+            return
+        try:
+            if pipeline is None:
+                pipeline = LivePipeline(db, config)
+                if holder is not None:
+                    holder.pipeline = pipeline
+            n = pipeline.step()
+        except Exception:
+            log.exception("live pipeline step failed; resuming from the last checkpoint")
+            pipeline = None
+            stop.wait(1.0)
+            continue
+        if n == 0:
+            wake.wait(config.poll_s)
+            wake.clear()
+
+
+def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
+    from radiopose.server.jsonlog import configure_logging
+
+    configure_logging("info")
+    db = Database(url, create=False)
+    try:
+        _loop(db, config, stop, wake)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        db.close()

@@ -1,0 +1,159 @@
+"""Request and response bodies of the live server's JSON API (pydantic v2).
+
+The report body is the interchange contract's ("Live server"); every limit
+is here so that a bad request is answered ``422`` with a one-line reason and
+stores nothing:
+
+* at most :data:`MAX_FRAMES_PER_BATCH` frames and :data:`MAX_BODY_BYTES` bytes;
+* ``timestamp_s`` finite, ``0 <= t <= 1e11`` s (the receiver's own clock);
+* ``frame_sha256`` 64 hex digits, ``transmitter`` a MAC address;
+* ``rss_dbm`` finite within :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`.
+
+Receiver and transmitter ids must also be known to the site; that is checked
+by the endpoint (``422``).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from radiopose.capture.records import PLAUSIBLE_RSS_DBM
+
+MAX_FRAMES_PER_BATCH = 5_000
+MAX_BODY_BYTES = 2_000_000
+MAX_CSV_BYTES = 20_000_000
+MAX_TIMESTAMP_S = 1e11
+
+_Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f,]+$")]
+_Angle = Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)]
+_Metres = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+
+
+class FrameReport(BaseModel):
+    """One frame as a receiver heard it."""
+
+    model_config = ConfigDict(frozen=True)
+
+    timestamp_s: Annotated[float, Field(ge=0.0, le=MAX_TIMESTAMP_S, allow_inf_nan=False)]
+    frame_sha256: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{64}$")]
+    transmitter: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{2}([:-][0-9a-fA-F]{2}){5}$")]
+    rss_dbm: Annotated[
+        float,
+        Field(ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),
+    ]
+
+
+class ReportBatch(BaseModel):
+    """``POST /api/v1/reports``: a batch of one receiver's frame reports."""
+
+    model_config = ConfigDict(frozen=True)
+
+    receiver_id: _Id
+    batch_id: Annotated[str, Field(min_length=1, max_length=128)]
+    frames: Annotated[list[FrameReport], Field(max_length=MAX_FRAMES_PER_BATCH)]
+
+
+class ReportAck(BaseModel):
+    """The answer to a stored (or already stored) batch."""
+
+    batch_id: str
+    frames_stored: int
+    duplicate: bool
+
+
+class Estimate(BaseModel):
+    """One row of ``estimates.csv``."""
+
+    timestamp_s: float
+    transmitter: str
+    packet_id: str
+    x_m: float
+    y_m: float
+    z_m: float
+    azimuth_deg: float
+    pitch_deg: float
+    roll_deg: float
+    method: str
+
+
+class ReceiverIn(BaseModel):
+    """``PUT /api/v1/admin/receivers/{id}``: a receiver's pose and pattern."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    x_m: _Metres
+    y_m: _Metres
+    z_m: _Metres
+    azimuth_deg: _Angle = 0.0
+    pitch_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] = 0.0
+    roll_deg: _Angle = 0.0
+    pattern: Annotated[str, Field(min_length=1, max_length=128)]
+
+
+class ReceiverOut(ReceiverIn):
+    receiver_id: str
+
+
+class DeviceIn(BaseModel):
+    """``PUT /api/v1/admin/devices/{transmitter}``: an enrolled device."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    pattern: Annotated[str, Field(min_length=1, max_length=128)]
+    tx_power_dbm: Annotated[float, Field(ge=-100.0, le=60.0, allow_inf_nan=False)]
+
+
+class DeviceOut(DeviceIn):
+    transmitter: str
+
+
+class CsvIn(BaseModel):
+    """A CSV file's text (a pattern or the survey)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    csv: Annotated[str, Field(min_length=1, max_length=MAX_CSV_BYTES)]
+
+
+class Area(BaseModel):
+    x_min_m: float
+    x_max_m: float
+    y_min_m: float
+    y_max_m: float
+    z_m: float
+    step_m: float
+
+
+class SiteOut(BaseModel):
+    """``GET /api/v1/site``: what the dashboard draws."""
+
+    name: str
+    version: int
+    area: Area
+    receivers: list[ReceiverOut]
+    devices: list[DeviceOut]
+    patterns: list[str]
+
+
+class ReceiverHealth(BaseModel):
+    receiver_id: str
+    last_report_s: float | None
+    seconds_since_report: float | None
+    frames_per_s: float
+    clock_offset_s: float | None
+    clock_drift_ppm: float | None
+    clock_method: str | None
+
+
+class Health(BaseModel):
+    """``GET /health``."""
+
+    status: str
+    site_version: int
+    batches_stored: int
+    backlog_batches: int
+    partitions: dict[str, dict[str, object]]
+    receivers: list[ReceiverHealth]
+    latency_s: dict[str, float | None]

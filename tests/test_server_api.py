@@ -1,0 +1,293 @@
+"""Live server API: authentication on every endpoint, input limits, admin edits, fuzzing.
+
+Runs against SQLite and PostgreSQL (``db_url`` fixture in ``server_support``).
+"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from radiopose.server.auth import create_token
+from radiopose.server.schemas import MAX_FRAMES_PER_BATCH
+from server_support import Running, frame_dicts
+
+OK_PATTERN = "rx1"
+
+pytest_plugins = ("server_support",)
+
+
+def _batch(tiny, rid="rx1", n=5, batch_id="b1"):  # type: ignore[no-untyped-def]
+    return {
+        "receiver_id": rid,
+        "batch_id": batch_id,
+        "frames": frame_dicts(tiny.frames[rid].take(slice(0, n))),
+    }
+
+
+def _endpoints(tiny):  # type: ignore[no-untyped-def]
+    """(method, path, json body, roles allowed) of every API endpoint."""
+    receiver = {
+        "x_m": 1.0,
+        "y_m": 1.0,
+        "z_m": 1.0,
+        "azimuth_deg": 0.0,
+        "pitch_deg": 0.0,
+        "roll_deg": 0.0,
+        "pattern": OK_PATTERN,
+    }
+    pattern_csv = (tiny.site_dir / "patterns" / "rx1.csv").read_text()
+    survey_csv = (tiny.site_dir / "survey.csv").read_text()
+    return [
+        ("POST", "/api/v1/reports", _batch(tiny, batch_id="auth"), {"rx1"}),
+        ("GET", "/api/v1/transmitters", None, {"rx1", "rx2", "viewer", "admin"}),
+        ("GET", "/api/v1/estimates", None, {"viewer", "admin"}),
+        ("GET", "/api/v1/site", None, {"viewer", "admin"}),
+        ("GET", "/api/v1/patterns/rx1", None, {"viewer", "admin"}),
+        ("GET", "/health", None, {"viewer", "admin"}),
+        ("GET", "/api/v1/stream", None, {"viewer", "admin"}),
+        ("PUT", "/api/v1/admin/receivers/rx1", receiver, {"admin"}),
+        (
+            "PUT",
+            "/api/v1/admin/devices/02:00:00:00:00:09",
+            {"pattern": "device", "tx_power_dbm": 10.0},
+            {"admin"},
+        ),
+        ("DELETE", "/api/v1/admin/devices/02:00:00:00:00:09", None, {"admin"}),
+        ("PUT", "/api/v1/admin/patterns/extra", {"csv": pattern_csv}, {"admin"}),
+        ("DELETE", "/api/v1/admin/patterns/extra", None, {"admin"}),
+        ("PUT", "/api/v1/admin/survey", {"csv": survey_csv}, {"admin"}),
+        ("DELETE", "/api/v1/admin/receivers/rx3", None, {"admin"}),
+    ]
+
+
+def _call(client, method, path, body):  # type: ignore[no-untyped-def]
+    if path == "/api/v1/stream":
+        with client.stream(method, path) as r:
+            return r.status_code
+    return client.request(method, path, json=body).status_code
+
+
+def test_every_endpoint_needs_the_right_token(server: Running, tiny) -> None:
+    table = _endpoints(tiny)
+    routes = {
+        (m, r.path)
+        for r in server.app.routes
+        if r.path.startswith(("/api", "/health"))
+        for m in getattr(r, "methods", ())
+    }
+    covered = {(m, p) for m, p, _, _ in table}
+    for m, p in routes:  # every API route is in the table above
+        assert any(m == cm and _same_route(p, cp) for cm, cp in covered), (m, p)
+    wrong = server.client("rp_not-a-token")
+    nobody = server.client(None)
+    basic = server.client(None, Authorization="Basic dXNlcjpwYXNz")
+    for method, path, body, allowed in table:
+        assert _call(nobody, method, path, body) == 401, (method, path)
+        assert _call(wrong, method, path, body) == 401, (method, path)
+        assert _call(basic, method, path, body) == 401, (method, path)
+        for role in ("rx1", "rx2", "viewer", "admin"):
+            status = _call(server.client(server.tokens[role]), method, path, body)
+            if role in allowed:
+                assert status < 400, (role, method, path, status)
+            else:
+                assert status == 403, (role, method, path, status)
+
+
+def _same_route(route: str, path: str) -> bool:
+    a, b = route.strip("/").split("/"), path.strip("/").split("/")
+    return len(a) == len(b) and all(x == y or x.startswith("{") for x, y in zip(a, b, strict=True))
+
+
+def test_dashboard_page_is_public_and_holds_no_data(server: Running) -> None:
+    r = server.client(None).get("/")
+    assert r.status_code == 200 and "radiopose" in r.text
+    assert "rx1" not in r.text
+    assert server.client(None).get("/static/app.js").status_code == 200
+    assert server.client(None).get("/openapi.json").json()["info"]["version"] == "1"
+
+
+def test_report_is_stored_once(server: Running, tiny) -> None:
+    c = server.client(server.tokens["rx1"])
+    body = _batch(tiny, n=7, batch_id="once")
+    r = c.post("/api/v1/reports", json=body)
+    assert r.status_code == 201 and r.json() == {
+        "batch_id": "once",
+        "frames_stored": 7,
+        "duplicate": False,
+    }
+    before = server.db.count_frames()
+    for _ in range(2):  # the same batch id again: 2xx, nothing new
+        r = c.post("/api/v1/reports", json=body)
+        assert r.status_code == 200 and r.json()["duplicate"] is True
+    assert server.db.count_frames() == before == 7
+
+
+@pytest.mark.parametrize(
+    ("mutate", "status", "words"),
+    [
+        (lambda b: b["frames"][0].update(rss_dbm=5.0), 422, "rss_dbm"),
+        (lambda b: b["frames"][0].update(rss_dbm=float("nan")), 422, "rss_dbm"),
+        (lambda b: b["frames"][0].update(timestamp_s=-1.0), 422, "timestamp_s"),
+        (lambda b: b["frames"][0].update(timestamp_s=float("inf")), 422, "timestamp_s"),
+        (lambda b: b["frames"][0].update(frame_sha256="ab"), 422, "frame_sha256"),
+        (lambda b: b["frames"][0].update(transmitter="nonsense"), 422, "transmitter"),
+        (lambda b: b["frames"][0].update(transmitter="02:00:00:00:00:99"), 422, "not enrolled"),
+        (lambda b: b["frames"][0].pop("rss_dbm"), 422, "rss_dbm"),
+        (lambda b: b.update(batch_id=""), 422, "batch_id"),
+        (lambda b: b.update(batch_id="x" * 129), 422, "batch_id"),
+        (lambda b: b.update(frames=b["frames"] * (MAX_FRAMES_PER_BATCH // 5 + 1)), 422, "frames"),
+        (lambda b: b.update(receiver_id="rx2"), 403, "rx1"),
+    ],
+)
+def test_bad_reports_are_rejected_whole(server: Running, tiny, mutate, status, words) -> None:
+    body = _batch(tiny, n=5, batch_id="bad")
+    mutate(body)
+    r = server.client(server.tokens["rx1"]).post(
+        "/api/v1/reports", content=json.dumps(body), headers={"Content-Type": "application/json"}
+    )
+    assert r.status_code == status, r.text
+    detail = r.json()["detail"]
+    assert words in detail and "\n" not in detail
+    assert server.db.count_frames() == 0
+    assert server.client(server.tokens["viewer"]).get("/health").status_code == 200
+
+
+def test_unknown_receiver_and_oversized_body(server: Running, tiny) -> None:
+    token = create_token(server.db, "receiver", "rx9")
+    r = server.client(token).post("/api/v1/reports", json=_batch(tiny) | {"receiver_id": "rx9"})
+    assert r.status_code == 422 and "unknown receiver 'rx9'" in r.json()["detail"]
+    big = b'{"receiver_id": "rx1", "batch_id": "big", "frames": [], "pad": "' + b"x" * 2_100_000
+    r = server.client(server.tokens["rx1"]).post(
+        "/api/v1/reports", content=big + b'"}', headers={"Content-Type": "application/json"}
+    )
+    assert r.status_code == 413
+    for raw in (b"not json", b"[1, 2]", b'"text"', b"{}"):
+        r = server.client(server.tokens["rx1"]).post(
+            "/api/v1/reports", content=raw, headers={"Content-Type": "application/json"}
+        )
+        assert r.status_code == 422, raw
+    assert server.db.count_frames() == 0
+
+
+def test_admin_edits_are_validated_whole(server: Running, tiny) -> None:
+    admin = server.client(server.tokens["admin"])
+    site0 = admin.get("/api/v1/site").json()
+    bad = [
+        (
+            "PUT",
+            "/api/v1/admin/receivers/rx1",
+            {"x_m": 1, "y_m": 1, "z_m": 1, "pattern": "no-such-pattern"},
+            "no-such-pattern",
+        ),
+        (
+            "PUT",
+            "/api/v1/admin/receivers/rx1",
+            {"x_m": 1, "y_m": 1, "z_m": 1, "pitch_deg": 120, "pattern": "rx1"},
+            "pitch_deg",
+        ),
+        (
+            "PUT",
+            "/api/v1/admin/receivers/rx7",
+            {"x_m": 1, "y_m": 1, "z_m": 1, "pattern": "rx1"},
+            "survey",
+        ),
+        (
+            "PUT",
+            "/api/v1/admin/patterns/rx1",
+            {"csv": "azimuth_deg,polar_deg\n0,90\n"},
+            "directivity_dbi",
+        ),
+        (
+            "PUT",
+            "/api/v1/admin/patterns/rx1",
+            {"csv": "azimuth_deg,polar_deg,directivity_dbi\n0,90,1\n90,90,nan\n"},
+            "rx1.csv",
+        ),
+        ("DELETE", "/api/v1/admin/patterns/rx1", None, "rx1"),
+        ("PUT", "/api/v1/admin/survey", {"csv": "x_m,y_m\n1,2\n"}, "survey.csv"),
+        ("PUT", "/api/v1/admin/devices/zz", {"pattern": "device", "tx_power_dbm": 1}, "MAC"),
+    ]
+    for method, path, body, words in bad:
+        r = admin.request(method, path, json=body)
+        assert r.status_code == 422, (path, r.text)
+        assert words in r.json()["detail"], r.json()
+    assert admin.get("/api/v1/site").json() == site0  # nothing changed
+    r = admin.put(
+        "/api/v1/admin/receivers/rx1",
+        json={"x_m": 2.5, "y_m": 0.5, "z_m": 1.0, "azimuth_deg": 90, "pattern": "rx1"},
+    )
+    assert r.status_code == 200
+    site1 = r.json()
+    assert site1["version"] == site0["version"] + 1
+    assert site1["receivers"][0] == {
+        "receiver_id": "rx1",
+        "x_m": 2.5,
+        "y_m": 0.5,
+        "z_m": 1.0,
+        "azimuth_deg": 90.0,
+        "pitch_deg": 0.0,
+        "roll_deg": 0.0,
+        "pattern": "rx1",
+    }
+    # a newly enrolled device may report at once
+    r = admin.put(
+        "/api/v1/admin/devices/02:00:00:00:00:42", json={"pattern": "device", "tx_power_dbm": 12.0}
+    )
+    assert r.status_code == 200
+    body = _batch(tiny, n=1, batch_id="new-device")
+    body["frames"][0]["transmitter"] = "02:00:00:00:00:42"
+    assert server.client(server.tokens["rx1"]).post("/api/v1/reports", json=body).status_code == 201
+
+
+_json = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=80),
+    lambda c: st.lists(c, max_size=4) | st.dictionaries(st.text(max_size=12), c, max_size=5),
+    max_leaves=20,
+)
+_frame = st.fixed_dictionaries(
+    {},
+    optional={
+        "timestamp_s": st.floats() | st.integers() | st.text(max_size=10),
+        "frame_sha256": st.text(alphabet="0123456789abcdefX", min_size=60, max_size=66) | _json,
+        "transmitter": st.sampled_from(
+            ["02:00:00:00:00:01", "02-00-00-00-00-01", "02:00:00:00:00:02", "zz"]
+        )
+        | _json,
+        "rss_dbm": st.floats(-200, 50) | st.floats() | _json,
+    },
+)
+_body = (
+    st.fixed_dictionaries(
+        {},
+        optional={
+            "receiver_id": st.sampled_from(["rx1", "rx2", ""]) | _json,
+            "batch_id": st.text(max_size=140) | _json,
+            "frames": st.lists(_frame, max_size=6) | _json,
+        },
+    )
+    | _json
+)
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+@settings(
+    max_examples=80,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
+@given(body=_body)
+def test_fuzzed_reports_never_break_the_server(server: Running, body) -> None:
+    c = server.client(server.tokens["rx1"])
+    before = server.db.count_frames()
+    raw = json.dumps(body, allow_nan=True)
+    r = c.post("/api/v1/reports", content=raw, headers={"Content-Type": "application/json"})
+    assert r.status_code in (200, 201, 403, 413, 422), (r.status_code, r.text)
+    if r.status_code >= 400:
+        assert server.db.count_frames() == before
+        assert "\n" not in r.json()["detail"]
+    elif r.status_code == 201:
+        assert server.db.count_frames() == before + len(body["frames"])
