@@ -94,7 +94,8 @@ def pg_server() -> Iterator[str]:
     bindir = _pg_bin()
     if bindir is None:
         pytest.skip("PostgreSQL server binaries not found (apt-get install postgresql)")
-    tmp = Path(tempfile.mkdtemp(prefix="radiopose-pg-"))
+    shm = Path("/dev/shm")  # a tmpfs: creating and removing clusters is quick there
+    tmp = Path(tempfile.mkdtemp(prefix="radiopose-pg-", dir=shm if shm.is_dir() else None))
     data = tmp / "data"
     run_as: list[str] = []
     if os.geteuid() == 0:  # initdb refuses root: run the cluster as 'postgres'

@@ -13,11 +13,16 @@ from hypothesis import strategies as st
 
 from radiopose.server.auth import create_token
 from radiopose.server.schemas import MAX_FRAMES_PER_BATCH
-from server_support import Running, frame_dicts
+from server_support import (  # fixtures and helpers
+    Running,
+    db_url,
+    frame_dicts,
+    pg_server,
+    server,
+    tiny,
+)
 
 OK_PATTERN = "rx1"
-
-pytest_plugins = ("server_support",)
 
 
 def _batch(tiny, rid="rx1", n=5, batch_id="b1"):  # type: ignore[no-untyped-def]

@@ -15,7 +15,14 @@ from pathlib import Path
 import pytest
 
 from radiopose.receiver import run_replay
-from server_support import RECEIVERS, Running
+from server_support import (  # fixtures and helpers
+    RECEIVERS,
+    Running,
+    db_url,
+    pg_server,
+    server,
+    tiny,
+)
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 ARGS = [
@@ -29,8 +36,6 @@ ARGS = [
     "--disable-sync",
 ]
 SCREENSHOT = Path(__file__).resolve().parents[1] / "docs" / "img" / "dashboard.png"
-
-pytest_plugins = ("server_support",)
 
 
 @pytest.fixture

@@ -32,9 +32,17 @@ from radiopose.server.db import Database
 from radiopose.server.export import export_run
 from radiopose.site import load_site
 from radiopose.tracker import locate
-from server_support import RECEIVERS, Running, fast_live, run_server, wait_for
-
-pytest_plugins = ("server_support",)
+from server_support import (  # fixtures and helpers
+    RECEIVERS,
+    Running,
+    db_url,
+    fast_live,
+    pg_server,
+    run_server,
+    server,
+    tiny,
+    wait_for,
+)
 
 
 def _agent(url: str, token: str, rid: str, spool: Path, **kw) -> ReceiverAgent:  # type: ignore[no-untyped-def]
@@ -182,6 +190,7 @@ def _up(url: str, token: str) -> bool:
         return False
 
 
+@pytest.mark.slow  # two server start-ups: ~25 s on a loaded 2-core machine
 @pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
 def test_kill_9_loses_nothing_acknowledged(tiny, db_url: str, tmp_path: Path) -> None:
     db = Database(db_url)

@@ -72,7 +72,8 @@ class Pattern:
         if not np.all(np.isfinite(d)):
             raise ValueError(f"pattern {self.name!r}: directivity has NaN/inf")
         step = 360.0 / az.size
-        if az[0] >= step - _STEP_TOL or not np.allclose(np.diff(az), step, atol=_STEP_TOL) or az[0] < 0:
+        regular = np.allclose(np.diff(az), step, atol=_STEP_TOL)
+        if az[0] < 0 or az[0] >= step - _STEP_TOL or not regular:
             raise ValueError(
                 f"pattern {self.name!r}: azimuths must be a constant step covering [0, 360)"
             )
