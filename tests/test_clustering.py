@@ -101,3 +101,45 @@ def test_weighted_orientation_is_circular_on_periodic_axes():
     assert abs(angle_diff_deg(m[0], 0.0)) < 1e-9
     assert m[1] == pytest.approx(15.0)
     assert abs(angle_diff_deg(m[2], 0.0)) < 1e-9
+
+
+# ------------------------------------------------------------ dbscan vs scikit-learn
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+from sklearn.cluster import DBSCAN as _SkDBSCAN  # noqa: E402
+
+from radiopose.clustering import dbscan  # noqa: E402
+
+
+def _sk(points, eps, min_samples):
+    db = _SkDBSCAN(eps=eps, min_samples=min_samples).fit(points)
+    core = np.zeros(len(points), bool)
+    core[db.core_sample_indices_] = True
+    return db.labels_, core
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    st.integers(0, 2**32 - 1),
+    st.integers(1, 3),
+    st.integers(1, 160),
+    st.floats(0.05, 2.0),
+    st.integers(1, 15),
+)
+def test_dbscan_labels_equal_scikit_learn(seed, dim, n, eps, min_samples):
+    rng = np.random.default_rng(seed)
+    # clumps on a coarse lattice: many exact ties at distance eps and shared borders
+    pts = np.round(rng.normal(0, 2.0, (n, dim)) * 4) / 4
+    labels, core = dbscan(pts, eps, min_samples)
+    sk_labels, sk_core = _sk(pts, eps, min_samples)
+    np.testing.assert_array_equal(core, sk_core)
+    np.testing.assert_array_equal(labels, sk_labels)
+
+
+def test_dbscan_border_point_takes_first_cluster():
+    # two clusters of 4 points and a border point exactly eps from both (binary fractions)
+    pts = np.array([[0.0], [0.25], [0.5], [0.75], [1.75], [2.75], [3.0], [3.25], [3.5]])
+    labels, core = dbscan(pts, 1.0, 4)
+    np.testing.assert_array_equal(labels, _sk(pts, 1.0, 4)[0])
+    assert labels[4] == 0 and not core[4]
+    assert set(labels[5:]) == {1}

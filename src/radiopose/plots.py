@@ -13,6 +13,7 @@ except :func:`mse_map_figure`, which lays out several Axes and returns the Figur
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -30,14 +31,15 @@ def mse_map_db2(
     space: CandidateSpace,
     packet: PacketObservation,
     receiver_id: str | None = None,
-    table: TableScorer | None = None,
+    table: TableScorer | Any = None,
 ) -> FloatArray:
     """MSE over the area ``(nx, ny)``, dB², minimised over orientations.
 
     ``receiver_id=None`` combines every receiver that heard the packet; a
     receiver id uses that receiver alone (its squared error). With ``table``
-    (a :class:`~radiopose.likelihood.TableScorer` of the same space) the map is
-    read from its float32 table — fast; otherwise computed exactly in float64.
+    (a :class:`~radiopose.likelihood.TableScorer` of the same space, or the
+    compiled scorer, which offers ``position_mse_db2``) the map is read from its
+    float32 tables — fast; otherwise computed exactly in float64.
     """
     heard = space.heard(packet)
     if receiver_id is not None:
@@ -48,6 +50,8 @@ def mse_map_db2(
         heard = HeardRss(heard.receiver_index[sel], heard.rss_dbm[sel])
     n_pos, n_o = space.n_positions, space.n_orientations
     xs = np.unique(space.positions_m[:, 0])
+    if hasattr(table, "position_mse_db2"):  # the compiled scorer's shift tables
+        return np.asarray(table.position_mse_db2(heard), np.float64).reshape(xs.size, -1)
     if table is not None:
         acc = np.zeros(space.n_candidates, dtype=np.float32)
         for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
@@ -76,7 +80,7 @@ def plot_mse_map(
     receiver_id: str | None = None,
     *,
     truth_xy_m: FloatArray | None = None,
-    table: TableScorer | None = None,
+    table: TableScorer | Any = None,
     ax: Axes | None = None,
 ) -> Axes:
     """Image of :func:`mse_map_db2` (dB², log colour scale), receivers as triangles."""
@@ -103,7 +107,7 @@ def mse_map_figure(
     packet: PacketObservation,
     *,
     truth_xy_m: FloatArray | None = None,
-    table: TableScorer | None = None,
+    table: TableScorer | Any = None,
 ) -> Figure:
     """One MSE map per receiver that heard the packet, and the combined map."""
     ids = [space.receiver_ids[r] for r in space.heard(packet).receiver_index]

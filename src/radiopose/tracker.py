@@ -45,7 +45,14 @@ from radiopose.clustering import (
 )
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates, PoseEstimate
-from radiopose.likelihood import CandidateSpace, Scorer, TopK, candidate_space, make_scorer
+from radiopose.likelihood import (
+    CandidateSpace,
+    HeardRss,
+    Scorer,
+    TopK,
+    candidate_space,
+    make_scorer,
+)
 from radiopose.motion import PERIODIC_AXES, MovementModel, RotationModel
 from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.site import Site
@@ -102,6 +109,16 @@ class TrackerConfig:
         a whole curve of positions equally likely).
     kernel
         Likelihood scorer (:data:`radiopose.likelihood.SCORERS`).
+    search
+        ``"full"`` (default): every packet's top-k comes from the whole
+        candidate grid, as in the paper's pipeline description. ``"bounded"``:
+        while the previous valid position / orientation is fresher than the gap
+        cap, score only positions within the movement bound (plus half a grid
+        cell's diagonal, so the cell of the previous position is always in) and
+        azimuths within the rotation bound (plus half a step) — the paper's
+        "Performance" remark; otherwise, and for ``top``, the whole grid
+        (re-acquisition). Needs a scorer with ``score_window`` (the compiled one);
+        others search the whole grid.
     """
 
     k: int = 100
@@ -119,7 +136,8 @@ class TrackerConfig:
     use_movement_model: bool = True
     primary: Literal["position", "orientation"] = "position"
     min_receivers: int = 3
-    kernel: str = "numpy"
+    kernel: str = "numba"
+    search: Literal["full", "bounded"] = "full"
 
     def __post_init__(self) -> None:
         checks = [
@@ -138,6 +156,7 @@ class TrackerConfig:
             ("max_position_gap_s", self.max_position_gap_s is None or self.max_position_gap_s >= 0),
             ("primary", self.primary in ("position", "orientation")),
             ("min_receivers", self.min_receivers >= 1),
+            ("search", self.search in ("full", "bounded")),
         ]
         for name, ok in checks:
             if not ok:
@@ -410,6 +429,12 @@ def track_step(
 class _Device:
     space: CandidateSpace
     scorer: Scorer | None
+    cell_m: float = 0.0  # half the candidate grid's cell diagonal (bounded search)
+    n_azimuth: int = 1
+
+    def __post_init__(self) -> None:
+        self.cell_m = _grid_half_diagonal_m(self.space)
+        self.n_azimuth = int(np.unique(self.space.orientations_deg[:, 0]).size)
 
 
 class Tracker:
@@ -494,7 +519,7 @@ class Tracker:
             self.states[key] = advance(state, t, out)
         else:
             assert dev.scorer is not None
-            top = dev.scorer.score_heard(heard, self.config.k)
+            top = self._score(dev, heard, t, state)
             cand = Candidates.from_topk(dev.space, top)
             self.states[key], out = track_step(self.method, cand, t, state, self.config)
         if not out.ok:
@@ -508,6 +533,43 @@ class Tracker:
             self.method,  # type: ignore[arg-type]
         )
         return est, None
+
+
+    def _score(self, dev: _Device, heard: HeardRss, t_s: float, state: TrackState) -> TopK:
+        """Top-k of one packet: the whole grid, or the motion-bounded window."""
+        cfg = self.config
+        window = getattr(dev.scorer, "score_window", None)
+        if cfg.search != "bounded" or window is None or self.method == "top":
+            return dev.scorer.score_heard(heard, cfg.k)  # type: ignore[union-attr]
+        space = dev.space
+        positions = None
+        if self.method in ("full", "location") and state.position_m is not None:
+            dt = t_s - float(state.position_time_s)  # type: ignore[arg-type]
+            move = cfg.movement_model
+            if dt <= move.max_gap_s:
+                d = np.linalg.norm(space.positions_m - np.asarray(state.position_m), axis=1)
+                positions = np.flatnonzero(d <= move.allowed_m(dt) + dev.cell_m)
+        lo_deg, span_deg = 0.0, 360.0
+        if self.method in ("full", "orientation") and state.orientation_deg is not None:
+            dt = t_s - float(state.orientation_time_s)  # type: ignore[arg-type]
+            rot = cfg.rotation_model
+            if dt <= rot.gap_s:
+                half = rot.allowed_deg(dt) + 0.5 * (360.0 / dev.n_azimuth)
+                if half < 180.0:
+                    lo_deg, span_deg = state.orientation_deg[0] - half, 2.0 * half
+        if positions is None and span_deg >= 360.0:
+            return dev.scorer.score_heard(heard, cfg.k)  # type: ignore[union-attr]
+        if positions is None:
+            positions = np.arange(space.n_positions)
+        return window(heard, cfg.k, positions, lo_deg, span_deg)
+
+
+def _grid_half_diagonal_m(space: CandidateSpace) -> float:
+    xs = np.unique(space.positions_m[:, 0])
+    ys = np.unique(space.positions_m[:, 1])
+    dx = float(np.min(np.diff(xs))) if xs.size > 1 else 0.0
+    dy = float(np.min(np.diff(ys))) if ys.size > 1 else 0.0
+    return 0.5 * float(np.hypot(dx, dy))
 
 
 # ----------------------------------------------------------------------------- batch

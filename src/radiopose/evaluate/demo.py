@@ -213,7 +213,9 @@ def run_demo_pipeline(
         written.append(p)
 
     first = group_packets(sim.packets)[0]
-    table = scorer if isinstance(scorer, TableScorer) else None
+    inner = getattr(scorer, "inner", scorer)
+    fast = isinstance(inner, TableScorer) or hasattr(inner, "position_mse_db2")
+    table = inner if fast else None
     fig = plots.mse_map_figure(
         scorer.space, first, truth_xy_m=sim.truth.position_m[0, :2], table=table
     )

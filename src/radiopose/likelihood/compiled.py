@@ -208,7 +208,7 @@ def _shift_topk(
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
     for c in numba.prange(N_CHUNKS):
-        acc = np.empty(blk, dtype=np.float32)
+        acc = np.empty(cnt, dtype=np.float32)
         e = np.empty(h, np.float32)
         k = np.empty(h, np.int64)
         f = np.empty(h, np.float32)
@@ -240,11 +240,18 @@ def _shift_topk(
                     if lb0 > cut:
                         continue
                     _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb)
-                for b in range(nbw):
-                    b0 = b * blk
+                b = 0
+                while b < nbw:
+                    # one contiguous run of surviving blocks at a time (long SIMD loops)
                     if prune and lb[b] > cut:
+                        b += 1
                         continue
-                    nb = min(blk, cnt - b0)
+                    be = b + 1
+                    while be < nbw and not (prune and lb[be] > cut):
+                        be += 1
+                    b0 = b * blk
+                    nb = min(be * blk, cnt) - b0
+                    b = be
                     for q in range(h):
                         # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
                         eq = e[q]
@@ -277,6 +284,16 @@ def _shift_topk(
                                     acc[jj] = d * d
                                 else:
                                     acc[jj] += d * d
+                    # fused top-k: a vectorised minimum first; the scalar pass only
+                    # when something in the block can enter the heap
+                    lim = thr0
+                    if count == kk and bv[0] < lim:
+                        lim = bv[0]
+                    mn = acc[0]
+                    for jj in range(1, nb):
+                        mn = min(mn, acc[jj])
+                    if mn * inv_h > lim:
+                        continue
                     for jj in range(nb):
                         v = acc[jj] * inv_h
                         if v > thr0:
@@ -657,6 +674,36 @@ class ShiftScorer:
         if pos.size == 0:
             return TopK(np.empty(0, np.int64), np.empty(0))
         return self._run(heard, k, pos, j0, cnt)
+
+    def position_mse_db2(self, heard: HeardRss, chunk_positions: int = 8192) -> np.ndarray:
+        """Per position, the MSE minimised over every candidate orientation ``(n_pos,)``,
+        dB² (inf where excluded) — for maps, not the hot path (vectorised numpy
+        over the same tables, float32)."""
+        r = heard.receiver_index
+        w = (heard.rss_dbm - self.centre_db[r]).astype(np.float32)
+        out = np.full(self.space.n_positions, np.inf)
+        js = self.m * np.arange(self.n_az)
+        for start in range(0, self.space.n_positions, chunk_positions):
+            p = np.arange(start, min(start + chunk_positions, self.space.n_positions))
+            best = np.full(p.size, np.inf, dtype=np.float32)
+            for q in range(self.n_q):
+                acc = np.zeros((p.size, self.n_az), dtype=np.float32)
+                for wq, rq in zip(w, r, strict=True):
+                    idx = self.off[rq, p][:, None] + js[None, :]
+                    t = (self.row0[rq, p] + q * self.rows_per_q)[:, None]
+                    g = self.roww[rq, p][:, None]
+                    a = self.rows[t, idx]
+                    dl = self.drows[t, idx]
+                    if np.any(g != 0):
+                        t1 = np.minimum(t + 1, self.rows.shape[0] - 1)
+                        a = (1 - g) * a + g * self.rows[t1, idx]
+                        dl = (1 - g) * dl + g * self.drows[t1, idx]
+                    d = (wq - self.base[rq, p])[:, None] - a - self.frac[rq, p][:, None] * dl
+                    acc += d * d
+                best = np.minimum(best, acc.min(axis=1))
+            out[p] = best / r.size
+        out[~np.all(np.isfinite(self.base[r]), axis=0)] = np.inf
+        return out
 
     def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
         """Top-k candidates of one packet (best first)."""
