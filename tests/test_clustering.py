@@ -6,11 +6,13 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from sklearn.cluster import DBSCAN
 
 from radiopose.clustering import (
     cluster_axis_deg,
     cluster_positions_m,
     cluster_score,
+    dbscan,
     inverted_weights,
     weighted_orientation_deg,
 )
@@ -104,15 +106,10 @@ def test_weighted_orientation_is_circular_on_periodic_axes():
 
 
 # ------------------------------------------------------------ dbscan vs scikit-learn
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
-from sklearn.cluster import DBSCAN as _SkDBSCAN  # noqa: E402
-
-from radiopose.clustering import dbscan  # noqa: E402
 
 
 def _sk(points, eps, min_samples):
-    db = _SkDBSCAN(eps=eps, min_samples=min_samples).fit(points)
+    db = DBSCAN(eps=eps, min_samples=min_samples).fit(points)
     core = np.zeros(len(points), bool)
     core[db.core_sample_indices_] = True
     return db.labels_, core

@@ -471,8 +471,7 @@ def write_site(site: Site, directory: str | os.PathLike[str]) -> None:
     """Write a site directory in the contract layout (each file atomically)."""
     root = Path(directory)
     receivers, devices, survey_rows = site.receivers, site.devices, site.survey_rows
-    write_site_toml(root / "site.toml", site.name, site.area, site.orientations,
-                    site.survey_config)
+    write_site_toml(root / "site.toml", site.name, site.area, site.orientations, site.survey_config)
     write_table(
         root / "receivers.csv",
         {

@@ -534,7 +534,6 @@ class Tracker:
         )
         return est, None
 
-
     def _score(self, dev: _Device, heard: HeardRss, t_s: float, state: TrackState) -> TopK:
         """Top-k of one packet: the whole grid, or the motion-bounded window."""
         cfg = self.config

@@ -101,8 +101,14 @@ def demo(
     if live:
         from radiopose.server.demo import run_live_demo
 
-        run_live_demo(out, seed=seed, noise_db=noise_db,
-                      duration_s=duration_s if duration_s > 1.0 else 60.0, port=port, echo=print)
+        run_live_demo(
+            out,
+            seed=seed,
+            noise_db=noise_db,
+            duration_s=duration_s if duration_s > 1.0 else 60.0,
+            port=port,
+            echo=print,
+        )
         return
     from radiopose.demo import run_demo
 
