@@ -164,3 +164,20 @@ def test_unknown_receiver_in_packet_is_an_input_error(tiny_sim):
     pkt = PacketObservation("7", 0.0, space.transmitter, ("rx1", "nope"), np.array([-50.0, -60]))
     with pytest.raises(InputError, match="'nope' is not in the site"):
         space.heard(pkt)
+
+
+def test_expected_rss_cache_equals_exact_mse_across_packets(tiny_sim):
+    from radiopose.likelihood.candidates import ExpectedRssCache, exact_mse_db2
+
+    space = _space(tiny_sim)
+    cache = ExpectedRssCache(space, capacity=300)
+    rng = np.random.default_rng(5)
+    packets = group_packets(tiny_sim.packets)
+    for i, obs in enumerate(packets[:12]):
+        heard = space.heard(obs)
+        # overlapping, repeated and fresh candidates; the capacity forces resets
+        ids = rng.integers(0, 40 + 30 * i, size=120)
+        got = cache.mse_db2(heard, ids)
+        np.testing.assert_array_equal(got, exact_mse_db2(space, heard, ids))
+        assert cache._ids.size <= 300
+        assert np.all(np.diff(cache._ids) > 0)

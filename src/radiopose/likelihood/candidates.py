@@ -224,3 +224,47 @@ def exact_mse_db2(space: CandidateSpace, heard: HeardRss, candidate_idx: IntArra
     """Exact float64 MSE ``(n,)`` of the given candidates for one packet, dB²."""
     pos, ori = space.split(candidate_idx)
     return candidate_mse_db2(expected_rss_dbm(space, pos, ori), heard)
+
+
+class ExpectedRssCache:
+    """Exact float64 MSE of shortlisted candidates, with their expected RSS cached.
+
+    The expected RSS of a candidate does not depend on the packet, and the
+    shortlists of consecutive packets of one track overlap, so rows computed
+    for one packet are kept (up to ``capacity`` candidates, then the cache
+    starts afresh) and reused. The values are those of :func:`expected_rss_dbm`
+    computed elementwise, so the MSE equals :func:`exact_mse_db2`'s.
+    """
+
+    def __init__(self, space: CandidateSpace, capacity: int = 65536) -> None:
+        self.space = space
+        self.capacity = int(capacity)
+        self._ids = np.empty(0, dtype=np.int64)
+        self._rows = np.empty((0, space.n_receivers))
+
+    def expected_dbm(self, candidate_idx: IntArray) -> FloatArray:
+        """Expected RSS ``(n, n_rx)`` dBm of the candidates (NaN where ``M_r`` is)."""
+        ids = np.asarray(candidate_idx, dtype=np.int64)
+        out = np.empty((ids.size, self.space.n_receivers))
+        at = np.searchsorted(self._ids, ids)
+        hit = at < self._ids.size
+        hit[hit] = self._ids[at[hit]] == ids[hit]
+        out[hit] = self._rows[at[hit]]
+        miss = ~hit
+        if miss.any():
+            new_ids = np.unique(ids[miss])
+            new_rows = expected_rss_dbm(self.space, *self.space.split(new_ids))
+            out[miss] = new_rows[np.searchsorted(new_ids, ids[miss])]
+            if self._ids.size + new_ids.size > self.capacity:
+                self._ids = new_ids[: self.capacity]
+                self._rows = new_rows[: self.capacity]
+            else:
+                all_ids = np.concatenate([self._ids, new_ids])
+                order = np.argsort(all_ids, kind="stable")
+                self._ids = all_ids[order]
+                self._rows = np.concatenate([self._rows, new_rows])[order]
+        return out
+
+    def mse_db2(self, heard: HeardRss, candidate_idx: IntArray) -> FloatArray:
+        """Exact float64 MSE ``(n,)`` of the candidates for one packet, dB²."""
+        return candidate_mse_db2(self.expected_dbm(candidate_idx), heard)

@@ -63,7 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.geometry import direction_to_pattern_angles_deg
-from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
+from radiopose.likelihood.candidates import CandidateSpace, ExpectedRssCache, HeardRss
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
@@ -306,6 +306,42 @@ def _shift_topk(
     return out_v, out_i
 
 
+@numba.njit(cache=True, boundscheck=False)
+def _prefilter(w, heard, pre_lo, pre_hi, positions, every, cut):  # pragma: no cover - compiled
+    """Positions whose whole-row lower bound ``Σ_r dist(w_r, [LO_rp, HI_rp])²``
+    is within ``cut`` (the same bound the main kernel applies first, evaluated
+    in float64 over contiguous arrays so that it vectorises).
+
+    ``LO_rp``/``HI_rp`` are ``B_r(p)`` plus the minimum/maximum of every pattern
+    row position ``p`` can blend toward receiver ``r`` (``+inf``/``−inf`` where
+    ``p`` is excluded, so it never survives). ``every``: ``positions`` is
+    ``0 … n_pos − 1``.
+    """
+    n_p = positions.shape[0]
+    lb = np.zeros(n_p, dtype=np.float64)
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        wq = np.float64(w[q])
+        lo = pre_lo[r]
+        hi = pre_hi[r]
+        if every:  # positions = 0 … n−1: contiguous reads (SIMD)
+            for i in range(n_p):
+                x = max(lo[i] - wq, 0.0) + max(wq - hi[i], 0.0)
+                lb[i] += x * x
+        else:
+            for i in range(n_p):
+                p = positions[i]
+                x = max(lo[p] - wq, 0.0) + max(wq - hi[p], 0.0)
+                lb[i] += x * x
+    out = np.empty(n_p, dtype=np.int64)
+    n = 0
+    for i in range(n_p):
+        if lb[i] <= cut:
+            out[n] = positions[i]
+            n += 1
+    return out[:n]
+
+
 # ---------------------------------------------------------------------------- tables
 def _row_grid(pattern: Pattern, candidate_step_deg: float) -> tuple[float, int]:
     """Azimuth step of the kernel's pattern rows and the samples per candidate step ``m``.
@@ -467,6 +503,7 @@ class ShiftScorer:
         self.prune = bool(prune)
         self.retries = 0
         self._hint = np.empty(0, np.int64)
+        self._exact = ExpectedRssCache(space)
 
         pattern = space.pattern
         row_step, m = _row_grid(pattern, step)
@@ -527,6 +564,15 @@ class ShiftScorer:
             self.base_max = np.nanmax(np.abs(self.base), axis=1).astype(np.float64)
         self.d_max = float(np.max(np.abs(rows)))
         self.all_positions = np.arange(space.n_positions, dtype=np.int64)
+        # Whole-row bounds per (receiver, position) over every (pitch, roll)
+        # combination, for the vectorised prefilter (float64; ±inf: excluded).
+        qoff = np.arange(self.n_q)[:, None, None] * self.rows_per_q
+        lo_q = self.row_min[self.row0[None] + qoff].min(axis=0).astype(np.float64)
+        hi_q = self.row_max[self.row0[None] + qoff].max(axis=0).astype(np.float64)
+        b64 = self.base.astype(np.float64)
+        bad = ~np.isfinite(b64)
+        self.pre_lo = np.ascontiguousarray(np.where(bad, np.inf, b64 + lo_q))
+        self.pre_hi = np.ascontiguousarray(np.where(bad, -np.inf, b64 + hi_q))
 
     @property
     def nbytes(self) -> int:
@@ -540,6 +586,8 @@ class ShiftScorer:
             self.frac,
             self.row0,
             self.roww,
+            self.pre_lo,
+            self.pre_hi,
         )
         return int(sum(a.nbytes for a in arrays))
 
@@ -581,7 +629,10 @@ class ShiftScorer:
         near each other), else every 25th position — and returns their
         ``kk``-th best value. Only speed depends on this choice, never the result.
         """
-        pick = self._hint[np.isin(self._hint, positions)]
+        if positions is self.all_positions:
+            pick = self._hint
+        else:
+            pick = self._hint[np.isin(self._hint, positions)]
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
@@ -610,8 +661,15 @@ class ShiftScorer:
             thr0 = np.inf
             if self.prune and n_total > 8 * kk_eff:
                 thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
+            run_pos = positions
+            if np.isfinite(thr0):
+                slack = np.float32(1.0) + _PRUNE_REL
+                cut = float((np.float32(thr0) * slack + _PRUNE_ABS) * np.float32(r.size))
+                run_pos = _prefilter(
+                    w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
+                )
             out_v, out_i = _shift_topk(
-                w, r, *self._kernel_args(), positions, j0, cnt, kk_eff, self.block, np.float32(thr0)
+                w, r, *self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0)
             )
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
@@ -640,7 +698,7 @@ class ShiftScorer:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
         self._hint = np.unique(short // (self.n_az * self.n_q))
-        mse = exact_mse_db2(self.space, heard, short)
+        mse = self._exact.mse_db2(heard, short)
         return select_topk(short, mse, k)
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
