@@ -140,3 +140,24 @@ def test_dbscan_border_point_takes_first_cluster():
     np.testing.assert_array_equal(labels, _sk(pts, 1.0, 4)[0])
     assert labels[4] == 0 and not core[4]
     assert set(labels[5:]) == {1}
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 300), st.floats(0.0, 0.05))
+def test_dense_components_equal_scipy(seed, m, density):
+    import radiopose.clustering as cl
+
+    rng = np.random.default_rng(seed)
+    a = rng.random((m, m)) < density
+    adj = a | a.T | np.eye(m, dtype=bool)
+    dense = cl._components(adj)
+    old = cl.DENSE_COMPONENTS_MAX_POINTS
+    try:
+        cl.DENSE_COMPONENTS_MAX_POINTS = 0
+        via_scipy = cl._components(adj)
+    finally:
+        cl.DENSE_COMPONENTS_MAX_POINTS = old
+    np.testing.assert_array_equal(dense, via_scipy)
+    # numbered in the order of each component's lowest index
+    firsts = [np.flatnonzero(dense == c)[0] for c in range(dense.max() + 1)]
+    assert firsts == sorted(firsts)

@@ -77,7 +77,7 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
         return labels, core
     ci = np.flatnonzero(core)
     adj = near[np.ix_(ci, ci)]
-    _, comp = connected_components(csr_matrix(adj), directed=False)
+    comp = _components(adj)
     # number clusters by their first (lowest-index) core point, as scikit-learn does
     first = np.full(comp.max() + 1, n, dtype=np.int64)
     np.minimum.at(first, comp, ci)
@@ -89,6 +89,37 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
         reach = np.where(near[np.ix_(border, ci)], labels[ci][None, :], np.iinfo(np.int64).max)
         labels[border] = reach.min(axis=1)
     return labels, core
+
+
+DENSE_COMPONENTS_MAX_POINTS = 256
+"""Core sets up to this size use dense label propagation; larger go to scipy."""
+
+
+def _components(adj: NDArray) -> IntArray:
+    """Connected components of a symmetric boolean adjacency matrix with a true
+    diagonal, numbered in the order of their lowest index.
+
+    Small inputs: min-label propagation with pointer jumping (every label is the
+    index of a node in the same component and never increases, so the fixed
+    point labels each component by its lowest index); larger ones: scipy.
+    """
+    m = adj.shape[0]
+    if m > DENSE_COMPONENTS_MAX_POINTS:
+        _, comp = connected_components(csr_matrix(adj), directed=False)
+        first = np.full(comp.max() + 1, m, dtype=np.int64)
+        np.minimum.at(first, comp, np.arange(m))
+        rank = np.empty_like(first)
+        rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+        return rank[comp]
+    lab = np.arange(m)
+    while True:
+        nxt = np.where(adj, lab[None, :], m).min(axis=1)
+        nxt = nxt[nxt]
+        if np.array_equal(nxt, lab):
+            break
+        lab = nxt
+    roots = np.unique(lab)
+    return np.searchsorted(roots, lab)
 
 
 @dataclass(frozen=True, eq=False)
@@ -193,10 +224,16 @@ def cluster_score(weights: FloatArray, members: IntArray) -> float:
 
 
 def _weighted_mean(values: FloatArray, weights: FloatArray) -> FloatArray:
+    """``Σ w v / Σ w`` along the first axis (all weights 1 if they sum to ≤ 0);
+    the arithmetic of ``np.average`` without its overhead."""
     w = np.asarray(weights, dtype=np.float64)
-    if float(w.sum()) <= 0.0:
+    scl = float(w.sum())
+    if scl <= 0.0:
         w = np.ones_like(w)
-    return np.average(values, axis=0, weights=w)
+        scl = float(w.size)
+    v = np.asarray(values, dtype=np.float64)
+    wb = w.reshape((-1,) + (1,) * (v.ndim - 1))
+    return np.multiply(v, wb).sum(axis=0) / scl
 
 
 def cluster_axis_deg(

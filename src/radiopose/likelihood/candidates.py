@@ -232,11 +232,12 @@ class ExpectedRssCache:
     The expected RSS of a candidate does not depend on the packet, and the
     shortlists of consecutive packets of one track overlap, so rows computed
     for one packet are kept (up to ``capacity`` candidates, then the cache
-    starts afresh) and reused. The values are those of :func:`expected_rss_dbm`
+    starts afresh from the latest shortlist: merging costs ``O(capacity)``
+    per call) and reused. The values are those of :func:`expected_rss_dbm`
     computed elementwise, so the MSE equals :func:`exact_mse_db2`'s.
     """
 
-    def __init__(self, space: CandidateSpace, capacity: int = 65536) -> None:
+    def __init__(self, space: CandidateSpace, capacity: int = 4096) -> None:
         self.space = space
         self.capacity = int(capacity)
         self._ids = np.empty(0, dtype=np.int64)
@@ -256,8 +257,10 @@ class ExpectedRssCache:
             new_rows = expected_rss_dbm(self.space, *self.space.split(new_ids))
             out[miss] = new_rows[np.searchsorted(new_ids, ids[miss])]
             if self._ids.size + new_ids.size > self.capacity:
-                self._ids = new_ids[: self.capacity]
-                self._rows = new_rows[: self.capacity]
+                # start afresh from this call's candidates (the most recent ones)
+                keep, first = np.unique(ids, return_index=True)
+                self._ids = keep[: self.capacity]
+                self._rows = out[first[: self.capacity]]
             else:
                 all_ids = np.concatenate([self._ids, new_ids])
                 order = np.argsort(all_ids, kind="stable")
