@@ -41,6 +41,7 @@ import numpy as np
 from radiopose.capture.writer import write_receiver_pcaps
 from radiopose.server.auth import create_token
 from radiopose.server.db import Database
+from radiopose.server.demo import replay_command, serve_command
 from radiopose.simulate import ScenarioConfig, simulate
 
 
@@ -106,24 +107,11 @@ def main() -> int:
     tokens = {r: create_token(db, "receiver", r) for r in ids}
     viewer = create_token(db, "viewer")
     base = f"http://127.0.0.1:{args.port}"
-    py = [sys.executable, "-m", "radiopose"]
 
     def serve() -> subprocess.Popen[bytes]:
         with open(out / "server.log", "ab") as err:
             return subprocess.Popen(
-                [
-                    *py,
-                    "serve",
-                    str(out / "scenario" / "site"),
-                    "--db",
-                    db_url,
-                    "--port",
-                    str(args.port),
-                    "--calibration-s",
-                    "2",
-                    "--idle-flush-s",
-                    "3",
-                ],
+                serve_command(out / "scenario" / "site", db_url, args.port),
                 stdout=subprocess.DEVNULL,
                 stderr=err,
             )
@@ -142,22 +130,7 @@ def main() -> int:
         time.sleep(0.2)
     agents = [
         subprocess.Popen(
-            [
-                *py,
-                "receiver",
-                "--server",
-                base,
-                "--token",
-                tokens[r],
-                "--id",
-                r,
-                "--replay",
-                str(pcaps.paths[r]),
-                "--speed",
-                "1",
-                "--spool",
-                str(out / "spool"),
-            ],
+            replay_command(base, tokens[r], r, pcaps.paths[r], 1, out / "spool"),
             stdout=subprocess.DEVNULL,
             stderr=subprocess.PIPE,
         )

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
 from radiopose.tables import Column, read_table, write_table
 from radiopose.units import FloatArray
 
@@ -25,12 +26,7 @@ ESTIMATE_COLUMNS = (
     Column("timestamp_s"),
     Column("transmitter", "str"),
     Column("packet_id", "str"),
-    Column("x_m"),
-    Column("y_m"),
-    Column("z_m"),
-    Column("azimuth_deg", low=-360.0, high=360.0),
-    Column("pitch_deg", low=-90.0, high=90.0),
-    Column("roll_deg", low=-360.0, high=360.0),
+    *POSE_COLUMNS,
     Column("method", "str"),
 )
 
@@ -105,8 +101,7 @@ def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
         t["timestamp_s"],
         t["transmitter"],
         t["packet_id"],
-        np.column_stack([t["x_m"], t["y_m"], t["z_m"]]).reshape(-1, 3),
-        np.column_stack([t["azimuth_deg"], t["pitch_deg"], t["roll_deg"]]).reshape(-1, 3),
+        *read_pose_columns(t),
         t["method"],
     )
 
@@ -119,12 +114,7 @@ def write_estimates_csv(estimates: Estimates, path: str | os.PathLike[str]) -> N
             "timestamp_s": estimates.timestamp_s,
             "transmitter": estimates.transmitter,
             "packet_id": estimates.packet_id,
-            "x_m": estimates.position_m[:, 0],
-            "y_m": estimates.position_m[:, 1],
-            "z_m": estimates.position_m[:, 2],
-            "azimuth_deg": estimates.orientation_deg[:, 0],
-            "pitch_deg": estimates.orientation_deg[:, 1],
-            "roll_deg": estimates.orientation_deg[:, 2],
+            **pose_columns(estimates.position_m, estimates.orientation_deg),
             "method": estimates.method,
         },
         decimals={"timestamp_s": 9},

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiopose.tables import Column, read_table, write_table
+from radiopose.tables import Column, Table, read_table, write_table
 from radiopose.units import FloatArray
 
 PACKET_COLUMNS = (
@@ -26,15 +26,19 @@ PACKET_COLUMNS = (
     Column("receiver_id", "str"),
     Column("rss_dbm", low=-200.0, high=50.0),
 )
-TRUTH_COLUMNS = (
-    Column("timestamp_s"),
-    Column("transmitter", "str"),
+POSE_COLUMNS = (
     Column("x_m"),
     Column("y_m"),
     Column("z_m"),
     Column("azimuth_deg", low=-360.0, high=360.0),
     Column("pitch_deg", low=-90.0, high=90.0),
     Column("roll_deg", low=-360.0, high=360.0),
+)
+"""The pose columns shared by ``truth.csv`` and ``estimates.csv``: metres, degrees."""
+TRUTH_COLUMNS = (
+    Column("timestamp_s"),
+    Column("transmitter", "str"),
+    *POSE_COLUMNS,
 )
 
 
@@ -96,6 +100,26 @@ class Truth:
         return int(self.timestamp_s.shape[0])
 
 
+def read_pose_columns(t: Table) -> tuple[FloatArray, FloatArray]:
+    """``(position_m (n, 3), orientation_deg (n, 3))`` from a table's :data:`POSE_COLUMNS`."""
+    return (
+        np.column_stack([t["x_m"], t["y_m"], t["z_m"]]).reshape(-1, 3),
+        np.column_stack([t["azimuth_deg"], t["pitch_deg"], t["roll_deg"]]).reshape(-1, 3),
+    )
+
+
+def pose_columns(position_m: FloatArray, orientation_deg: FloatArray) -> dict[str, FloatArray]:
+    """The :data:`POSE_COLUMNS` of ``(n, 3)`` positions (m) and orientations (deg), to write."""
+    return {
+        "x_m": position_m[:, 0],
+        "y_m": position_m[:, 1],
+        "z_m": position_m[:, 2],
+        "azimuth_deg": orientation_deg[:, 0],
+        "pitch_deg": orientation_deg[:, 1],
+        "roll_deg": orientation_deg[:, 2],
+    }
+
+
 def read_packets_csv(path: str | os.PathLike[str]) -> Packets:
     """Read and validate ``packets.csv``."""
     t = read_table(path, PACKET_COLUMNS)
@@ -128,12 +152,7 @@ def write_packets_csv(packets: Packets, path: str | os.PathLike[str]) -> None:
 def read_truth_csv(path: str | os.PathLike[str]) -> Truth:
     """Read and validate ``truth.csv``."""
     t = read_table(path, TRUTH_COLUMNS)
-    return Truth(
-        t["timestamp_s"],
-        t["transmitter"],
-        np.column_stack([t["x_m"], t["y_m"], t["z_m"]]).reshape(-1, 3),
-        np.column_stack([t["azimuth_deg"], t["pitch_deg"], t["roll_deg"]]).reshape(-1, 3),
-    )
+    return Truth(t["timestamp_s"], t["transmitter"], *read_pose_columns(t))
 
 
 def write_truth_csv(truth: Truth, path: str | os.PathLike[str]) -> None:
@@ -143,12 +162,7 @@ def write_truth_csv(truth: Truth, path: str | os.PathLike[str]) -> None:
         {
             "timestamp_s": truth.timestamp_s,
             "transmitter": truth.transmitter,
-            "x_m": truth.position_m[:, 0],
-            "y_m": truth.position_m[:, 1],
-            "z_m": truth.position_m[:, 2],
-            "azimuth_deg": truth.orientation_deg[:, 0],
-            "pitch_deg": truth.orientation_deg[:, 1],
-            "roll_deg": truth.orientation_deg[:, 2],
+            **pose_columns(truth.position_m, truth.orientation_deg),
         },
         decimals={"timestamp_s": 9},
     )

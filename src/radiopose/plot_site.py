@@ -27,15 +27,28 @@ def _axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 6.0)) -> Axes:
 
 
 def orientation_arrows(
-    ax: Axes, xy_m: FloatArray, azimuth_deg: FloatArray, length_m: float = 0.8, **kwargs
+    ax: Axes,
+    xy_m: FloatArray,
+    azimuth_deg: FloatArray,
+    length_m: float = 0.8,
+    n_arrows: int | None = None,
+    **kwargs,
 ) -> None:
     """Draw arrows along the device's top (body ``+y``) for azimuth-only poses.
 
     At azimuth 0 the top points to world ``+y``; positive azimuth turns
     anticlockwise seen from above, so the arrow is ``(−sin az, cos az)``.
+    ``length_m`` is the arrow length in metres; with ``n_arrows`` only that
+    many poses, evenly spaced along the rows, get an arrow (none if there are
+    no rows).
     """
     a = np.deg2rad(np.asarray(azimuth_deg, float))
     xy = np.asarray(xy_m, float).reshape(-1, 2)
+    if n_arrows is not None:
+        if xy.shape[0] == 0:
+            return
+        idx = np.unique(np.linspace(0, xy.shape[0] - 1, min(n_arrows, xy.shape[0])).astype(int))
+        a, xy = a[idx], xy[idx]
     ax.quiver(
         xy[:, 0],
         xy[:, 1],
@@ -83,11 +96,8 @@ def plot_scene(
         t = np.asarray(truth_xy_m, float).reshape(-1, 2)
         ax.plot(t[:, 0], t[:, 1], "-", color="tab:blue", lw=1.5, label="true path")
         ax.plot(t[0, 0], t[0, 1], "o", color="tab:blue", ms=5)
-        if truth_azimuth_deg is not None and len(t):
-            idx = np.linspace(0, len(t) - 1, min(n_arrows, len(t))).astype(int)
-            orientation_arrows(
-                ax, t[idx], np.asarray(truth_azimuth_deg)[idx], 0.8, color="tab:blue"
-            )
+        if truth_azimuth_deg is not None:
+            orientation_arrows(ax, t, truth_azimuth_deg, 0.8, n_arrows, color="tab:blue")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

@@ -24,7 +24,11 @@ from radiopose.estimates import Estimates
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
 from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.packets import PacketObservation
+from radiopose.plot_site import orientation_arrows
 from radiopose.units import FloatArray
+
+_ARROW_M = 0.5
+"""Length of the orientation arrows of :func:`plot_trajectory`, metres."""
 
 
 def mse_map_db2(
@@ -138,7 +142,7 @@ def plot_trajectory(
         _, ax = plt.subplots(figsize=(6, 6))
     tp = np.asarray(truth_position_m, dtype=np.float64)
     ax.plot(tp[:, 0], tp[:, 1], "k-", lw=2, label="truth")
-    _arrows(ax, tp[:, :2], np.asarray(truth_azimuth_deg), arrows, "k")
+    orientation_arrows(ax, tp[:, :2], truth_azimuth_deg, _ARROW_M, arrows, color="k")
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for i, (name, est) in enumerate(estimates.items()):
         c = colours[i % len(colours)]
@@ -150,8 +154,9 @@ def plot_trajectory(
             color=c,
             label=f"{name} ({len(est)} estimates)",
         )
-        if len(est):
-            _arrows(ax, est.position_m[:, :2], est.orientation_deg[:, 0], arrows, c)
+        orientation_arrows(
+            ax, est.position_m[:, :2], est.orientation_deg[:, 0], _ARROW_M, arrows, color=c
+        )
     if receivers_xy_m is not None:
         ax.scatter(
             receivers_xy_m[:, 0],
@@ -167,25 +172,6 @@ def plot_trajectory(
     ax.legend(loc="best", fontsize="small")
     ax.set_title("trajectory: truth vs estimates (arrows: body +y)")
     return ax
-
-
-def _arrows(ax: Axes, xy: FloatArray, azimuth_deg: FloatArray, n: int, colour: str) -> None:
-    if xy.shape[0] == 0:
-        return
-    idx = np.unique(np.linspace(0, xy.shape[0] - 1, min(n, xy.shape[0])).astype(int))
-    # Body +y (top of the device) points to world azimuth + 90° from +x.
-    a = np.deg2rad(np.asarray(azimuth_deg)[idx] + 90.0)
-    ax.quiver(
-        xy[idx, 0],
-        xy[idx, 1],
-        np.cos(a),
-        np.sin(a),
-        color=colour,
-        angles="xy",
-        scale_units="xy",
-        scale=2.0,
-        width=0.004,
-    )
 
 
 def plot_orientation_error(

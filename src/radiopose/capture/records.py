@@ -125,6 +125,15 @@ _PCAP_MAGICS = {
 _PCAPNG_SHB = dpkt.pcapng.PCAPNG_BT_SHB
 _PCAPNG_BOM_BE = b"\x1a\x2b\x3c\x4d"
 _PCAPNG_BOM_LE = b"\x4d\x3c\x2b\x1a"
+# dpkt's section header and interface description block classes, by struct byte order
+_PCAPNG_SHB_CLASS = {
+    "<": dpkt.pcapng.SectionHeaderBlockLE,
+    ">": dpkt.pcapng.SectionHeaderBlock,
+}
+_PCAPNG_IDB_CLASS = {
+    "<": dpkt.pcapng.InterfaceDescriptionBlockLE,
+    ">": dpkt.pcapng.InterfaceDescriptionBlock,
+}
 
 # Control frame subtypes that carry no transmitter address (addr2).
 _CONTROL_WITHOUT_TA = frozenset((0, 1, 3, 6, 7, 12, 13))
@@ -370,12 +379,7 @@ def _iter_pcapng(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, in
             )
         if btype == _PCAPNG_SHB:
             try:
-                shb_cls = (
-                    dpkt.pcapng.SectionHeaderBlockLE
-                    if endian == "<"
-                    else dpkt.pcapng.SectionHeaderBlock
-                )
-                shb = shb_cls(block)
+                shb = _PCAPNG_SHB_CLASS[endian](block)
             except (dpkt.UnpackError, struct.error, ValueError) as exc:
                 raise InputError(
                     f"corrupt pcapng section header at byte {offset}: {exc}", path=path
@@ -384,12 +388,7 @@ def _iter_pcapng(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, in
                 raise InputError(f"unsupported pcapng version {shb.v_major}", path=path)
         elif btype == dpkt.pcapng.PCAPNG_BT_IDB:
             try:
-                idb_cls = (
-                    dpkt.pcapng.InterfaceDescriptionBlockLE
-                    if endian == "<"
-                    else dpkt.pcapng.InterfaceDescriptionBlock
-                )
-                idb = idb_cls(block)
+                idb = _PCAPNG_IDB_CLASS[endian](block)
                 tsresol, tsoffset = 6, 0
                 for opt in idb.opts:
                     if opt.code == dpkt.pcapng.PCAPNG_OPT_IF_TSRESOL and len(opt.data) >= 1:

@@ -28,6 +28,19 @@ pattern_app = typer.Typer(
 app.add_typer(pattern_app, name="pattern")
 
 
+# Options shared by ``enrol`` and ``pattern import`` (typer copies each use).
+_PatternOutput = Annotated[
+    Path, typer.Option("-o", "--output", help="Pattern CSV to write.", show_default=False)
+]
+_PlotOption = Annotated[
+    Path | None,
+    typer.Option("--plot", help="Also write a PNG polar plot here.", show_default=False),
+]
+_NameOption = Annotated[
+    str | None, typer.Option("--name", help="Pattern name (default: output file stem).")
+]
+
+
 class ImportFormat(StrEnum):
     """Formats accepted by ``radiopose pattern import``."""
 
@@ -75,9 +88,7 @@ def enrol_command(
             show_default=False,
         ),
     ],
-    output: Annotated[
-        Path, typer.Option("-o", "--output", help="Pattern CSV to write.", show_default=False)
-    ],
+    output: _PatternOutput,
     smooth_deg: Annotated[
         float,
         typer.Option(
@@ -95,13 +106,8 @@ def enrol_command(
             show_default=False,
         ),
     ] = None,
-    plot: Annotated[
-        Path | None,
-        typer.Option("--plot", help="Also write a PNG polar plot here.", show_default=False),
-    ] = None,
-    name: Annotated[
-        str | None, typer.Option("--name", help="Pattern name (default: output file stem).")
-    ] = None,
+    plot: _PlotOption = None,
+    name: _NameOption = None,
 ) -> None:
     """Enrol a radiation pattern from positioner RSS measurements."""
     config = EnrolConfig(
@@ -121,9 +127,7 @@ def import_command(
             show_default=False,
         ),
     ],
-    output: Annotated[
-        Path, typer.Option("-o", "--output", help="Pattern CSV to write.", show_default=False)
-    ],
+    output: _PatternOutput,
     fmt: Annotated[
         ImportFormat, typer.Option("--format", help="Input format.", show_default=False)
     ],
@@ -152,13 +156,8 @@ def import_command(
             "frequent per file).",
         ),
     ] = None,
-    plot: Annotated[
-        Path | None,
-        typer.Option("--plot", help="Also write a PNG polar plot here.", show_default=False),
-    ] = None,
-    name: Annotated[
-        str | None, typer.Option("--name", help="Pattern name (default: output file stem).")
-    ] = None,
+    plot: _PlotOption = None,
+    name: _NameOption = None,
 ) -> None:
     """Import a pattern from an industry file or real measurements into the contract CSV."""
     pname = name or output.stem

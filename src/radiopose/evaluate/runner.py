@@ -50,6 +50,7 @@ from radiopose.tracker import TrackerConfig
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
+    from distributed import Client
 
     from radiopose.likelihood import CandidateSpace, Scorer
 
@@ -471,6 +472,22 @@ def run_experiments(
     return EvaluationRun(results, total, n_resumed, time.perf_counter() - t0, used, where)
 
 
+def connect_scheduler(stack: ExitStack, scheduler: str) -> Client:
+    """A Dask client of the existing scheduler at ``scheduler``, closed with ``stack``.
+
+    Raises
+    ------
+    InputError
+        The scheduler cannot be reached within 10 s (one line).
+    """
+    from distributed import Client
+
+    try:
+        return stack.enter_context(Client(scheduler, timeout="10s"))
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+
+
 def _run_dask(
     pending: list[RunTask],
     record: Callable[[RunTask, list[dict[str, Any]]], None],
@@ -488,10 +505,7 @@ def _run_dask(
 
     with ExitStack() as stack:
         if scheduler is not None:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout="10s"))
-            except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            client = connect_scheduler(stack, scheduler)
             used = len(client.scheduler_info(n_workers=-1).get("workers", {}))
             where = scheduler
         else:

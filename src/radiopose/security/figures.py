@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -40,6 +41,11 @@ def _receivers(ax: Axes, sites: list[Row], run: int) -> None:
             label="receivers",
             zorder=5,
         )
+
+
+def _plot_xy(ax: Axes, rows: list[Row], prefix: str, fmt: str, **style: Any) -> None:
+    """Plot the ``{prefix}_x_m``, ``{prefix}_y_m`` columns (metres) of ``rows``."""
+    ax.plot([r[f"{prefix}_x_m"] for r in rows], [r[f"{prefix}_y_m"] for r in rows], fmt, **style)
 
 
 def plot_match_probability(summary: list[Row], ax: Axes | None = None) -> Axes:
@@ -137,9 +143,10 @@ def plot_end_to_end(
     gen = [r for r in trace if r["run"] == run and r["source"] == "genuine"]
     att = [r for r in attack if r["run"] == run]
     if gen:
-        ax.plot(
-            [r["spoofed_x_m"] for r in gen],
-            [r["spoofed_y_m"] for r in gen],
+        _plot_xy(
+            ax,
+            gen,
+            "spoofed",
             "-",
             color="tab:blue",
             lw=3,
@@ -147,32 +154,11 @@ def plot_end_to_end(
             label="spoofed (target) path",
         )
         ge = [r for r in gen if r["estimated"]]
-        ax.plot(
-            [r["est_x_m"] for r in ge],
-            [r["est_y_m"] for r in ge],
-            ".",
-            ms=3,
-            color="tab:green",
-            label="tracker, genuine device",
-        )
+        _plot_xy(ax, ge, "est", ".", ms=3, color="tab:green", label="tracker, genuine device")
     if att:
-        ax.plot(
-            [r["sender_x_m"] for r in att],
-            [r["sender_y_m"] for r in att],
-            "s",
-            color="tab:red",
-            ms=4,
-            label="attacker's real position",
-        )
+        _plot_xy(ax, att, "sender", "s", color="tab:red", ms=4, label="attacker's real position")
         ae = [r for r in att if r["estimated"]]
-        ax.plot(
-            [r["est_x_m"] for r in ae],
-            [r["est_y_m"] for r in ae],
-            "x",
-            color="tab:purple",
-            ms=5,
-            label="tracker, attack",
-        )
+        _plot_xy(ax, ae, "est", "x", color="tab:purple", ms=5, label="tracker, attack")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")

@@ -111,12 +111,11 @@ def _run_dask(
     from distributed import Client, LocalCluster
     from distributed import as_completed as dask_completed
 
+    from radiopose.evaluate.runner import connect_scheduler
+
     with ExitStack() as stack:
         if scheduler is not None:
-            try:
-                client = stack.enter_context(Client(scheduler, timeout="10s"))
-            except (OSError, TimeoutError, ValueError) as exc:
-                raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+            client = connect_scheduler(stack, scheduler)
             where = scheduler
         else:
             n = min(workers, len(tasks))

@@ -519,35 +519,13 @@ def _sse(event: str, data: Any) -> str:
 def _site_out(db: Database) -> SiteOut:
     parts = db.site_rows()
     site = sitestore.build_site(parts)
-    a = site.area
+    # each schema's fields are read from the same-named attributes of the site's objects
     return SiteOut(
         name=site.name,
         version=db.site_version(),
-        area=Area(
-            x_min_m=a.x_min_m,
-            x_max_m=a.x_max_m,
-            y_min_m=a.y_min_m,
-            y_max_m=a.y_max_m,
-            z_m=a.z_m,
-            step_m=a.step_m,
-        ),
-        receivers=[
-            ReceiverOut(
-                receiver_id=r.receiver_id,
-                x_m=r.x_m,
-                y_m=r.y_m,
-                z_m=r.z_m,
-                azimuth_deg=r.azimuth_deg,
-                pitch_deg=r.pitch_deg,
-                roll_deg=r.roll_deg,
-                pattern=r.pattern,
-            )
-            for r in site.receivers
-        ],
-        devices=[
-            DeviceOut(transmitter=d.transmitter, pattern=d.pattern, tx_power_dbm=d.tx_power_dbm)
-            for d in site.devices
-        ],
+        area=Area.model_validate(site.area, from_attributes=True),
+        receivers=[ReceiverOut.model_validate(r, from_attributes=True) for r in site.receivers],
+        devices=[DeviceOut.model_validate(d, from_attributes=True) for d in site.devices],
         patterns=sorted(site.patterns),
     )
 

@@ -54,6 +54,7 @@ from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, Ope
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column
 
 from radiopose.errors import InputError
+from radiopose.estimates import ESTIMATE_COLUMNS
 
 # SQLite only auto-increments an INTEGER PRIMARY KEY.
 _BigId = BigInteger().with_variant(Integer, "sqlite")
@@ -170,18 +171,8 @@ class CheckpointRow(Base):
     updated_s: Mapped[float] = mapped_column(Float)
 
 
-ESTIMATE_FIELDS = (
-    "timestamp_s",
-    "transmitter",
-    "packet_id",
-    "x_m",
-    "y_m",
-    "z_m",
-    "azimuth_deg",
-    "pitch_deg",
-    "roll_deg",
-    "method",
-)
+ESTIMATE_FIELDS = tuple(c.name for c in ESTIMATE_COLUMNS)
+"""The ``estimates.csv`` columns, in contract order: the fields of an estimate row."""
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,59 @@ from collections.abc import Callable
 from pathlib import Path
 
 
+def serve_command(site_dir: Path, db_url: str, port: int) -> list[str]:
+    """Command line of ``radiopose serve`` as the demo (and the server benchmark) runs it:
+    ``site_dir`` on ``port``, 2 s clock calibration, 3 s idle flush."""
+    return [
+        sys.executable,
+        "-m",
+        "radiopose",
+        "serve",
+        str(site_dir),
+        "--db",
+        db_url,
+        "--port",
+        str(port),
+        "--calibration-s",
+        "2",
+        "--idle-flush-s",
+        "3",
+    ]
+
+
+def replay_command(
+    base_url: str,
+    token: str,
+    receiver_id: str,
+    pcap: Path,
+    speed: float,
+    spool: Path,
+    *,
+    quiet: bool = False,
+) -> list[str]:
+    """Command line of one ``radiopose receiver --replay`` agent: replays ``pcap`` at
+    ``speed`` × real time to the server at ``base_url``, spooling under ``spool``."""
+    return [
+        sys.executable,
+        "-m",
+        "radiopose",
+        "receiver",
+        "--server",
+        base_url,
+        "--token",
+        token,
+        "--id",
+        receiver_id,
+        "--replay",
+        str(pcap),
+        "--speed",
+        str(speed),
+        "--spool",
+        str(spool),
+        *(["-q"] if quiet else []),
+    ]
+
+
 def run_live_demo(
     out_dir: str | Path,
     *,
@@ -75,24 +128,11 @@ def run_live_demo(
     db.close()
 
     base = f"http://127.0.0.1:{port}"
-    py = [sys.executable, "-m", "radiopose"]
     children: list[subprocess.Popen[bytes]] = []
     log = open(out / "server.log", "wb")  # noqa: SIM115
     try:
         server = subprocess.Popen(
-            [
-                *py,
-                "serve",
-                str(out / "scenario" / "site"),
-                "--db",
-                db_url,
-                "--port",
-                str(port),
-                "--calibration-s",
-                "2",
-                "--idle-flush-s",
-                "3",
-            ],
+            serve_command(out / "scenario" / "site", db_url, port),
             stdout=subprocess.DEVNULL,
             stderr=log,
         )
@@ -125,23 +165,9 @@ def run_live_demo(
         for r in ids:
             children.append(
                 subprocess.Popen(
-                    [
-                        *py,
-                        "receiver",
-                        "--server",
-                        base,
-                        "--token",
-                        tokens[r],
-                        "--id",
-                        r,
-                        "--replay",
-                        str(pcaps.paths[r]),
-                        "--speed",
-                        str(speed),
-                        "--spool",
-                        str(out / "spool"),
-                        "-q",
-                    ],
+                    replay_command(
+                        base, tokens[r], r, pcaps.paths[r], speed, out / "spool", quiet=True
+                    ),
                 )
             )
         echo(
