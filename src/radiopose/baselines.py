@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
 
 from radiopose.site import Site
 from radiopose.units import FloatArray
@@ -139,6 +138,8 @@ class LmsLocator:
             return self.fit.predict_dbm(p, ridx, tx_power_dbm)[0] - rss
 
         if x1 > x0 and y1 > y0:
+            from scipy.optimize import least_squares  # ~0.7 s to import: only when used
+
             sol = least_squares(residuals, start, bounds=([x0, y0], [x1, y1]), method="trf")
             xy = sol.x
         else:  # degenerate area: nothing to optimise

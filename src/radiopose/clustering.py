@@ -32,7 +32,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
-from sklearn.cluster import DBSCAN
 
 from radiopose.units import FloatArray, circular_mean_deg, wrap_deg
 
@@ -64,6 +63,8 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
     x = x.reshape(x.shape[0], -1)
     n = x.shape[0]
     if n > SMALL_DBSCAN_MAX_POINTS:
+        from sklearn.cluster import DBSCAN  # imported here: ~1 s of start-up otherwise
+
         db = DBSCAN(eps=eps, min_samples=min_samples).fit(x)
         core = np.zeros(n, dtype=bool)
         core[db.core_sample_indices_] = True

@@ -19,8 +19,12 @@ def locate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Estimates CSV to write.")],
     method: Annotated[str, typer.Option(help="full, location, orientation, top or lms.")] = "full",
     kernel: Annotated[
-        str, typer.Option(help="Likelihood scorer: numpy (fast) or reference (exhaustive).")
-    ] = "numpy",
+        str,
+        typer.Option(
+            help="Likelihood scorer: numba (compiled, default), numpy (fallback) or "
+            "reference (exhaustive); all give the same estimates."
+        ),
+    ] = "numba",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Estimate position and orientation of every packet; write ESTIMATES.csv.
