@@ -13,6 +13,9 @@ Sections (``python benchmarks/bench_likelihood.py [--quick] [--markdown FILE]``)
 3. Scaling of the compiled kernel: grid size, receivers, azimuth step and 3-D
    orientation candidates (pitch × roll lists).
 4. Peak memory of a process that localises the standard scenario.
+5. Start-up: a fresh process loads a site from disk, prepares the device's
+   tables and scores a first packet; run twice (the second run finds numba's
+   compiled kernels in its on-disk cache).
 
 Every number is measured in this run on this machine; nothing is tuned to it.
 """
@@ -233,6 +236,64 @@ def section_memory() -> dict:
     return {"peak_rss_mb": int(res.stdout.strip().splitlines()[-1]) / 1024.0}
 
 
+_STARTUP_CODE = """
+import sys, time
+t0 = time.perf_counter()
+from radiopose.likelihood import candidate_space
+from radiopose.likelihood.compiled import ShiftScorer
+from radiopose.packets import group_packets, read_packets_csv
+from radiopose.site import load_site
+t1 = time.perf_counter()
+site = load_site(sys.argv[1])
+pk = group_packets(read_packets_csv(sys.argv[2]))
+t2 = time.perf_counter()
+space = candidate_space(site, site.devices[0].transmitter)
+scorer = ShiftScorer(space)
+t3 = time.perf_counter()
+scorer.score_heard(space.heard(pk[0]), 100)
+t4 = time.perf_counter()
+print(t1 - t0, t2 - t1, t3 - t2, t4 - t3)
+"""
+
+
+def section_startup() -> list[dict]:
+    """A fresh process: imports, site load, table preparation, first packet (s)."""
+    import tempfile
+    from pathlib import Path
+
+    from radiopose.packets import write_packets_csv
+    from radiopose.site import write_site
+
+    sim = scenario(seed=505, duration_s=0.05)
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        site_dir = Path(tmp) / "site"
+        write_site(sim.site, site_dir)
+        packets = Path(tmp) / "packets.csv"
+        write_packets_csv(sim.packets, packets)
+        for run in ("first", "second"):
+            t0 = time.perf_counter()
+            res = subprocess.run(
+                [sys.executable, "-c", _STARTUP_CODE, str(site_dir), str(packets)],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            wall = time.perf_counter() - t0
+            imp, load, prep, first = (float(x) for x in res.stdout.split())
+            out.append(
+                {
+                    "run": run,
+                    "process_wall_s": wall,
+                    "imports_s": imp,
+                    "load_site_s": load,
+                    "prepare_tables_s": prep,
+                    "first_packet_s": first,
+                }
+            )
+    return out
+
+
 def machine() -> dict:
     info = {
         "python": platform.python_version(),
@@ -297,6 +358,9 @@ def markdown(results: dict) -> str:
         "(whole process: standard scenario, `full` pipeline, compiled kernel)",
         "",
     ]
+    if "startup" in results:
+        lines += ["## 5. Start-up of a fresh process (standard scenario site)", ""]
+        table(results["startup"], {k: ".3f" for k in results["startup"][0] if k != "run"})
     return "\n".join(lines)
 
 
@@ -312,6 +376,7 @@ def main(argv: list[str] | None = None) -> int:
         results["pipeline"] = section_pipeline(args.quick)
     results["scaling"] = section_scaling(args.quick)
     results["memory"] = section_memory()
+    results["startup"] = section_startup()
     results["machine"]["peak_rss_this_process_mb"] = (
         resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     )
