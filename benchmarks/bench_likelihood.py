@@ -142,6 +142,19 @@ def section_pipeline(quick: bool) -> list[dict]:
             "estimates": len(res.estimates),
         }
     )
+    bounded = replace(cfg, search="bounded")
+    t0 = time.perf_counter()
+    res_b = locate(sim.site, sim.packets, "full", bounded, scorers={TX: ShiftScorer(space)})
+    t_b = time.perf_counter() - t0
+    out.append(
+        {
+            "mode": "batch locate, bounded search",
+            "packets": n,
+            "seconds": t_b,
+            "packets_per_s": n / t_b,
+            "estimates": len(res_b.estimates),
+        }
+    )
     tracker = Tracker(sim.site, "full", cfg, scorers={TX: ShiftScorer(space)})
     obs = group_packets(sim.packets)
     t0 = time.perf_counter()
