@@ -68,7 +68,12 @@ def spoof(
     from dataclasses import replace
 
     from radiopose.errors import InputError
-    from radiopose.security.experiments import SpoofConfig, parse_experiments, plan_tasks
+    from radiopose.security.experiments import (
+        RunOutput,
+        SpoofConfig,
+        parse_experiments,
+        plan_tasks,
+    )
     from radiopose.security.figures import make_figures
     from radiopose.security.report import (
         collect,
@@ -134,8 +139,21 @@ def spoof(
             outputs, where = map_runs(
                 tasks, config, n_workers, lambda _: bar.advance(task), scheduler
             )
-    else:
+    elif quiet:
         outputs, where = map_runs(tasks, config, n_workers, None, scheduler)
+    else:  # not a terminal (a log file, CI): one line per finished run
+        done = [0]
+
+        def log_line(res: RunOutput) -> None:
+            done[0] += 1
+            print(
+                f"spoof: {done[0]}/{len(tasks)} {res.experiment} run {res.run} "
+                f"({res.elapsed_s:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+
+        outputs, where = map_runs(tasks, config, n_workers, log_line, scheduler)
     wall = time.perf_counter() - t0
     tables = collect(outputs)
     summary = summarise(tables, exps)
