@@ -47,17 +47,26 @@ def same(a, b):
     np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
 
 
+@pytest.mark.parametrize("parallel", [False, True])
 @pytest.mark.parametrize("k", [1, 100])
-def test_equals_reference(space, k):
+def test_equals_reference(space, k, parallel):
     rng = np.random.default_rng(1)
-    fast, ref = ShiftScorer(space), ReferenceScorer(space)
+    fast, ref = ShiftScorer(space, parallel=parallel), ReferenceScorer(space)
     for heard in packets(space, rng):
         same(fast.score_heard(heard, k), ref.score_heard(heard, k))
 
 
-def test_missing_receivers_and_no_pruning(space):
+def test_small_grids_run_serially_by_default(space):
+    # 625 positions x 360 azimuths x 4 receivers: far below PARALLEL_MIN_TERMS
+    assert ShiftScorer(space).parallel is False
+    assert ShiftScorer(space, parallel=True).parallel is True
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_missing_receivers_and_no_pruning(space, parallel):
     rng = np.random.default_rng(2)
-    fast, plain, ref = ShiftScorer(space), ShiftScorer(space, prune=False), ReferenceScorer(space)
+    fast = ShiftScorer(space, parallel=parallel)
+    plain, ref = ShiftScorer(space, prune=False, parallel=parallel), ReferenceScorer(space)
     for heard in packets(space, rng, 3):
         sub = HeardRss(heard.receiver_index[[0, 2, 3]], heard.rss_dbm[[0, 2, 3]])
         expect = ref.score_heard(sub, 50)
@@ -128,12 +137,14 @@ def test_thread_count_does_not_change_results(space):
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        one = ShiftScorer(space).score_heard(heard, 100)
+        one = ShiftScorer(space, parallel=True).score_heard(heard, 100)
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
-        many = ShiftScorer(space).score_heard(heard, 100)
+        many = ShiftScorer(space, parallel=True).score_heard(heard, 100)
+        serial = ShiftScorer(space, parallel=False).score_heard(heard, 100)
     finally:
         numba.set_num_threads(before)
     same(one, many)
+    same(one, serial)
 
 
 def test_unsupported_spaces(space):

@@ -72,6 +72,8 @@ from radiopose.units import wrap_deg
 _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
+PARALLEL_MIN_TERMS = 8_000_000
+"""Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
 
 class UnsupportedSpaceError(ValueError):
@@ -172,6 +174,140 @@ def _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb):
             lb[b] += x * x
 
 
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+def _chunk(
+    c,
+    out_v,
+    out_i,
+    w,
+    heard,
+    base,
+    off,
+    frac,
+    row0,
+    roww,
+    rows,
+    drows,
+    blo,
+    bhi,
+    blo2,
+    bhi2,
+    rmin,
+    rmax,
+    m,
+    n_az,
+    n_q,
+    rows_per_q,
+    positions,
+    j0,
+    cnt,
+    kk,
+    blk,
+    thr0,
+):  # pragma: no cover - compiled
+    """Score chunk ``c`` of ``positions`` into its heap ``out_v[c], out_i[c]``."""
+    n_p = positions.shape[0]
+    h = heard.shape[0]
+    inv_h = np.float32(1.0 / h)
+    nbw = (cnt + blk - 1) // blk
+    slack = np.float32(1.0) + _PRUNE_REL
+    acc = np.empty(cnt, dtype=np.float32)
+    e = np.empty(h, np.float32)
+    k = np.empty(h, np.int64)
+    f = np.empty(h, np.float32)
+    t = np.empty(h, np.int64)
+    g = np.empty(h, np.float32)
+    lb = np.empty(nbw, np.float32)
+    bv = out_v[c]
+    bi = out_i[c]
+    count = 0
+    for pi in range((n_p * c) // N_CHUNKS, (n_p * (c + 1)) // N_CHUNKS):
+        p = positions[pi]
+        if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
+            continue
+        for qq in range(n_q):
+            toff = qq * rows_per_q
+            thr = thr0
+            if count == kk and bv[0] < thr:
+                thr = bv[0]
+            prune = thr < np.inf
+            cut = (thr * slack + _PRUNE_ABS) * h
+            if prune:
+                # whole-position bound first (row extremes), then per block
+                lb0 = np.float32(0.0)
+                for q in range(h):
+                    x = max(rmin[t[q] + toff] - e[q], np.float32(0.0)) + max(
+                        e[q] - rmax[t[q] + toff], np.float32(0.0)
+                    )
+                    lb0 += x * x
+                if lb0 > cut:
+                    continue
+                _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb)
+            b = 0
+            while b < nbw:
+                # one contiguous run of surviving blocks at a time (long SIMD loops)
+                if prune and lb[b] > cut:
+                    b += 1
+                    continue
+                be = b + 1
+                while be < nbw and not (prune and lb[be] > cut):
+                    be += 1
+                b0 = b * blk
+                nb = min(be * blk, cnt) - b0
+                b = be
+                for q in range(h):
+                    # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
+                    eq = e[q]
+                    o = k[q] + m * b0
+                    fq = f[q]
+                    gq = g[q]
+                    tq = t[q] + toff
+                    if gq == 0.0 and m == 1:
+                        ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
+                        rd = drows[tq]
+                        sa = ra[o : o + nb]
+                        sd = rd[o : o + nb]
+                        if q == 0:
+                            for jj in range(nb):
+                                d = eq - sa[jj] - fq * sd[jj]
+                                acc[jj] = d * d
+                        else:
+                            for jj in range(nb):
+                                d = eq - sa[jj] - fq * sd[jj]
+                                acc[jj] += d * d
+                    else:
+                        g1 = np.float32(1.0) - gq
+                        t1 = tq + 1 if gq != 0.0 else tq
+                        for jj in range(nb):
+                            k1 = o + m * jj
+                            a = g1 * rows[tq, k1] + gq * rows[t1, k1]
+                            dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
+                            d = eq - a - fq * dl
+                            if q == 0:
+                                acc[jj] = d * d
+                            else:
+                                acc[jj] += d * d
+                # fused top-k: a vectorised minimum first; the scalar pass only
+                # when something in the block can enter the heap
+                lim = thr0
+                if count == kk and bv[0] < lim:
+                    lim = bv[0]
+                mn = acc[0]
+                for jj in range(1, nb):
+                    mn = min(mn, acc[jj])
+                if mn * inv_h > lim:
+                    continue
+                for jj in range(nb):
+                    v = acc[jj] * inv_h
+                    if v > thr0:
+                        continue
+                    if count < kk or v <= bv[0]:
+                        j = j0 + b0 + jj
+                        if j >= n_az:
+                            j -= n_az
+                        count = _heap_push(bv, bi, count, v, (p * n_q + qq) * n_az + j)
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FAST, boundscheck=False)
 def _shift_topk(
     w,  # (h,) float32  RSS − centre of the heard receivers
@@ -200,109 +336,104 @@ def _shift_topk(
     blk,  # int  block length (candidate azimuths) for pruning
     thr0,  # float32  prune bound: candidates above it are not wanted (inf: none)
 ):  # pragma: no cover - compiled
-    n_p = positions.shape[0]
-    h = heard.shape[0]
-    inv_h = np.float32(1.0 / h)
-    nbw = (cnt + blk - 1) // blk
-    slack = np.float32(1.0) + _PRUNE_REL
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
     for c in numba.prange(N_CHUNKS):
-        acc = np.empty(cnt, dtype=np.float32)
-        e = np.empty(h, np.float32)
-        k = np.empty(h, np.int64)
-        f = np.empty(h, np.float32)
-        t = np.empty(h, np.int64)
-        g = np.empty(h, np.float32)
-        lb = np.empty(nbw, np.float32)
-        bv = out_v[c]
-        bi = out_i[c]
-        count = 0
-        for pi in range((n_p * c) // N_CHUNKS, (n_p * (c + 1)) // N_CHUNKS):
-            p = positions[pi]
-            if not _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
-                continue
-            for qq in range(n_q):
-                toff = qq * rows_per_q
-                thr = thr0
-                if count == kk and bv[0] < thr:
-                    thr = bv[0]
-                prune = thr < np.inf
-                cut = (thr * slack + _PRUNE_ABS) * h
-                if prune:
-                    # whole-position bound first (row extremes), then per block
-                    lb0 = np.float32(0.0)
-                    for q in range(h):
-                        x = max(rmin[t[q] + toff] - e[q], np.float32(0.0)) + max(
-                            e[q] - rmax[t[q] + toff], np.float32(0.0)
-                        )
-                        lb0 += x * x
-                    if lb0 > cut:
-                        continue
-                    _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb)
-                b = 0
-                while b < nbw:
-                    # one contiguous run of surviving blocks at a time (long SIMD loops)
-                    if prune and lb[b] > cut:
-                        b += 1
-                        continue
-                    be = b + 1
-                    while be < nbw and not (prune and lb[be] > cut):
-                        be += 1
-                    b0 = b * blk
-                    nb = min(be * blk, cnt) - b0
-                    b = be
-                    for q in range(h):
-                        # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
-                        eq = e[q]
-                        o = k[q] + m * b0
-                        fq = f[q]
-                        gq = g[q]
-                        tq = t[q] + toff
-                        if gq == 0.0 and m == 1:
-                            ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
-                            rd = drows[tq]
-                            sa = ra[o : o + nb]
-                            sd = rd[o : o + nb]
-                            if q == 0:
-                                for jj in range(nb):
-                                    d = eq - sa[jj] - fq * sd[jj]
-                                    acc[jj] = d * d
-                            else:
-                                for jj in range(nb):
-                                    d = eq - sa[jj] - fq * sd[jj]
-                                    acc[jj] += d * d
-                        else:
-                            g1 = np.float32(1.0) - gq
-                            t1 = tq + 1 if gq != 0.0 else tq
-                            for jj in range(nb):
-                                k1 = o + m * jj
-                                a = g1 * rows[tq, k1] + gq * rows[t1, k1]
-                                dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
-                                d = eq - a - fq * dl
-                                if q == 0:
-                                    acc[jj] = d * d
-                                else:
-                                    acc[jj] += d * d
-                    # fused top-k: a vectorised minimum first; the scalar pass only
-                    # when something in the block can enter the heap
-                    lim = thr0
-                    if count == kk and bv[0] < lim:
-                        lim = bv[0]
-                    mn = acc[0]
-                    for jj in range(1, nb):
-                        mn = min(mn, acc[jj])
-                    if mn * inv_h > lim:
-                        continue
-                    for jj in range(nb):
-                        v = acc[jj] * inv_h
-                        if v > thr0:
-                            continue
-                        if count < kk or v <= bv[0]:
-                            j = j0 + b0 + jj
-                            if j >= n_az:
-                                j -= n_az
-                            count = _heap_push(bv, bi, count, v, (p * n_q + qq) * n_az + j)
+        _chunk(
+            c,
+            out_v,
+            out_i,
+            w,
+            heard,
+            base,
+            off,
+            frac,
+            row0,
+            roww,
+            rows,
+            drows,
+            blo,
+            bhi,
+            blo2,
+            bhi2,
+            rmin,
+            rmax,
+            m,
+            n_az,
+            n_q,
+            rows_per_q,
+            positions,
+            j0,
+            cnt,
+            kk,
+            blk,
+            thr0,
+        )
+    return out_v, out_i
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+def _shift_topk_serial(
+    w,  # (h,) float32  RSS − centre of the heard receivers
+    heard,  # (h,) int64   their receiver indices
+    base,  # (n_rx, n_pos) float32  M + P_tx − centre (NaN: excluded)
+    off,  # (n_rx, n_pos) int32  o in [1, n]
+    frac,  # (n_rx, n_pos) float32  f
+    row0,  # (n_rx, n_pos) int32  first pattern row
+    roww,  # (n_rx, n_pos) float32  weight of the second row (0: single row)
+    rows,  # (n_rows, L) float32  reversed, repeated pattern rows  Rv[k]
+    drows,  # (n_rows, L) float32  Rv[k − 1] − Rv[k]
+    blo,
+    bhi,
+    blo2,
+    bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
+    rmin,
+    rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
+    m,  # int  pattern samples per candidate azimuth step
+    n_az,  # int  candidate azimuths
+    n_q,  # int  (pitch, roll) combinations; orientation index = q·n_az + j
+    rows_per_q,  # int  pattern rows of each combination
+    positions,  # (n_p,) int64  positions to score
+    j0,  # int  first azimuth index of the window
+    cnt,  # int  window length (<= n_az)
+    kk,  # int  heap size per chunk
+    blk,  # int  block length (candidate azimuths) for pruning
+    thr0,  # float32  prune bound: candidates above it are not wanted (inf: none)
+):  # pragma: no cover - compiled
+    """:func:`_shift_topk` on one thread (small problems: no parallel start-up)."""
+    out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
+    out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
+    for c in range(N_CHUNKS):
+        _chunk(
+            c,
+            out_v,
+            out_i,
+            w,
+            heard,
+            base,
+            off,
+            frac,
+            row0,
+            roww,
+            rows,
+            drows,
+            blo,
+            bhi,
+            blo2,
+            bhi2,
+            rmin,
+            rmax,
+            m,
+            n_az,
+            n_q,
+            rows_per_q,
+            positions,
+            j0,
+            cnt,
+            kk,
+            blk,
+            thr0,
+        )
     return out_v, out_i
 
 
@@ -471,12 +602,24 @@ class ShiftScorer:
         Azimuths per pruning block.
     prune
         Skip positions and blocks whose lower bound cannot make the cut.
+    parallel
+        Run the kernel on numba's threads; ``None`` (default): only when a
+        full-grid packet has at least :data:`PARALLEL_MIN_TERMS`
+        candidate-receiver terms and more than one thread is configured — on a
+        small grid, starting the threads costs more than it saves, and on a
+        busy machine (a live server) a parallel region waits for its slowest
+        thread. Results do not depend on it.
     """
 
     name = "numba"
 
     def __init__(
-        self, space: CandidateSpace, oversample: int = 64, block: int = 24, prune: bool = True
+        self,
+        space: CandidateSpace,
+        oversample: int = 64,
+        block: int = 24,
+        prune: bool = True,
+        parallel: bool | None = None,
     ) -> None:
         o = space.orientations_deg
         n_o = o.shape[0]
@@ -564,6 +707,11 @@ class ShiftScorer:
             self.base_max = np.nanmax(np.abs(self.base), axis=1).astype(np.float64)
         self.d_max = float(np.max(np.abs(rows)))
         self.all_positions = np.arange(space.n_positions, dtype=np.int64)
+        if parallel is None:
+            terms = space.n_positions * n_o * space.n_receivers
+            parallel = terms >= PARALLEL_MIN_TERMS and threads() > 1
+        self.parallel = bool(parallel)
+        self._kernel = _shift_topk if self.parallel else _shift_topk_serial
         # Whole-row bounds per (receiver, position) over every (pitch, roll)
         # combination, for the vectorised prefilter (float64; ±inf: excluded).
         qoff = np.arange(self.n_q)[:, None, None] * self.rows_per_q
@@ -636,7 +784,7 @@ class ShiftScorer:
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
-        pv, _ = _shift_topk(
+        pv, _ = self._kernel(
             w,
             r,
             *self._kernel_args(),
@@ -668,7 +816,7 @@ class ShiftScorer:
                 run_pos = _prefilter(
                     w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
                 )
-            out_v, out_i = _shift_topk(
+            out_v, out_i = self._kernel(
                 w, r, *self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0)
             )
             ok = out_i.ravel() >= 0
