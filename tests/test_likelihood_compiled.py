@@ -57,7 +57,7 @@ def test_equals_reference(space, k, parallel):
 
 
 def test_small_grids_run_serially_by_default(space):
-    # 625 positions x 360 azimuths x 4 receivers: far below PARALLEL_MIN_TERMS
+    # 625 positions x 360 azimuths x 4 receivers = 900,000 terms: below PARALLEL_MIN_TERMS
     assert ShiftScorer(space).parallel is False
     assert ShiftScorer(space, parallel=True).parallel is True
 

@@ -72,7 +72,7 @@ from radiopose.units import wrap_deg
 _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
-PARALLEL_MIN_TERMS = 8_000_000
+PARALLEL_MIN_TERMS = 1_000_000
 """Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
 
