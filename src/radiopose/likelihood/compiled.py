@@ -176,34 +176,34 @@ def _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb):
 
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
 def _chunk(
-    c,
-    out_v,
-    out_i,
-    w,
-    heard,
-    base,
-    off,
-    frac,
-    row0,
-    roww,
-    rows,
-    drows,
+    c,  # int  chunk index
+    out_v,  # (N_CHUNKS, kk) float32  heaps' values (per chunk)
+    out_i,  # (N_CHUNKS, kk) int64  heaps' candidate indices
+    w,  # (h,) float32  RSS − centre of the heard receivers
+    heard,  # (h,) int64   their receiver indices
+    base,  # (n_rx, n_pos) float32  M + P_tx − centre (NaN: excluded)
+    off,  # (n_rx, n_pos) int32  o in [1, n]
+    frac,  # (n_rx, n_pos) float32  f
+    row0,  # (n_rx, n_pos) int32  first pattern row
+    roww,  # (n_rx, n_pos) float32  weight of the second row (0: single row)
+    rows,  # (n_rows, L) float32  reversed, repeated pattern rows  Rv[k]
+    drows,  # (n_rows, L) float32  Rv[k − 1] − Rv[k]
     blo,
     bhi,
     blo2,
-    bhi2,
+    bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
     rmin,
-    rmax,
-    m,
-    n_az,
-    n_q,
-    rows_per_q,
-    positions,
-    j0,
-    cnt,
-    kk,
-    blk,
-    thr0,
+    rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
+    m,  # int  pattern samples per candidate azimuth step
+    n_az,  # int  candidate azimuths
+    n_q,  # int  (pitch, roll) combinations; orientation index = q·n_az + j
+    rows_per_q,  # int  pattern rows of each combination
+    positions,  # (n_p,) int64  positions to score
+    j0,  # int  first azimuth index of the window
+    cnt,  # int  window length (<= n_az)
+    kk,  # int  heap size per chunk
+    blk,  # int  block length (candidate azimuths) for pruning
+    thr0,  # float32  prune bound: candidates above it are not wanted (inf: none)
 ):  # pragma: no cover - compiled
     """Score chunk ``c`` of ``positions`` into its heap ``out_v[c], out_i[c]``."""
     n_p = positions.shape[0]
@@ -308,72 +308,22 @@ def _chunk(
                         count = _heap_push(bv, bi, count, v, (p * n_q + qq) * n_az + j)
 
 
+_KK_ARG = 22
+"""Position of ``kk`` among the kernel's arguments (those of :func:`_chunk` after ``c,
+out_v, out_i``)."""
+
+
 @numba.njit(parallel=True, cache=True, fastmath=_FAST, boundscheck=False)
-def _shift_topk(
-    w,  # (h,) float32  RSS − centre of the heard receivers
-    heard,  # (h,) int64   their receiver indices
-    base,  # (n_rx, n_pos) float32  M + P_tx − centre (NaN: excluded)
-    off,  # (n_rx, n_pos) int32  o in [1, n]
-    frac,  # (n_rx, n_pos) float32  f
-    row0,  # (n_rx, n_pos) int32  first pattern row
-    roww,  # (n_rx, n_pos) float32  weight of the second row (0: single row)
-    rows,  # (n_rows, L) float32  reversed, repeated pattern rows  Rv[k]
-    drows,  # (n_rows, L) float32  Rv[k − 1] − Rv[k]
-    blo,
-    bhi,
-    blo2,
-    bhi2,  # (n_rows, K, n_blocks) float32  block bounds (single, pair)
-    rmin,
-    rmax,  # (n_rows,) float32  row min / max (over rows t and t + 1 where blended)
-    m,  # int  pattern samples per candidate azimuth step
-    n_az,  # int  candidate azimuths
-    n_q,  # int  (pitch, roll) combinations; orientation index = q·n_az + j
-    rows_per_q,  # int  pattern rows of each combination
-    positions,  # (n_p,) int64  positions to score
-    j0,  # int  first azimuth index of the window
-    cnt,  # int  window length (<= n_az)
-    kk,  # int  heap size per chunk
-    blk,  # int  block length (candidate azimuths) for pruning
-    thr0,  # float32  prune bound: candidates above it are not wanted (inf: none)
-):  # pragma: no cover - compiled
+def _shift_topk(*args):  # pragma: no cover - compiled
+    """The ``kk`` best screened candidates of every chunk, ``(out_v, out_i)`` each
+    ``(N_CHUNKS, kk)``; chunks in parallel. Arguments: those of :func:`_chunk`
+    after ``c, out_v, out_i``."""
+    kk = args[_KK_ARG]
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
     for c in numba.prange(N_CHUNKS):
-        _chunk(
-            c,
-            out_v,
-            out_i,
-            w,
-            heard,
-            base,
-            off,
-            frac,
-            row0,
-            roww,
-            rows,
-            drows,
-            blo,
-            bhi,
-            blo2,
-            bhi2,
-            rmin,
-            rmax,
-            m,
-            n_az,
-            n_q,
-            rows_per_q,
-            positions,
-            j0,
-            cnt,
-            kk,
-            blk,
-            thr0,
-        )
+        _chunk(c, out_v, out_i, *args)
     return out_v, out_i
-
-
-_KK_ARG = 22
-"""Position of ``kk`` among :func:`_shift_topk`'s arguments."""
 
 
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
