@@ -181,3 +181,19 @@ def test_expected_rss_cache_equals_exact_mse_across_packets(tiny_sim):
         np.testing.assert_array_equal(got, exact_mse_db2(space, heard, ids))
         assert cache._ids.size <= 300
         assert np.all(np.diff(cache._ids) > 0)
+
+
+def test_memo_scorer_passes_the_window_through(tiny_sim):
+    from radiopose.likelihood.compiled import ShiftScorer
+    from radiopose.likelihood.memo import MemoScorer
+
+    space = _space(tiny_sim)
+    inner = ShiftScorer(space)
+    memo = MemoScorer(inner)
+    heard = space.heard(group_packets(tiny_sim.packets)[0])
+    positions = np.arange(0, space.n_positions, 3)
+    _assert_same(
+        memo.score_window(heard, 10, positions, 30.0, 40.0),
+        inner.score_window(heard, 10, positions, 30.0, 40.0),
+    )
+    assert not hasattr(MemoScorer(TableScorer(space)), "score_window")

@@ -18,7 +18,8 @@ class MemoScorer:
     Parameters
     ----------
     inner
-        Any scorer (``score_heard``/``score_topk``).
+        Any scorer (``score_heard``/``score_topk``); its ``score_window``, if
+        any, is exposed unchanged.
     """
 
     def __init__(self, inner: object) -> None:
@@ -26,6 +27,11 @@ class MemoScorer:
         self.name = f"memo({getattr(inner, 'name', '?')})"
         self.space: CandidateSpace = inner.space  # type: ignore[attr-defined]
         self._cache: dict[tuple, TopK] = {}
+        window = getattr(inner, "score_window", None)
+        if window is not None:
+            # Bounded search (``TrackerConfig(search="bounded")``): the window depends
+            # on each method's own track, so it is passed through, not remembered.
+            self.score_window = window
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
         key = (tuple(heard.receiver_index.tolist()), heard.rss_dbm.tobytes(), k)
