@@ -149,3 +149,37 @@ def test_cli_spoof_errors_are_one_line(tmp_path, capsys):
     assert code == 2 and "\n" not in err and "unknown experiment" in err
     code = main(["spoof", "--runs", "0", "-o", str(tmp_path / "x")])
     assert code == 2 and "--runs" in capsys.readouterr().err
+
+
+def test_cli_spoof_resumes_finished_runs(tmp_path, capsys, monkeypatch):
+    import radiopose.security.runner as runner
+
+    out = tmp_path / "spoof"
+    args = ["spoof", "1", "--runs", "2", "--targets", "3", "--size-m", "8", "--step-m", "0.5"]
+    args += ["--azimuth-step-deg", "10", "--min-distance-m", "2", "--workers", "0", "-o", str(out)]
+    assert main(args) == 0
+    first = (out / "targets.csv").read_text()
+    assert sorted(p.name for p in (out / "parts").iterdir()) == ["match-000.json", "match-001.json"]
+    # a killed run: one part missing, one left half-written by something else
+    (out / "parts" / "match-001.json").unlink()
+    (out / "parts" / "match-000.json").write_text('{"key": "other settings"')
+    computed: list[list] = []
+    real = runner.map_runs
+
+    def spy(tasks, *a, **kw):  # type: ignore[no-untyped-def]
+        computed.append(list(tasks))
+        return real(tasks, *a, **kw)
+
+    monkeypatch.setattr(runner, "map_runs", spy)
+    capsys.readouterr()
+    assert main(args) == 0
+    assert computed == [[("match", 0), ("match", 1)]]  # nothing usable was stored
+    assert (out / "targets.csv").read_text() == first
+    # everything stored now: a third call computes nothing and writes the same tables
+    assert main(args) == 0
+    assert computed == [[("match", 0), ("match", 1)]]
+    assert "resuming: 2 of 2 runs" in capsys.readouterr().err
+    assert (out / "targets.csv").read_text() == first
+    # other settings do not reuse the stored runs
+    assert main([*args[:5], "4", *args[6:]]) == 0
+    assert computed[-1] == [("match", 0), ("match", 1)]

@@ -82,7 +82,7 @@ def spoof(
         write_report,
         write_tables,
     )
-    from radiopose.security.runner import default_workers, map_runs
+    from radiopose.security.runner import RunStore, default_workers, map_runs
     from radiopose.simulate import ScenarioConfig
 
     exps = parse_experiments(tuple(experiments or ()))
@@ -116,7 +116,28 @@ def spoof(
     tasks = plan_tasks(exps, n_runs)
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
+    store = RunStore(out, config)
+    stored = store.load(tasks)
+    todo = [t for t in tasks if t not in stored]
+    if stored and not quiet:
+        print(
+            f"spoof: resuming: {len(stored)} of {len(tasks)} runs already in {store.dir}",
+            file=sys.stderr,
+        )
     show = not quiet and sys.stderr.isatty()
+    done = [len(stored)]
+
+    def finished(res: RunOutput) -> None:
+        store.save(res)  # as each run completes: an interrupted command resumes here
+        done[0] += 1
+        if not show and not quiet:  # a log file, CI: one line per finished run
+            print(
+                f"spoof: {done[0]}/{len(tasks)} {res.experiment} run {res.run} "
+                f"({res.elapsed_s:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+
     if show:
         from rich.progress import (
             BarColumn,
@@ -135,25 +156,23 @@ def spoof(
             TimeRemainingColumn(),
             transient=True,
         ) as bar:
-            task = bar.add_task("runs", total=len(tasks))
-            outputs, where = map_runs(
-                tasks, config, n_workers, lambda _: bar.advance(task), scheduler
-            )
-    elif quiet:
-        outputs, where = map_runs(tasks, config, n_workers, None, scheduler)
-    else:  # not a terminal (a log file, CI): one line per finished run
-        done = [0]
+            task = bar.add_task("runs", total=len(tasks), completed=len(stored))
 
-        def log_line(res: RunOutput) -> None:
-            done[0] += 1
-            print(
-                f"spoof: {done[0]}/{len(tasks)} {res.experiment} run {res.run} "
-                f"({res.elapsed_s:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
+            def advance(res: RunOutput) -> None:
+                finished(res)
+                bar.advance(task)
 
-        outputs, where = map_runs(tasks, config, n_workers, log_line, scheduler)
+            computed, where = (
+                map_runs(todo, config, n_workers, advance, scheduler)
+                if todo
+                else ([], "nothing left to compute (every run resumed)")
+            )
+    elif todo:
+        computed, where = map_runs(todo, config, n_workers, finished, scheduler)
+    else:
+        computed, where = [], "nothing left to compute (every run resumed)"
+    by_task = {**stored, **{(r.experiment, r.run): r for r in computed}}
+    outputs = [by_task[t] for t in tasks]
     wall = time.perf_counter() - t0
     tables = collect(outputs)
     summary = summarise(tables, exps)

@@ -151,3 +151,77 @@ def _run_dask(
         finally:
             client.cancel(list(futures))
     return where
+
+
+class RunStore:
+    """Finished runs of one output directory, one JSON file each, for resuming.
+
+    ``DIR/parts/<experiment>-<run>.json`` holds a run's tables and a key of
+    everything that determines them (the settings, the experiment, the run), so
+    a file written under other settings is ignored and recomputed.
+
+    Parameters
+    ----------
+    out
+        The command's output directory.
+    config
+        The settings shared by every run.
+    """
+
+    def __init__(self, out: os.PathLike[str] | str, config: SpoofConfig) -> None:
+        from pathlib import Path
+
+        self.dir = Path(out) / "parts"
+        self._config = repr(config)
+
+    def key(self, experiment: str, run: int) -> str:
+        """Hash of the settings, the experiment and the run."""
+        import hashlib
+
+        text = repr((self._config, experiment, int(run)))
+        return hashlib.sha256(text.encode("utf-8")).hexdigest()[:24]
+
+    def _path(self, experiment: str, run: int):  # type: ignore[no-untyped-def]
+        return self.dir / f"{experiment}-{int(run):03d}.json"
+
+    def load(self, tasks: Sequence[tuple[str, int]]) -> dict[tuple[str, int], RunOutput]:
+        """The stored runs among ``tasks`` whose key matches (unreadable files are ignored)."""
+        import json
+
+        done: dict[tuple[str, int], RunOutput] = {}
+        for exp, run in tasks:
+            path = self._path(exp, run)
+            try:
+                data = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                continue
+            if not isinstance(data, dict) or data.get("key") != self.key(exp, run):
+                continue
+            done[(exp, run)] = RunOutput(exp, run, data["tables"], float(data["elapsed_s"]))
+        return done
+
+    def save(self, res: RunOutput) -> None:
+        """Write one finished run (atomically: a killed write leaves no partial file)."""
+        import json
+
+        from radiopose.tables import atomic_writer
+
+        self.dir.mkdir(parents=True, exist_ok=True)
+        payload = {
+            "key": self.key(res.experiment, res.run),
+            "experiment": res.experiment,
+            "run": res.run,
+            "elapsed_s": res.elapsed_s,
+            "tables": res.tables,
+        }
+        text = json.dumps(payload, default=_plain)
+        with atomic_writer(self._path(res.experiment, res.run)) as fh:
+            fh.write(text)
+
+
+def _plain(value: object) -> object:
+    """numpy scalars and arrays → plain JSON values."""
+    item = getattr(value, "tolist", None)
+    if item is not None:
+        return item()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
