@@ -77,14 +77,9 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
     if not core.any():
         return labels, core
     ci = np.flatnonzero(core)
-    adj = near[np.ix_(ci, ci)]
-    comp = _components(adj)
-    # number clusters by their first (lowest-index) core point, as scikit-learn does
-    first = np.full(comp.max() + 1, n, dtype=np.int64)
-    np.minimum.at(first, comp, ci)
-    rank = np.empty_like(first)
-    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-    labels[ci] = rank[comp]
+    # components come numbered by their lowest index, and ``ci`` increases: that is
+    # scikit-learn's numbering by each cluster's first core point
+    labels[ci] = _components(near[np.ix_(ci, ci)])
     border = ~core & near[:, ci].any(axis=1)
     if border.any():
         reach = np.where(near[np.ix_(border, ci)], labels[ci][None, :], np.iinfo(np.int64).max)
@@ -107,11 +102,7 @@ def _components(adj: NDArray) -> IntArray:
     m = adj.shape[0]
     if m > DENSE_COMPONENTS_MAX_POINTS:
         _, comp = connected_components(csr_matrix(adj), directed=False)
-        first = np.full(comp.max() + 1, m, dtype=np.int64)
-        np.minimum.at(first, comp, np.arange(m))
-        rank = np.empty_like(first)
-        rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-        return rank[comp]
+        return _number_by_first(comp, np.arange(m))
     lab = np.arange(m)
     while True:
         nxt = np.where(adj, lab[None, :], m).min(axis=1)
@@ -121,6 +112,15 @@ def _components(adj: NDArray) -> IntArray:
         lab = nxt
     roots = np.unique(lab)
     return np.searchsorted(roots, lab)
+
+
+def _number_by_first(comp: IntArray, index: IntArray) -> IntArray:
+    """Renumber groups ``comp`` (``0 … g−1``) in the order of their lowest ``index``."""
+    first = np.full(int(comp.max()) + 1, np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(first, comp, index)
+    rank = np.empty_like(first)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return rank[comp]
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,11 +185,7 @@ def _dbscan_1d(v: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, N
     if ci.size:
         cv = sv[ci]
         comp = np.concatenate([[0], np.cumsum(np.abs(np.diff(cv)) > eps)])
-        first = np.full(comp[-1] + 1, n, dtype=np.int64)
-        np.minimum.at(first, comp, order[ci])
-        rank = np.empty_like(first)
-        rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-        labels_s[ci] = rank[comp]
+        labels_s[ci] = _number_by_first(comp, order[ci])
         b = np.flatnonzero(~core_s)
         if b.size:
             k = np.searchsorted(cv, sv[b], side="right")  # first core point above
