@@ -134,6 +134,14 @@ _PRUNE_REL = np.float32(1e-4)
 _PRUNE_ABS = np.float32(1e-6)
 
 
+@numba.njit(cache=True, boundscheck=False, inline="always")
+def _prune_cut(thr, h):  # pragma: no cover - compiled
+    """Bound on ``Σ_r d_r²`` beyond which a position or block is skipped, for
+    the threshold ``thr`` (mean squared error) over ``h`` receivers; used by the
+    kernel and by the prefilter alike, so both cut at exactly the same value."""
+    return (thr * (np.float32(1.0) + _PRUNE_REL) + _PRUNE_ABS) * h
+
+
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
 def _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
     """Per-receiver terms of position ``p`` into ``e, k, f, t, g``; False if excluded."""
@@ -210,7 +218,6 @@ def _chunk(
     h = heard.shape[0]
     inv_h = np.float32(1.0 / h)
     nbw = (cnt + blk - 1) // blk
-    slack = np.float32(1.0) + _PRUNE_REL
     acc = np.empty(cnt, dtype=np.float32)
     e = np.empty(h, np.float32)
     k = np.empty(h, np.int64)
@@ -231,7 +238,7 @@ def _chunk(
             if count == kk and bv[0] < thr:
                 thr = bv[0]
             prune = thr < np.inf
-            cut = (thr * slack + _PRUNE_ABS) * h
+            cut = _prune_cut(thr, h)
             if prune:
                 # whole-position bound first (row extremes), then per block
                 lb0 = np.float32(0.0)
@@ -711,8 +718,7 @@ class ShiftScorer:
                 thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
             run_pos = positions
             if np.isfinite(thr0):
-                slack = np.float32(1.0) + _PRUNE_REL
-                cut = float((np.float32(thr0) * slack + _PRUNE_ABS) * np.float32(r.size))
+                cut = float(_prune_cut(np.float32(thr0), r.size))
                 run_pos = _prefilter(
                     w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
                 )
