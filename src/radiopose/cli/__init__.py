@@ -9,6 +9,7 @@ stderr with exit status 2 — no traceback reaches the user.
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import typer
 
@@ -33,6 +34,27 @@ def fail(message: str) -> typer.Exit:
     """Print a one-line error on stderr and return the exit to raise."""
     print(f"radiopose: {message}", file=sys.stderr)
     return typer.Exit(2)
+
+
+def count_progress(label: str, *, elapsed: bool = True, description: bool = False) -> Any:
+    """A transient rich progress bar over a count of runs or packets:
+    ``label``, bar, done/total, [elapsed,] remaining[, the task's description]."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    columns: list[Any] = [TextColumn(label), BarColumn(), MofNCompleteColumn()]
+    if elapsed:
+        columns.append(TimeElapsedColumn())
+    columns.append(TimeRemainingColumn())
+    if description:
+        columns.append(TextColumn("{task.description}"))
+    return Progress(*columns, transient=True)
 
 
 def _register() -> None:

@@ -122,24 +122,9 @@ def evaluate(
     command = _command(list(experiments or []), out, runs, quick, scheduler, workers)
     show_bar = not quiet and sys.stderr.isatty()
     if show_bar:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
+        from radiopose.cli import count_progress
 
-        with Progress(
-            TextColumn("evaluate"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            TextColumn("{task.description}"),
-            transient=True,
-        ) as bar:
+        with count_progress("evaluate", description=True) as bar:
             task_id = bar.add_task("starting", total=None)
 
             def progress(done: int, total: int, what: str) -> None:

@@ -48,21 +48,9 @@ def locate(
     config = TrackerConfig(kernel=kernel)
     show = not quiet and sys.stderr.isatty()
     if show:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeRemainingColumn,
-        )
+        from radiopose.cli import count_progress
 
-        with Progress(
-            TextColumn(f"locate ({method})"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-            transient=True,
-        ) as bar:
+        with count_progress(f"locate ({method})", elapsed=False) as bar:
             task = bar.add_task("packets", total=None)
 
             def progress(done: int, total: int) -> None:

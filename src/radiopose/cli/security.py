@@ -65,8 +65,10 @@ def spoof(
     Writes tidy CSVs (targets, paths, end_to_end, summary, …), PNG figures and
     report.md into DIR, and prints the summary.
     """
+    from contextlib import nullcontext
     from dataclasses import replace
 
+    from radiopose.cli import count_progress
     from radiopose.errors import InputError
     from radiopose.security.experiments import (
         RunOutput,
@@ -126,51 +128,26 @@ def spoof(
         )
     show = not quiet and sys.stderr.isatty()
     done = [len(stored)]
+    with count_progress(f"spoof ({', '.join(exps)})") if show else nullcontext() as bar:
+        task = None if bar is None else bar.add_task("runs", total=len(tasks), completed=done[0])
 
-    def finished(res: RunOutput) -> None:
-        store.save(res)  # as each run completes: an interrupted command resumes here
-        done[0] += 1
-        if not show and not quiet:  # a log file, CI: one line per finished run
-            print(
-                f"spoof: {done[0]}/{len(tasks)} {res.experiment} run {res.run} "
-                f"({res.elapsed_s:.0f} s)",
-                file=sys.stderr,
-                flush=True,
-            )
-
-    if show:
-        from rich.progress import (
-            BarColumn,
-            MofNCompleteColumn,
-            Progress,
-            TextColumn,
-            TimeElapsedColumn,
-            TimeRemainingColumn,
-        )
-
-        with Progress(
-            TextColumn(f"spoof ({', '.join(exps)})"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeElapsedColumn(),
-            TimeRemainingColumn(),
-            transient=True,
-        ) as bar:
-            task = bar.add_task("runs", total=len(tasks), completed=len(stored))
-
-            def advance(res: RunOutput) -> None:
-                finished(res)
+        def finished(res: RunOutput) -> None:
+            store.save(res)  # as each run completes: an interrupted command resumes here
+            done[0] += 1
+            if bar is not None:
                 bar.advance(task)
+            elif not quiet:  # a log file, CI: one line per finished run
+                print(
+                    f"spoof: {done[0]}/{len(tasks)} {res.experiment} run {res.run} "
+                    f"({res.elapsed_s:.0f} s)",
+                    file=sys.stderr,
+                    flush=True,
+                )
 
-            computed, where = (
-                map_runs(todo, config, n_workers, advance, scheduler)
-                if todo
-                else ([], "nothing left to compute (every run resumed)")
-            )
-    elif todo:
-        computed, where = map_runs(todo, config, n_workers, finished, scheduler)
-    else:
-        computed, where = [], "nothing left to compute (every run resumed)"
+        if todo:
+            computed, where = map_runs(todo, config, n_workers, finished, scheduler)
+        else:
+            computed, where = [], "nothing left to compute (every run resumed)"
     by_task = {**stored, **{(r.experiment, r.run): r for r in computed}}
     outputs = [by_task[t] for t in tasks]
     wall = time.perf_counter() - t0
