@@ -15,6 +15,7 @@ from radiopose.likelihood import (
     TableScorer,
     candidate_mse_db2,
     candidate_space,
+    exact_mse_db2,
     expected_rss_dbm,
     make_scorer,
     select_topk,
@@ -166,21 +167,33 @@ def test_unknown_receiver_in_packet_is_an_input_error(tiny_sim):
         space.heard(pkt)
 
 
-def test_expected_rss_cache_equals_exact_mse_across_packets(tiny_sim):
-    from radiopose.likelihood.candidates import ExpectedRssCache, exact_mse_db2
+@pytest.mark.parametrize("full_sphere", [False, True])
+def test_compiled_exact_rss_matches_the_numpy_geometry(tiny_sim, full_sphere):
+    """The compiled exact expected RSS (used by the reference and every rescoring)
+    equals the vectorised numpy path through geometry and Pattern.lookup_dbi."""
+    from radiopose.likelihood.candidates import directivity_dbi
+    from radiopose.patterns import smartphone_like
 
-    space = _space(tiny_sim)
-    cache = ExpectedRssCache(space, capacity=300)
-    rng = np.random.default_rng(5)
-    packets = group_packets(tiny_sim.packets)
-    for i, obs in enumerate(packets[:12]):
-        heard = space.heard(obs)
-        # overlapping, repeated and fresh candidates; the capacity forces resets
-        ids = rng.integers(0, 40 + 30 * i, size=120)
-        got = cache.mse_db2(heard, ids)
-        np.testing.assert_array_equal(got, exact_mse_db2(space, heard, ids))
-        assert cache._ids.size <= 300
-        assert np.all(np.diff(cache._ids) > 0)
+    site = replace(tiny_sim.site, orientations=OrientationGrid(15.0, (0.0, 30.0), (0.0, -45.0)))
+    space = candidate_space(site, site.devices[0].transmitter)
+    if full_sphere:
+        space = replace(
+            space, pattern=smartphone_like(np.random.default_rng(3), polar_step_deg=5.0)
+        )
+        assert not space.pattern.is_slice
+    # a receiver on a candidate position: the zero direction vector (0, 90) case
+    rx = space.receiver_positions_m.copy()
+    rx[0] = space.positions_m[7]
+    space = replace(space, receiver_positions_m=rx)
+    rng = np.random.default_rng(11)
+    pos = np.r_[7, rng.integers(0, space.n_positions, 500)]
+    ori = rng.integers(0, space.n_orientations, pos.size)
+    want = space.channel_db[:, pos].T + space.tx_power_dbm + directivity_dbi(space, pos, ori)
+    got = expected_rss_dbm(space, pos, ori)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+    heard = HeardRss(np.array([0, 2, 3]), np.array([-50.0, -61.5, -55.25]))
+    exact = exact_mse_db2(space, heard, pos * space.n_orientations + ori)
+    np.testing.assert_array_equal(exact, candidate_mse_db2(got, heard))
 
 
 def test_memo_scorer_passes_the_window_through(tiny_sim):

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from radiopose.errors import InputError
 from radiopose.geometry import direction_to_pattern_angles_deg, orientation_matrices
+from radiopose.likelihood.exact import expected_rss_all_dbm, mse_db2
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site
@@ -185,8 +186,11 @@ def candidate_space(site: Site, transmitter: str) -> CandidateSpace:
 def directivity_dbi(space: CandidateSpace, pos_idx: IntArray, orient_idx: IntArray) -> FloatArray:
     """Device directivity toward every receiver, ``(n, n_rx)`` dBi, for ``n`` candidates.
 
-    Element by element: ``v = Rᵀ (r − p)`` written out as three products and
-    two sums, then the contract's pattern angles and a bilinear lookup.
+    Vectorised numpy: ``v = Rᵀ (r − p)`` written out as three products and two
+    sums, then :func:`~radiopose.geometry.direction_to_pattern_angles_deg` and
+    :meth:`~radiopose.patterns.pattern.Pattern.lookup_dbi` (bilinear). Used to
+    fill the numpy scorer's float32 table and to cross-check the compiled exact
+    function (:func:`expected_rss_dbm`), which it matches to ~1e-12 dB.
     """
     p = space.positions_m[np.asarray(pos_idx, dtype=np.int64)]  # (n, 3)
     rot = space.rotations[np.asarray(orient_idx, dtype=np.int64)]  # (n, 3, 3)
@@ -202,9 +206,14 @@ def directivity_dbi(space: CandidateSpace, pos_idx: IntArray, orient_idx: IntArr
 
 
 def expected_rss_dbm(space: CandidateSpace, pos_idx: IntArray, orient_idx: IntArray) -> FloatArray:
-    """Expected RSS ``(n, n_rx)`` in dBm: ``M_r(p) + P_tx + D_t`` (NaN where ``M_r`` is)."""
-    m = space.channel_db[:, np.asarray(pos_idx, dtype=np.int64)].T  # (n, n_rx)
-    return m + space.tx_power_dbm + directivity_dbi(space, pos_idx, orient_idx)
+    """Expected RSS ``(n, n_rx)`` in dBm: ``M_r(p) + P_tx + D_t`` (NaN where ``M_r`` is).
+
+    Computed element by element by the compiled :mod:`radiopose.likelihood.exact`
+    (the same values the reference and every fast scorer's rescoring use).
+    """
+    pos = np.asarray(pos_idx, dtype=np.int64)
+    ori = np.asarray(orient_idx, dtype=np.int64)
+    return expected_rss_all_dbm(space, pos * space.n_orientations + ori)
 
 
 def candidate_mse_db2(expected_dbm: FloatArray, heard: HeardRss) -> FloatArray:
@@ -221,53 +230,9 @@ def candidate_mse_db2(expected_dbm: FloatArray, heard: HeardRss) -> FloatArray:
 
 
 def exact_mse_db2(space: CandidateSpace, heard: HeardRss, candidate_idx: IntArray) -> FloatArray:
-    """Exact float64 MSE ``(n,)`` of the given candidates for one packet, dB²."""
-    pos, ori = space.split(candidate_idx)
-    return candidate_mse_db2(expected_rss_dbm(space, pos, ori), heard)
+    """Exact float64 MSE ``(n,)`` of the given candidates for one packet, dB².
 
-
-class ExpectedRssCache:
-    """Exact float64 MSE of shortlisted candidates, with their expected RSS cached.
-
-    The expected RSS of a candidate does not depend on the packet, and the
-    shortlists of consecutive packets of one track overlap, so rows computed
-    for one packet are kept (up to ``capacity`` candidates, then the cache
-    starts afresh from the latest shortlist: merging costs ``O(capacity)``
-    per call) and reused. The values are those of :func:`expected_rss_dbm`
-    computed elementwise, so the MSE equals :func:`exact_mse_db2`'s.
+    Equal, bit for bit, to ``candidate_mse_db2(expected_rss_dbm(...), heard)``;
+    computed for the heard receivers only, in one compiled pass.
     """
-
-    def __init__(self, space: CandidateSpace, capacity: int = 4096) -> None:
-        self.space = space
-        self.capacity = int(capacity)
-        self._ids = np.empty(0, dtype=np.int64)
-        self._rows = np.empty((0, space.n_receivers))
-
-    def expected_dbm(self, candidate_idx: IntArray) -> FloatArray:
-        """Expected RSS ``(n, n_rx)`` dBm of the candidates (NaN where ``M_r`` is)."""
-        ids = np.asarray(candidate_idx, dtype=np.int64)
-        out = np.empty((ids.size, self.space.n_receivers))
-        at = np.searchsorted(self._ids, ids)
-        hit = at < self._ids.size
-        hit[hit] = self._ids[at[hit]] == ids[hit]
-        out[hit] = self._rows[at[hit]]
-        miss = ~hit
-        if miss.any():
-            new_ids = np.unique(ids[miss])
-            new_rows = expected_rss_dbm(self.space, *self.space.split(new_ids))
-            out[miss] = new_rows[np.searchsorted(new_ids, ids[miss])]
-            if self._ids.size + new_ids.size > self.capacity:
-                # start afresh from this call's candidates (the most recent ones)
-                keep, first = np.unique(ids, return_index=True)
-                self._ids = keep[: self.capacity]
-                self._rows = out[first[: self.capacity]]
-            else:
-                all_ids = np.concatenate([self._ids, new_ids])
-                order = np.argsort(all_ids, kind="stable")
-                self._ids = all_ids[order]
-                self._rows = np.concatenate([self._rows, new_rows])[order]
-        return out
-
-    def mse_db2(self, heard: HeardRss, candidate_idx: IntArray) -> FloatArray:
-        """Exact float64 MSE ``(n,)`` of the candidates for one packet, dB²."""
-        return candidate_mse_db2(self.expected_dbm(candidate_idx), heard)
+    return mse_db2(space, heard.receiver_index, heard.rss_dbm, candidate_idx)

@@ -63,7 +63,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.geometry import direction_to_pattern_angles_deg
-from radiopose.likelihood.candidates import CandidateSpace, ExpectedRssCache, HeardRss
+from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
@@ -553,7 +553,6 @@ class ShiftScorer:
         self.prune = bool(prune)
         self.retries = 0
         self._hint = np.empty(0, np.int64)
-        self._exact = ExpectedRssCache(space)
 
         pattern = space.pattern
         row_step, m = _row_grid(pattern, step)
@@ -752,7 +751,7 @@ class ShiftScorer:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
         self._hint = np.unique(short // (self.n_az * self.n_q))
-        mse = self._exact.mse_db2(heard, short)
+        mse = exact_mse_db2(self.space, heard, short)
         return select_topk(short, mse, k)
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
