@@ -182,6 +182,72 @@ def _block_bounds(e, k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lb):
             lb[b] += x * x
 
 
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
+def _accumulate(acc, e, k, f, t, g, toff, rows, drows, m, b0, nb):  # pragma: no cover - compiled
+    """``acc[jj] = Σ_q d_q²`` for the ``nb`` window azimuths from ``b0`` of one position,
+    with the residual ``d = e − (a_j + f·Δ_j)`` (the bilinear lookup at ``φ − α_j``)."""
+    for q in range(e.shape[0]):
+        eq = e[q]
+        o = k[q] + m * b0
+        fq = f[q]
+        gq = g[q]
+        tq = t[q] + toff
+        if gq == 0.0 and m == 1:
+            ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
+            rd = drows[tq]
+            sa = ra[o : o + nb]
+            sd = rd[o : o + nb]
+            if q == 0:
+                for jj in range(nb):
+                    d = eq - sa[jj] - fq * sd[jj]
+                    acc[jj] = d * d
+            else:
+                for jj in range(nb):
+                    d = eq - sa[jj] - fq * sd[jj]
+                    acc[jj] += d * d
+        else:
+            g1 = np.float32(1.0) - gq
+            t1 = tq + 1 if gq != 0.0 else tq
+            for jj in range(nb):
+                k1 = o + m * jj
+                a = g1 * rows[tq, k1] + gq * rows[t1, k1]
+                dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
+                d = eq - a - fq * dl
+                if q == 0:
+                    acc[jj] = d * d
+                else:
+                    acc[jj] += d * d
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+def _dense(
+    w, heard, base, off, frac, row0, roww, rows, drows, m, n_q, rows_per_q, positions, j0, cnt
+):  # pragma: no cover - compiled
+    """Every screened MSE of ``positions`` × (pitch, roll) × window azimuths, flat
+    float32 (``+inf`` for excluded positions); the kernel's values, without top-k —
+    for the threshold pass over a few positions."""
+    h = heard.shape[0]
+    inv_h = np.float32(1.0 / h)
+    out = np.full(positions.shape[0] * n_q * cnt, np.inf, dtype=np.float32)
+    acc = np.empty(cnt, dtype=np.float32)
+    e = np.empty(h, np.float32)
+    k = np.empty(h, np.int64)
+    f = np.empty(h, np.float32)
+    t = np.empty(h, np.int64)
+    g = np.empty(h, np.float32)
+    for pi in range(positions.shape[0]):
+        if not _load_position(
+            w, heard, base, off, frac, row0, roww, m, positions[pi], j0, e, k, f, t, g
+        ):
+            continue
+        for qq in range(n_q):
+            _accumulate(acc, e, k, f, t, g, qq * rows_per_q, rows, drows, m, 0, cnt)
+            at = (pi * n_q + qq) * cnt
+            for jj in range(cnt):
+                out[at + jj] = acc[jj] * inv_h
+    return out
+
+
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
 def _chunk(
     c,  # int  chunk index
@@ -262,38 +328,7 @@ def _chunk(
                 b0 = b * blk
                 nb = min(be * blk, cnt) - b0
                 b = be
-                for q in range(h):
-                    # residual d_j = e − (a_j + f·Δ_j): the bilinear lookup at φ − α_j
-                    eq = e[q]
-                    o = k[q] + m * b0
-                    fq = f[q]
-                    gq = g[q]
-                    tq = t[q] + toff
-                    if gq == 0.0 and m == 1:
-                        ra = rows[tq]  # 1-D, C-contiguous: slices stay contiguous (SIMD)
-                        rd = drows[tq]
-                        sa = ra[o : o + nb]
-                        sd = rd[o : o + nb]
-                        if q == 0:
-                            for jj in range(nb):
-                                d = eq - sa[jj] - fq * sd[jj]
-                                acc[jj] = d * d
-                        else:
-                            for jj in range(nb):
-                                d = eq - sa[jj] - fq * sd[jj]
-                                acc[jj] += d * d
-                    else:
-                        g1 = np.float32(1.0) - gq
-                        t1 = tq + 1 if gq != 0.0 else tq
-                        for jj in range(nb):
-                            k1 = o + m * jj
-                            a = g1 * rows[tq, k1] + gq * rows[t1, k1]
-                            dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
-                            d = eq - a - fq * dl
-                            if q == 0:
-                                acc[jj] = d * d
-                            else:
-                                acc[jj] += d * d
+                _accumulate(acc, e, k, f, t, g, toff, rows, drows, m, b0, nb)
                 # fused top-k: a vectorised minimum first; the scalar pass only
                 # when something in the block can enter the heap
                 lim = thr0
@@ -690,19 +725,27 @@ class ShiftScorer:
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
-        pv, _ = self._kernel(
+        vals = _dense(
             w,
             r,
-            *self._kernel_args(),
+            self.base,
+            self.off,
+            self.frac,
+            self.row0,
+            self.roww,
+            self.rows,
+            self.drows,
+            self.m,
+            self.n_q,
+            self.rows_per_q,
             np.ascontiguousarray(pick),
             j0,
             cnt,
-            kk,
-            self.block,
-            np.float32(np.inf),
         )
-        vals = np.sort(pv[np.isfinite(pv)])
-        return float(vals[kk - 1]) if vals.size >= kk else np.inf
+        if vals.size < kk:
+            return np.inf
+        kth = float(np.partition(vals, kk - 1)[kk - 1])
+        return kth if np.isfinite(kth) else np.inf
 
     def _run(self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int) -> TopK:
         r = heard.receiver_index
