@@ -72,6 +72,9 @@ from radiopose.units import wrap_deg
 _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
+DENSE_MAX_VALUES = 65_536
+"""Largest threshold pass scored densely (one array, then a partition); larger
+ones use the kernel's per-chunk heaps."""
 PARALLEL_MIN_TERMS = 1_000_000
 """Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
@@ -725,23 +728,31 @@ class ShiftScorer:
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
-        vals = _dense(
-            w,
-            r,
-            self.base,
-            self.off,
-            self.frac,
-            self.row0,
-            self.roww,
-            self.rows,
-            self.drows,
-            self.m,
-            self.n_q,
-            self.rows_per_q,
-            np.ascontiguousarray(pick),
-            j0,
-            cnt,
-        )
+        pick = np.ascontiguousarray(pick)
+        if pick.size * per_pos > DENSE_MAX_VALUES:
+            # many (pitch, roll) rows or a cold start: per-chunk heaps, not one big array
+            pv, _ = self._kernel(
+                w, r, *self._kernel_args(), pick, j0, cnt, kk, self.block, np.float32(np.inf)
+            )
+            vals = pv[np.isfinite(pv)]
+        else:
+            vals = _dense(
+                w,
+                r,
+                self.base,
+                self.off,
+                self.frac,
+                self.row0,
+                self.roww,
+                self.rows,
+                self.drows,
+                self.m,
+                self.n_q,
+                self.rows_per_q,
+                pick,
+                j0,
+                cnt,
+            )
         if vals.size < kk:
             return np.inf
         kth = float(np.partition(vals, kk - 1)[kk - 1])
