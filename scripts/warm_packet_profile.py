@@ -1,0 +1,57 @@
+"""Where the time of a warm packet goes in the compiled scorer (docs/performance.md).
+
+Scores the benchmark's 200-packet trace of the standard scenario (seed 101,
+σ = 1 dB) three times with :class:`~radiopose.likelihood.compiled.ShiftScorer`
+and prints, per packet, the total and the time spent in the threshold pass,
+the prefilter, the kernel calls (main pass, and the threshold pass when it
+uses the per-chunk heaps) and the exact float64 rescoring; the remainder is
+Python bookkeeping. The timers wrap the calls, so they add a few µs each.
+Usage: ``python scripts/warm_packet_profile.py [SEED]``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import replace
+
+import radiopose.likelihood.compiled as compiled
+from radiopose.likelihood import candidate_space
+from radiopose.packets import group_packets
+from radiopose.simulate import ScenarioConfig, simulate
+
+
+def main(seed: int = 101, n_packets: int = 200) -> None:
+    sim = simulate(replace(ScenarioConfig(), duration_s=1.0, noise_db=1.0), seed=seed)
+    space = candidate_space(sim.site, sim.site.devices[0].transmitter)
+    heard = [space.heard(p) for p in group_packets(sim.packets)][:n_packets]
+    sc = compiled.ShiftScorer(space)
+    sc.score_heard(heard[0], 100)  # compile / load, and a hint for the next packet
+    spent: dict[str, float] = {}
+
+    def timed(name: str, fn: Callable) -> Callable:
+        def wrapper(*args: object) -> object:
+            t0 = time.perf_counter()
+            out = fn(*args)
+            spent[name] = spent.get(name, 0.0) + time.perf_counter() - t0
+            return out
+
+        return wrapper
+
+    sc._threshold = timed("threshold pass", sc._threshold)  # type: ignore[method-assign]
+    sc._kernel = timed("kernel calls", sc._kernel)
+    compiled._prefilter = timed("prefilter", compiled._prefilter)
+    compiled.exact_mse_db2 = timed("exact rescoring", compiled.exact_mse_db2)
+    for _ in range(3):
+        spent.clear()
+        t0 = time.perf_counter()
+        for h in heard:
+            sc.score_heard(h, 100)
+        total = time.perf_counter() - t0
+        parts = ", ".join(f"{k} {1e3 * v / len(heard):.3f}" for k, v in spent.items())
+        print(f"warm packet {1e3 * total / len(heard):.3f} ms: {parts} (ms/packet)")
+
+
+if __name__ == "__main__":
+    main(*(int(a) for a in sys.argv[1:2]))
