@@ -145,6 +145,18 @@ def _prune_cut(thr, h):  # pragma: no cover - compiled
     return (thr * (np.float32(1.0) + _PRUNE_REL) + _PRUNE_ABS) * h
 
 
+@numba.njit(cache=True, inline="always")
+def _position_buffers(h):  # pragma: no cover - compiled
+    """Per-receiver buffers ``e, k, f, t, g`` filled by :func:`_load_position`."""
+    return (
+        np.empty(h, np.float32),
+        np.empty(h, np.int64),
+        np.empty(h, np.float32),
+        np.empty(h, np.int64),
+        np.empty(h, np.float32),
+    )
+
+
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
 def _load_position(w, heard, base, off, frac, row0, roww, m, p, j0, e, k, f, t, g):
     """Per-receiver terms of position ``p`` into ``e, k, f, t, g``; False if excluded."""
@@ -224,20 +236,38 @@ def _accumulate(acc, e, k, f, t, g, toff, rows, drows, m, b0, nb):  # pragma: no
 
 @numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
 def _dense(
-    w, heard, base, off, frac, row0, roww, rows, drows, m, n_q, rows_per_q, positions, j0, cnt
+    w,
+    heard,
+    base,
+    off,
+    frac,
+    row0,
+    roww,
+    rows,
+    drows,
+    blo,
+    bhi,
+    blo2,
+    bhi2,
+    rmin,
+    rmax,
+    m,
+    n_az,
+    n_q,
+    rows_per_q,
+    positions,
+    j0,
+    cnt,
 ):  # pragma: no cover - compiled
     """Every screened MSE of ``positions`` × (pitch, roll) × window azimuths, flat
     float32 (``+inf`` for excluded positions); the kernel's values, without top-k —
-    for the threshold pass over a few positions."""
+    for the threshold pass over a few positions. Arguments: those of :func:`_chunk`
+    from ``w`` to ``rows_per_q`` (the bound tables unused), then ``positions, j0, cnt``."""
     h = heard.shape[0]
     inv_h = np.float32(1.0 / h)
     out = np.full(positions.shape[0] * n_q * cnt, np.inf, dtype=np.float32)
     acc = np.empty(cnt, dtype=np.float32)
-    e = np.empty(h, np.float32)
-    k = np.empty(h, np.int64)
-    f = np.empty(h, np.float32)
-    t = np.empty(h, np.int64)
-    g = np.empty(h, np.float32)
+    e, k, f, t, g = _position_buffers(h)
     for pi in range(positions.shape[0]):
         if not _load_position(
             w, heard, base, off, frac, row0, roww, m, positions[pi], j0, e, k, f, t, g
@@ -288,11 +318,7 @@ def _chunk(
     inv_h = np.float32(1.0 / h)
     nbw = (cnt + blk - 1) // blk
     acc = np.empty(cnt, dtype=np.float32)
-    e = np.empty(h, np.float32)
-    k = np.empty(h, np.int64)
-    f = np.empty(h, np.float32)
-    t = np.empty(h, np.int64)
-    g = np.empty(h, np.float32)
+    e, k, f, t, g = _position_buffers(h)
     lb = np.empty(nbw, np.float32)
     bv = out_v[c]
     bi = out_i[c]
@@ -736,23 +762,7 @@ class ShiftScorer:
             )
             vals = pv[np.isfinite(pv)]
         else:
-            vals = _dense(
-                w,
-                r,
-                self.base,
-                self.off,
-                self.frac,
-                self.row0,
-                self.roww,
-                self.rows,
-                self.drows,
-                self.m,
-                self.n_q,
-                self.rows_per_q,
-                pick,
-                j0,
-                cnt,
-            )
+            vals = _dense(w, r, *self._kernel_args(), pick, j0, cnt)
         if vals.size < kk:
             return np.inf
         kth = float(np.partition(vals, kk - 1)[kk - 1])

@@ -41,21 +41,10 @@ def _wrap360(a: float) -> float:  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _rss_one(
-    c,
-    r,
-    pos,
-    rot,
-    rx,
-    chan,
-    tx,
-    d,
-    az0,
-    az_step,
-    polar_step,
-    n_orient,
-):  # pragma: no cover - compiled
-    """Expected RSS (dBm) of candidate ``c`` at receiver ``r``."""
+def _rss_one(c, r, pos, rot, rx, chan, tx, d, az0, az_step, polar_step):  # pragma: no cover
+    """Expected RSS (dBm) of candidate ``c`` at receiver ``r``; the arguments after
+    ``r`` are :func:`_space_args`."""
+    n_orient = rot.shape[0]
     p = c // n_orient
     o = c % n_orient
     m = chan[r, p]
@@ -92,83 +81,41 @@ def _rss_one(
 
 
 @numba.njit(cache=True)
-def _expected(cand, pos, rot, rx, chan, tx, d, az0, az_step, polar_step):  # pragma: no cover
-    n_orient = rot.shape[0]
-    out = np.empty((cand.shape[0], rx.shape[0]))
+def _expected(cand, *sp):  # pragma: no cover - compiled
+    """Expected RSS ``(n, n_rx)`` of every candidate at every receiver."""
+    n_rx = sp[2].shape[0]
+    out = np.empty((cand.shape[0], n_rx))
     for i in range(cand.shape[0]):
-        for r in range(rx.shape[0]):
-            out[i, r] = _rss_one(
-                cand[i], r, pos, rot, rx, chan, tx, d, az0, az_step, polar_step, n_orient
-            )
+        for r in range(n_rx):
+            out[i, r] = _rss_one(cand[i], r, *sp)
     return out
 
 
 @numba.njit(cache=True, inline="always")
-def _mse_one(
-    i,
-    cand,
-    heard,
-    rss,
-    pos,
-    rot,
-    rx,
-    chan,
-    tx,
-    d,
-    az0,
-    az_step,
-    polar_step,
-):  # pragma: no cover - compiled
-    n_orient = rot.shape[0]
+def _mse_one(i, cand, heard, rss, *sp):  # pragma: no cover - compiled
+    """MSE of candidate ``cand[i]`` over the heard receivers (in their order)."""
     acc = 0.0
     for q in range(heard.shape[0]):
-        e = _rss_one(
-            cand[i], heard[q], pos, rot, rx, chan, tx, d, az0, az_step, polar_step, n_orient
-        )
-        diff = rss[q] - e
+        diff = rss[q] - _rss_one(cand[i], heard[q], *sp)
         acc += diff * diff
     return acc / heard.shape[0]
 
 
 @numba.njit(cache=True)
-def _mse_serial(
-    cand,
-    heard,
-    rss,
-    pos,
-    rot,
-    rx,
-    chan,
-    tx,
-    d,
-    az0,
-    az_step,
-    polar_step,
-):  # pragma: no cover - compiled
+def _mse_serial(cand, heard, rss, *sp):  # pragma: no cover - compiled
+    """:func:`_mse_one` of every candidate; ``sp``: :func:`_space_args`."""
     out = np.empty(cand.shape[0])
     for i in range(cand.shape[0]):
-        out[i] = _mse_one(i, cand, heard, rss, pos, rot, rx, chan, tx, d, az0, az_step, polar_step)
+        out[i] = _mse_one(i, cand, heard, rss, *sp)
     return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _mse_parallel(
-    cand,
-    heard,
-    rss,
-    pos,
-    rot,
-    rx,
-    chan,
-    tx,
-    d,
-    az0,
-    az_step,
-    polar_step,
-):  # pragma: no cover - compiled
+def _mse_parallel(cand, heard, rss, *sp):  # pragma: no cover - compiled
+    """:func:`_mse_serial` on numba's threads."""
     out = np.empty(cand.shape[0])
     for i in numba.prange(cand.shape[0]):
-        out[i] = _mse_one(i, cand, heard, rss, pos, rot, rx, chan, tx, d, az0, az_step, polar_step)
+        out[i] = _mse_one(i, cand, heard, rss, *sp)
     return out
 
 
