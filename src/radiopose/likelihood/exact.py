@@ -83,20 +83,23 @@ def _rss_one(c, r, pos, rot, rx, chan, tx, d, az0, az_step, polar_step):  # prag
 @numba.njit(cache=True)
 def _expected(cand, *sp):  # pragma: no cover - compiled
     """Expected RSS ``(n, n_rx)`` of every candidate at every receiver."""
-    n_rx = sp[2].shape[0]
+    pos, rot, rx, chan, tx, d, az0, az_step, polar_step = sp
+    n_rx = rx.shape[0]
     out = np.empty((cand.shape[0], n_rx))
     for i in range(cand.shape[0]):
         for r in range(n_rx):
-            out[i, r] = _rss_one(cand[i], r, *sp)
+            out[i, r] = _rss_one(cand[i], r, pos, rot, rx, chan, tx, d, az0, az_step, polar_step)
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def _mse_one(i, cand, heard, rss, *sp):  # pragma: no cover - compiled
     """MSE of candidate ``cand[i]`` over the heard receivers (in their order)."""
+    pos, rot, rx, chan, tx, d, az0, az_step, polar_step = sp
     acc = 0.0
     for q in range(heard.shape[0]):
-        diff = rss[q] - _rss_one(cand[i], heard[q], *sp)
+        e = _rss_one(cand[i], heard[q], pos, rot, rx, chan, tx, d, az0, az_step, polar_step)
+        diff = rss[q] - e
         acc += diff * diff
     return acc / heard.shape[0]
 
