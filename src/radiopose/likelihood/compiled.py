@@ -765,8 +765,7 @@ class ShiftScorer:
             vals = _dense(w, r, *self._kernel_args(), pick, j0, cnt)
         if vals.size < kk:
             return np.inf
-        kth = float(np.partition(vals, kk - 1)[kk - 1])
-        return kth if np.isfinite(kth) else np.inf
+        return float(np.partition(vals, kk - 1)[kk - 1])  # +inf if too few are scorable
 
     def _run(self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int) -> TopK:
         r = heard.receiver_index
