@@ -56,6 +56,21 @@ def test_equals_reference(space, k, parallel):
         same(fast.score_heard(heard, k), ref.score_heard(heard, k))
 
 
+def test_threshold_pass_through_the_heaps_equals_reference(space, monkeypatch):
+    """Threshold passes above DENSE_MAX_VALUES use the per-chunk heaps instead of
+    the dense array (pitch/roll grids, cold starts on large sites); forced here."""
+    import radiopose.likelihood.compiled as compiled
+
+    monkeypatch.setattr(compiled, "DENSE_MAX_VALUES", 0)
+    dense_calls = []
+    monkeypatch.setattr(compiled, "_dense", lambda *a: dense_calls.append(a))
+    rng = np.random.default_rng(4)
+    fast, ref = ShiftScorer(space), ReferenceScorer(space)
+    for heard in packets(space, rng):
+        same(fast.score_heard(heard, 100), ref.score_heard(heard, 100))
+    assert not dense_calls
+
+
 def test_small_grids_run_serially_by_default(space):
     # 625 positions x 360 azimuths x 4 receivers = 900,000 terms: below PARALLEL_MIN_TERMS
     assert ShiftScorer(space).parallel is False
