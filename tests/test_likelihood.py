@@ -194,6 +194,13 @@ def test_compiled_exact_rss_matches_the_numpy_geometry(tiny_sim, full_sphere):
     heard = HeardRss(np.array([0, 2, 3]), np.array([-50.0, -61.5, -55.25]))
     exact = exact_mse_db2(space, heard, pos * space.n_orientations + ori)
     np.testing.assert_array_equal(exact, candidate_mse_db2(got, heard))
+    for bad in (-1, space.n_candidates):  # the compiled loops do not check bounds
+        with pytest.raises(IndexError, match="candidate index outside"):
+            exact_mse_db2(space, heard, np.array([0, bad]))
+        with pytest.raises(IndexError, match="candidate index outside"):
+            expected_rss_dbm(space, np.array([bad]), np.array([0]))
+    with pytest.raises(IndexError, match="orientation index outside"):
+        expected_rss_dbm(space, np.array([0]), np.array([space.n_orientations]))
 
 
 def test_memo_scorer_passes_the_window_through(tiny_sim):

@@ -213,6 +213,8 @@ def expected_rss_dbm(space: CandidateSpace, pos_idx: IntArray, orient_idx: IntAr
     """
     pos = np.asarray(pos_idx, dtype=np.int64)
     ori = np.asarray(orient_idx, dtype=np.int64)
+    if ori.size and (int(ori.min()) < 0 or int(ori.max()) >= space.n_orientations):
+        raise IndexError(f"orientation index outside [0, {space.n_orientations})")
     return expected_rss_all_dbm(space, pos * space.n_orientations + ori)
 
 

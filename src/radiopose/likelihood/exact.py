@@ -137,13 +137,19 @@ def _space_args(space) -> tuple:  # type: ignore[no-untyped-def]
     )
 
 
-def _candidates(candidate_idx: NDArray) -> NDArray[np.int64]:
-    return np.ascontiguousarray(np.asarray(candidate_idx, dtype=np.int64).reshape(-1))
+def _candidates(space, candidate_idx: NDArray) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
+    """Candidate indices as a flat int64 array, checked: the compiled loops do not
+    check bounds, so an index outside ``[0, n_candidates)`` is an ``IndexError`` here."""
+    cand = np.ascontiguousarray(np.asarray(candidate_idx, dtype=np.int64).reshape(-1))
+    n = space.n_positions * space.n_orientations
+    if cand.size and (int(cand.min()) < 0 or int(cand.max()) >= n):
+        raise IndexError(f"candidate index outside [0, {n})")
+    return cand
 
 
 def expected_rss_all_dbm(space, candidate_idx: NDArray) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
     """Expected RSS ``(n, n_rx)`` dBm of candidates (NaN where ``M_r(p)`` is NaN)."""
-    return _expected(_candidates(candidate_idx), *_space_args(space))
+    return _expected(_candidates(space, candidate_idx), *_space_args(space))
 
 
 def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDArray) -> NDArray:  # type: ignore[no-untyped-def]
@@ -152,7 +158,7 @@ def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDA
     ``(1/h) Σ_q (rss_q − RSS_{r_q})²``, summed in the order of ``receiver_index``
     (NaN where a heard receiver's ``M_r(p)`` is NaN).
     """
-    cand = _candidates(candidate_idx)
+    cand = _candidates(space, candidate_idx)
     fn = _mse_parallel if cand.size >= PARALLEL_MIN_CANDIDATES else _mse_serial
     return fn(
         cand,
