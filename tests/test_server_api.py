@@ -170,6 +170,17 @@ def test_unknown_receiver_and_oversized_body(server: Running, tiny) -> None:
         "/api/v1/reports", content=big + b'"}', headers={"Content-Type": "application/json"}
     )
     assert r.status_code == 413
+
+    def chunks():  # no Content-Length: the limit must trip while the body streams in
+        yield b'{"receiver_id": "rx1", "batch_id": "big", "frames": [], "pad": "'
+        for _ in range(40):
+            yield b"x" * 65_536
+        yield b'"}'
+
+    r = server.client(server.tokens["rx1"]).post(
+        "/api/v1/reports", content=chunks(), headers={"Content-Type": "application/json"}
+    )
+    assert r.status_code == 413
     for raw in (b"not json", b"[1, 2]", b'"text"', b"{}"):
         r = server.client(server.tokens["rx1"]).post(
             "/api/v1/reports", content=raw, headers={"Content-Type": "application/json"}
