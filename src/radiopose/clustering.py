@@ -21,24 +21,25 @@ exactly (same neighbourhoods ``d ≤ ε``, same cluster numbering, same
 assignment of border points reachable from two clusters — tested against
 scikit-learn on random data) for the small top-k sets of the hot path, where
 scikit-learn's per-call validation and tree building cost ~2 ms per call, i.e.
-most of a packet's budget. Larger inputs go to scikit-learn.
+most of a packet's budget. Two compiled (numba) routines do it: a sorted
+two-pointer scan on a line (the orientation axes) and a brute-force ``O(n²)``
+pass otherwise (positions). Larger inputs go to scikit-learn.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from radiopose.units import FloatArray, circular_mean_deg, wrap_deg
 
 IntArray = NDArray[np.int64]
 
 SMALL_DBSCAN_MAX_POINTS = 2000
-"""Inputs up to this size use the dense implementation; larger go to scikit-learn."""
+"""Inputs up to this size use the compiled implementations; larger go to scikit-learn."""
 
 
 def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, NDArray]:
@@ -70,57 +71,58 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
         core[db.core_sample_indices_] = True
         return db.labels_.astype(np.int64), core
     if x.shape[1] == 1:
-        return _dbscan_1d(x[:, 0], eps, min_samples)
-    near = np.sum((x[:, None, :] - x[None, :, :]) ** 2, axis=-1) <= eps * eps
-    core = near.sum(axis=1) >= min_samples
+        return _dbscan_sorted_1d(np.ascontiguousarray(x[:, 0]), float(eps), int(min_samples))
+    return _dbscan_dense(np.ascontiguousarray(x), float(eps), int(min_samples))
+
+
+@numba.njit(cache=True)
+def _dbscan_dense(x: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, NDArray]:
+    """:func:`dbscan` by brute force in ``O(n²)``: neighbours ``Σ (p − q)² ≤ eps²``;
+    clusters grown breadth-first from each not yet labelled core point in index
+    order (scikit-learn's numbering); a border point takes the lowest label of
+    the core points within reach."""
+    n, d = x.shape
+    eps2 = eps * eps
+    near = np.zeros((n, n), dtype=np.bool_)
+    count = np.zeros(n, dtype=np.int64)
+    for i in range(n):
+        for j in range(i, n):
+            s = 0.0
+            for c in range(d):
+                t = x[i, c] - x[j, c]
+                s += t * t
+            if s <= eps2:
+                near[i, j] = True
+                near[j, i] = True
+                count[i] += 1
+                if j != i:
+                    count[j] += 1
+    core = count >= min_samples
     labels = np.full(n, -1, dtype=np.int64)
-    if not core.any():
-        return labels, core
-    ci = np.flatnonzero(core)
-    # components come numbered by their lowest index, and ``ci`` increases: that is
-    # scikit-learn's numbering by each cluster's first core point
-    labels[ci] = _components(near[np.ix_(ci, ci)])
-    border = ~core & near[:, ci].any(axis=1)
-    if border.any():
-        reach = np.where(near[np.ix_(border, ci)], labels[ci][None, :], np.iinfo(np.int64).max)
-        labels[border] = reach.min(axis=1)
+    queue = np.empty(n, dtype=np.int64)
+    n_clusters = 0
+    for i in range(n):
+        if not core[i] or labels[i] >= 0:
+            continue
+        labels[i] = n_clusters
+        queue[0] = i
+        head, tail = 0, 1
+        while head < tail:
+            a = queue[head]
+            head += 1
+            for b in range(n):
+                if near[a, b] and core[b] and labels[b] < 0:
+                    labels[b] = n_clusters
+                    queue[tail] = b
+                    tail += 1
+        n_clusters += 1
+    for i in range(n):
+        if core[i]:
+            continue
+        for b in range(n):
+            if near[i, b] and core[b] and (labels[i] < 0 or labels[b] < labels[i]):
+                labels[i] = labels[b]
     return labels, core
-
-
-DENSE_COMPONENTS_MAX_POINTS = 256
-"""Core sets up to this size use dense label propagation; larger go to scipy."""
-
-
-def _components(adj: NDArray) -> IntArray:
-    """Connected components of a symmetric boolean adjacency matrix with a true
-    diagonal, numbered in the order of their lowest index.
-
-    Small inputs: min-label propagation with pointer jumping (every label is the
-    index of a node in the same component and never increases, so the fixed
-    point labels each component by its lowest index); larger ones: scipy.
-    """
-    m = adj.shape[0]
-    if m > DENSE_COMPONENTS_MAX_POINTS:
-        _, comp = connected_components(csr_matrix(adj), directed=False)
-        return _number_by_first(comp, np.arange(m))
-    lab = np.arange(m)
-    while True:
-        nxt = np.where(adj, lab[None, :], m).min(axis=1)
-        nxt = nxt[nxt]
-        if np.array_equal(nxt, lab):
-            break
-        lab = nxt
-    roots = np.unique(lab)
-    return np.searchsorted(roots, lab)
-
-
-def _number_by_first(comp: IntArray, index: IntArray) -> IntArray:
-    """Renumber groups ``comp`` (``0 … g−1``) in the order of their lowest ``index``."""
-    first = np.full(int(comp.max()) + 1, np.iinfo(np.int64).max, dtype=np.int64)
-    np.minimum.at(first, comp, index)
-    rank = np.empty_like(first)
-    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
-    return rank[comp]
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,51 +157,72 @@ class PositionCluster:
     members: IntArray
 
 
-def _dbscan_1d(v: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, NDArray]:
+@numba.njit(cache=True)
+def _dbscan_sorted_1d(v: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, NDArray]:
     """:func:`dbscan` on a line in ``O(n log n)``.
 
-    Sorted, a point's neighbours are a contiguous run; two core points are
-    connected exactly when every gap between consecutive core points from one
-    to the other is at most ``eps`` (no ``eps``-edge can jump a larger gap), and
-    a border point can only be reached from the nearest core point on each side.
+    Sorted, a point's neighbours (``|a − b| ≤ eps``, as scikit-learn evaluates
+    it on the difference) are a contiguous run, found with two pointers (the
+    rounded difference is monotone along the sorted values). Two core points are
+    connected exactly when every gap between consecutive core points from one to
+    the other is at most ``eps`` (no ``eps``-edge can jump a larger gap); clusters
+    are numbered by their lowest original index; a border point can only be
+    reached from the nearest core point on each side and takes the lower label.
     """
     n = v.size
-    order = np.argsort(v, kind="stable")
+    order = np.argsort(v, kind="mergesort")
     sv = v[order]
-    # |a − b| ≤ eps evaluated as scikit-learn does it (on the difference, not shifted bounds)
-    lo = np.searchsorted(sv, sv - eps, side="left")
-    hi = np.searchsorted(sv, sv + eps, side="right")
-    lo = np.where((lo > 0) & (np.abs(sv - sv[np.maximum(lo - 1, 0)]) <= eps), lo - 1, lo)
-    hi = np.where((hi < n) & (np.abs(sv[np.minimum(hi, n - 1)] - sv) <= eps), hi + 1, hi)
-    while True:  # settle rounding at the run ends in either direction
-        lo2 = np.where((lo < n) & (np.abs(sv - sv[np.minimum(lo, n - 1)]) > eps), lo + 1, lo)
-        lo2 = np.where((lo2 > 0) & (np.abs(sv - sv[np.maximum(lo2 - 1, 0)]) <= eps), lo2 - 1, lo2)
-        hi2 = np.where((hi > 0) & (np.abs(sv[np.maximum(hi - 1, 0)] - sv) > eps), hi - 1, hi)
-        hi2 = np.where((hi2 < n) & (np.abs(sv[np.minimum(hi2, n - 1)] - sv) <= eps), hi2 + 1, hi2)
-        if np.array_equal(lo2, lo) and np.array_equal(hi2, hi):
-            break
-        lo, hi = lo2, hi2
-    core_s = (hi - lo) >= min_samples
-    labels_s = np.full(n, -1, dtype=np.int64)
-    ci = np.flatnonzero(core_s)
-    if ci.size:
-        cv = sv[ci]
-        comp = np.concatenate([[0], np.cumsum(np.abs(np.diff(cv)) > eps)])
-        labels_s[ci] = _number_by_first(comp, order[ci])
-        b = np.flatnonzero(~core_s)
-        if b.size:
-            k = np.searchsorted(cv, sv[b], side="right")  # first core point above
-            below = np.clip(k - 1, 0, ci.size - 1)
-            above = np.clip(k, 0, ci.size - 1)
-            big = np.iinfo(np.int64).max
-            lab_b = np.where(np.abs(sv[b] - cv[below]) <= eps, labels_s[ci[below]], big)
-            lab_a = np.where(np.abs(cv[above] - sv[b]) <= eps, labels_s[ci[above]], big)
-            lab = np.minimum(lab_b, lab_a)
-            labels_s[b] = np.where(lab == big, -1, lab)
-    labels = np.empty(n, dtype=np.int64)
-    labels[order] = labels_s
-    core = np.empty(n, dtype=bool)
-    core[order] = core_s
+    core_s = np.zeros(n, dtype=np.bool_)
+    lo = 0
+    hi = 0
+    for i in range(n):
+        while abs(sv[i] - sv[lo]) > eps:
+            lo += 1
+        if hi < i + 1:
+            hi = i + 1
+        while hi < n and abs(sv[hi] - sv[i]) <= eps:
+            hi += 1
+        core_s[i] = hi - lo >= min_samples
+    # components of consecutive core points, in sorted order
+    comp_s = np.full(n, -1, dtype=np.int64)
+    first = np.empty(n, dtype=np.int64)  # lowest original index per component
+    g = -1
+    last = -1
+    for i in range(n):
+        if not core_s[i]:
+            continue
+        if last < 0 or abs(sv[i] - sv[last]) > eps:
+            g += 1
+            first[g] = order[i]
+        elif order[i] < first[g]:
+            first[g] = order[i]
+        comp_s[i] = g
+        last = i
+    rank = np.empty(g + 1, dtype=np.int64)
+    rank[np.argsort(first[: g + 1], kind="mergesort")] = np.arange(g + 1)
+    labels = np.full(n, -1, dtype=np.int64)
+    core = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        if core_s[i]:
+            labels[order[i]] = rank[comp_s[i]]
+            core[order[i]] = True
+    above = -1  # nearest core point above
+    for i in range(n - 1, -1, -1):
+        if core_s[i]:
+            above = i
+            continue
+        lab = -1
+        if above >= 0 and abs(sv[above] - sv[i]) <= eps:
+            lab = rank[comp_s[above]]
+        labels[order[i]] = lab
+    below = -1
+    for i in range(n):
+        if core_s[i]:
+            below = i
+        elif below >= 0 and abs(sv[i] - sv[below]) <= eps:
+            lab = rank[comp_s[below]]
+            if labels[order[i]] < 0 or lab < labels[order[i]]:
+                labels[order[i]] = lab
     return labels, core
 
 
@@ -278,12 +301,19 @@ def cluster_axis_deg(
     else:
         ext, src = v, np.arange(n)
     labels, _ = dbscan(ext.reshape(-1, 1), eps_deg, min_samples)
+    good = labels >= 0
+    if not good.any():
+        return ()
+    lab, e, we = labels[good], ext[good], w[src[good]]
+    n_lab = int(lab.max()) + 1
+    # weighted mean per cluster (plain mean where the weights sum to 0, as _weighted_mean)
+    wsum = np.bincount(lab, we, n_lab)
+    wx = np.bincount(lab, we * e, n_lab)
+    plain = np.bincount(lab, e, n_lab) / np.bincount(lab, minlength=n_lab)
+    centroids = np.where(wsum > 0.0, wx / np.where(wsum > 0.0, wsum, 1.0), plain)
     out = []
-    for lab in np.unique(labels):
-        if lab < 0:
-            continue
-        sel = labels == lab
-        centroid = float(_weighted_mean(ext[sel], w[src[sel]]))
+    for label in range(n_lab):
+        centroid = float(centroids[label])
         if periodic and wrap_duplication:
             # The copies of one cluster have centroids 360° apart: keep the copy in
             # [low, low + 360). Rounding to 1e-9° first makes a centroid at the wrap
@@ -293,7 +323,9 @@ def cluster_axis_deg(
                 continue
         if periodic:
             centroid = float(wrap_deg(centroid - low_deg)) + low_deg
-        out.append(AxisCluster(centroid, np.unique(src[sel]).astype(np.int64)))
+        member = np.zeros(n, dtype=bool)
+        member[src[labels == label]] = True
+        out.append(AxisCluster(centroid, np.flatnonzero(member)))
     return tuple(sorted(out, key=lambda c: c.centroid_deg))
 
 

@@ -280,11 +280,20 @@ def orientation_clusters(
     for ca in per_axis[0]:
         for cp in per_axis[1]:
             for cr in per_axis[2]:
-                members = np.intersect1d(np.intersect1d(ca.members, cp.members), cr.members)
+                members = _meet(_meet(ca.members, cp.members, n), cr.members, n)
                 if members.size:
                     c = np.array([ca.centroid_deg, cp.centroid_deg, cr.centroid_deg])
                     out.append(_OrientationCluster(c, members))
     return out
+
+
+def _meet(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """Intersection of two increasing index sets drawn from ``0 … n−1``."""
+    if a.size == n:
+        return b
+    if b.size == n:
+        return a
+    return np.intersect1d(a, b, assume_unique=True)
 
 
 def _dt(t_s: float, since_s: float | None) -> float:

@@ -790,8 +790,6 @@ class ShiftScorer:
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
             i = out_i.ravel()[ok]
-            order = np.lexsort((i, v))
-            v, i = v[order], i[order]
             # Every candidate not kept scored above `excluded`: above the prune bound, or
             # dropped by a chunk whose heap was full (so above its worst kept value).
             full = np.isfinite(out_v).sum(axis=1) == kk_eff
@@ -799,8 +797,14 @@ class ShiftScorer:
             if full.any():
                 excluded = min(excluded, float(out_v[full].max(axis=1).min()))
             if not np.isfinite(excluded):
-                short = i  # nothing was excluded: every scorable candidate is here
+                short = i[np.lexsort((i, v))]  # nothing was excluded: every scorable candidate
                 break
+            if v.size > kk_eff + 1:
+                # only the kk_eff + 1 best (ties included) are read below: sort just those
+                keep = v <= np.partition(v, kk_eff)[kk_eff]
+                v, i = v[keep], i[keep]
+            order = np.lexsort((i, v))
+            v, i = v[order], i[order]
             if v.size > kk_eff:
                 excluded = min(excluded, float(v[kk_eff]))
             short = i[:kk_eff]
