@@ -297,7 +297,7 @@ def cluster_axis_deg(
         v = wrap_deg(v - low_deg) + low_deg
     if periodic and wrap_duplication:
         ext = np.concatenate([v - 360.0, v, v + 360.0])
-        src = np.tile(np.arange(n), 3)
+        src = np.arange(3 * n) % n
     else:
         ext, src = v, np.arange(n)
     labels, _ = dbscan(ext.reshape(-1, 1), eps_deg, min_samples)
