@@ -3,7 +3,9 @@
 Standard scenario (``ScenarioConfig()`` defaults: 20 × 20 m, 0.1 m / 1° grid,
 4 receivers, a packet every 5 ms, straight line with linear rotation, 2 s
 traces), σ ∈ {0.5, 1, 1.5, 2, 2.5, 3} dB, 10 seeds that no test uses
-(1000–1009), methods full / location / orientation / top / lms. Errors are
+(1000–1009), methods full / location / orientation / top / lms with the default
+``TrackerConfig()``, and ``full`` once more with per-packet acquisition (the
+paper applied literally, ``acquisition_window_s = 0``). Errors are
 pooled over the runs of each σ; coverage (estimates ÷ packets) is reported
 beside every error. The site of a seed does not depend on σ, so the scoring
 table is built once per seed.
@@ -29,7 +31,10 @@ import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, format_table, run_methods, summarise
 from radiopose.simulate import ScenarioConfig, simulate
-from radiopose.tracker import METHODS
+from radiopose.tracker import METHODS, TrackerConfig
+
+LITERAL = "full, per-packet acquisition"
+"""Extra rows: ``full`` as the paper applies it literally, ``acquisition_window_s = 0``."""
 
 SIGMAS_DB = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 PAPER_ORIENTATION_MEAN_DEG = {0.5: 7.6, 3.0: 61.8}
@@ -91,6 +96,8 @@ def main(argv: list[str] | None = None) -> int:
             if scorer is None:  # same site for every σ of a seed
                 scorer = build_scorer(sim, "numba")
             res = run_methods(sim, METHODS, scorer=scorer)
+            literal_cfg = TrackerConfig(acquisition_window_s=0.0)
+            res[LITERAL] = run_methods(sim, ["full"], literal_cfg, scorer=scorer)["full"]
             for m, r in res.items():
                 runs.setdefault((m, sigma), []).append(r)
             print(
@@ -102,22 +109,29 @@ def main(argv: list[str] | None = None) -> int:
             )
         del scorer
     rows = [summarise(runs[(m, s)], s) for s in args.sigmas for m in METHODS]
-    per_run = [
-        "| σ (dB) | " + " | ".join(f"seed {sd}" for sd in seeds) + " | mean of runs |",
-        "|---:|" + "---:|" * (len(seeds) + 1),
-    ]
-    for sigma in args.sigmas:
-        means = [
-            float(r.orientation_error_deg.mean()) if r.orientation_error_deg.size else float("nan")
-            for r in runs[("full", sigma)]
+    literal_rows = [replace(summarise(runs[(LITERAL, s)], s), method=LITERAL) for s in args.sigmas]
+
+    def per_run_table(method: str) -> list[str]:
+        lines = [
+            "| σ (dB) | " + " | ".join(f"seed {sd}" for sd in seeds) + " | mean of runs |",
+            "|---:|" + "---:|" * (len(seeds) + 1),
         ]
-        cells = [
-            f"{m:.1f} ({100 * r.summary.coverage:.0f} %)"
-            for m, r in zip(means, runs[("full", sigma)], strict=True)
-        ]
-        per_run.append(
-            f"| {sigma:g} | " + " | ".join(cells) + f" | {float(np.nanmean(means)):.1f} |"
-        )
+        for sigma in args.sigmas:
+            rs = runs[(method, sigma)]
+            means = [
+                float(r.orientation_error_deg.mean()) if r.orientation_error_deg.size else np.nan
+                for r in rs
+            ]
+            cells = [
+                f"{m:.1f} ({100 * r.summary.coverage:.0f} %)"
+                for m, r in zip(means, rs, strict=True)
+            ]
+            lines.append(
+                f"| {sigma:g} | " + " | ".join(cells) + f" | {float(np.nanmean(means)):.1f} |"
+            )
+        return lines
+
+    per_run = per_run_table("full")
     n_packets = sum(r.n_packets for r in runs[("full", args.sigmas[0])])
     text = [
         "# Accuracy on the paper's standard scenario",
@@ -128,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
         f"4 receivers, a packet every 5 ms, straight line with linear rotation, "
         f"{args.duration_s:g} s per run = {n_packets // len(seeds)} packets), "
         f"{len(seeds)} runs per σ (seeds {seeds[0]}–{seeds[-1]}, never used by tests), "
-        "paper default pipeline parameters (`TrackerConfig()`). Errors are pooled over "
+        "default pipeline parameters (`TrackerConfig()`: the paper's, and track "
+        "acquisition pooled over 0.1 s). Errors are pooled over "
         "the estimates of all runs; coverage = estimates ÷ packets. `lms` estimates "
         "position only (no orientation error).",
         "",
@@ -147,13 +162,32 @@ def main(argv: list[str] | None = None) -> int:
         "",
         *per_run,
         "",
+        "## `full` with per-packet acquisition (the paper applied literally)",
+        "",
+        "`TrackerConfig(acquisition_window_s=0)`: every packet on its own, also when "
+        "the track starts or restarts. Until session 4 this was the default and the "
+        "table above; the default now pools the top-k of 0.1 s of packets before a "
+        'track is (re-)acquired (docs/pipeline.md, "Acquisition"; the window was '
+        "chosen on seeds 2000–2049 and checked on 3000–3049, never on these). Same "
+        "runs as above.",
+        "",
+        format_table(literal_rows),
+        "",
+        "Per run:",
+        "",
+        *per_run_table(LITERAL),
+        "",
         f"Runtime: {time.perf_counter() - t0:.0f} s.",
         "",
     ]
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(text), encoding="utf-8")
     args.out.with_suffix(".json").write_text(
-        json.dumps([asdict(r) for r in rows], indent=1), encoding="utf-8"
+        json.dumps(
+            [asdict(r) for r in [*rows, *literal_rows]],
+            indent=1,
+        ),
+        encoding="utf-8",
     )
     print("\n".join(text))
     return 0

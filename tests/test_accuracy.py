@@ -2,10 +2,12 @@
 
 Scenarios: the paper's standard scenario (20 × 20 m, 4 receivers, 5 ms packets,
 straight line with linear rotation) on a coarser candidate grid (0.2 m, 2°) and
-0.5 s traces, so that the file runs in well under a minute. Seeds 1 and 3 here;
-the accuracy table (``scripts/accuracy_table.py``) uses seeds 1000–1009, which no
-test uses. The ablation tests fail if the rotation model or the wrap
-duplication is removed from the pipeline.
+0.5 s traces, so that the file runs in well under a minute. Seeds 1 and 3 test
+the paper's pipeline applied literally (``acquisition_window_s = 0``), seeds
+20–29 the default pooled acquisition; the accuracy table
+(``scripts/accuracy_table.py``) uses seeds 1000–1009, which no test uses. The
+ablation tests fail if the rotation model or the wrap duplication is removed
+from the pipeline.
 """
 
 from __future__ import annotations
@@ -34,9 +36,57 @@ def _scorer(seed: int):
     return build_scorer(simulate(ScenarioConfig(**FAST_GRID), seed=seed))
 
 
+LITERAL = {"acquisition_window_s": 0.0}
+"""The paper's pipeline applied literally: every packet on its own, also at acquisition."""
+
+
+def test_pooled_acquisition_beats_the_literal_pipeline_over_ten_seeds():
+    # Seeds 20–29, fixed before this test was first run (measured: orientation
+    # 3.75° pooled, 9.87° literal, 13.07° top; position 0.42 m vs lms 4.89 m).
+    # Acquiring from one packet locks some runs onto a wrong mode; pooling 0.1 s
+    # of packets (the default) must lower the mean over runs of the orientation
+    # error, stay below `top`, and keep ≥ 82 % below `lms` in position.
+    rows = []
+    for seed in range(20, 30):
+        r = _runs(seed, 0.5, ("full", "top", "lms"))  # the default: pooled over 0.1 s
+        literal = _runs(seed, 0.5, ("full",), **LITERAL)["full"]
+        rows.append(
+            (
+                r["full"].orientation_error_deg.mean(),
+                literal.orientation_error_deg.mean(),
+                r["top"].orientation_error_deg.mean(),
+                r["full"].position_error_m.mean(),
+                r["lms"].position_error_m.mean(),
+            )
+        )
+    pooled, literal, top, pos, lms = np.nanmean(np.array(rows), axis=0)
+    assert pooled < literal and pooled < top
+    assert pos < 0.18 * lms
+
+
+def test_pooled_acquisition_keeps_the_papers_high_noise_bounds_over_ten_seeds():
+    # Seeds 20–29 at σ = 3 dB (fixed before this test was first run): the
+    # default still beats `top` and stays ≥ 36 % below `lms` in position.
+    rows = []
+    for seed in range(20, 30):
+        r = _runs(seed, 3.0, ("full", "top", "lms"))
+        rows.append(
+            (
+                r["full"].orientation_error_deg.mean(),
+                r["top"].orientation_error_deg.mean(),
+                r["full"].position_error_m.mean(),
+                r["top"].position_error_m.mean(),
+                r["lms"].position_error_m.mean(),
+            )
+        )
+    full_deg, top_deg, full_m, top_m, lms_m = np.nanmean(np.array(rows), axis=0)
+    assert full_deg < top_deg and full_m < top_m
+    assert full_m < 0.64 * lms_m
+
+
 @pytest.mark.parametrize("seed", [1, 3])
 def test_low_noise_full_beats_top_and_lms(seed):
-    r = _runs(seed, 0.5, ("full", "top", "lms"))
+    r = _runs(seed, 0.5, ("full", "top", "lms"), **LITERAL)
     full, top, lms = r["full"], r["top"], r["lms"]
     assert 0.05 < full.summary.coverage < 0.6  # the literal pipeline: a fraction of packets
     assert full.orientation_error_deg.mean() < 6.0  # paper: 7.6° mean at σ = 0.5 dB
@@ -48,7 +98,7 @@ def test_low_noise_full_beats_top_and_lms(seed):
 
 
 def test_high_noise_full_beats_top_and_lms():
-    r = _runs(1, 3.0, ("full", "top", "lms"))
+    r = _runs(1, 3.0, ("full", "top", "lms"), **LITERAL)
     full, top, lms = r["full"], r["top"], r["lms"]
     assert 0.01 < full.summary.coverage < 0.3
     assert full.orientation_error_deg.mean() < 15.0  # paper: 61.8° mean at σ = 3 dB
@@ -60,10 +110,10 @@ def test_high_noise_full_beats_top_and_lms():
 def test_rotation_model_is_what_makes_orientation_accurate():
     # The `orientation` method is orientation clustering + rotation model only:
     # without the rotation model every packet gets its best cluster (≈ top).
-    r = _runs(3, 0.5, ("orientation",))["orientation"]
+    r = _runs(3, 0.5, ("orientation",), **LITERAL)["orientation"]
     assert r.summary.coverage < 0.9
     assert r.orientation_error_deg.mean() < 10.0
-    ablated = _runs(3, 0.5, ("orientation",), use_rotation_model=False)["orientation"]
+    ablated = _runs(3, 0.5, ("orientation",), use_rotation_model=False, **LITERAL)["orientation"]
     assert ablated.orientation_error_deg.mean() > 2.0 * r.orientation_error_deg.mean()
 
 

@@ -148,6 +148,18 @@ def test_dbscan_on_a_line_equals_scikit_learn_at_rounding_edges(seed, n, step):
     np.testing.assert_array_equal(labels, sk_labels)
 
 
+def test_dbscan_large_inputs_equal_scikit_learn():
+    # a pooled acquisition clusters thousands of angles (sorted scan at any size)
+    # and up to ~2,000 positions (brute force; more go to scikit-learn)
+    rng = np.random.default_rng(7)
+    line = (rng.integers(0, 720, (6000, 1)) * 0.5).astype(float)
+    for pts, eps in ((line, 2.0), (np.round(rng.normal(0, 3, (2500, 2)) * 4) / 4, 0.5)):
+        labels, core = dbscan(pts, eps, 10)
+        sk_labels, sk_core = _sk(pts, eps, 10)
+        np.testing.assert_array_equal(core, sk_core)
+        np.testing.assert_array_equal(labels, sk_labels)
+
+
 def test_dbscan_border_point_takes_first_cluster():
     # two clusters of 4 points and a border point exactly eps from both (binary fractions)
     pts = np.array([[0.0], [0.25], [0.5], [0.75], [1.75], [2.75], [3.0], [3.25], [3.5]])

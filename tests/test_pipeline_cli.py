@@ -81,6 +81,16 @@ def test_locate_errors_are_one_line(scenario, capsys, tmp_path):
     assert code == 2 and "no packets" in err and err.count("\n") == 1
 
 
+def test_locate_acquisition_window_option(scenario, capsys, tmp_path):
+    site, pk = str(scenario / "site"), str(scenario / "packets.csv")
+    out = str(tmp_path / "e.csv")
+    code, _, err = run(["locate", site, pk, "-o", out, "--acquisition-window-ms", "15"], capsys)
+    assert code == 0, err
+    assert "acquiring (pooling packets)" in err
+    code, _, err = run(["locate", site, pk, "-o", out, "--acquisition-window-ms", "-1"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "acquisition_window_s = -0.001" in err
+
+
 def test_score_missing_file(capsys, tmp_path):
     code, _, err = run(["score", str(tmp_path / "t.csv"), str(tmp_path / "e.csv")], capsys)
     assert code == 2 and "file not found" in err

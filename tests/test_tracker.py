@@ -11,6 +11,7 @@ from radiopose.errors import InputError
 from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.tracker import (
     METHODS,
+    SKIP_ACQUIRING,
     SKIP_TOO_FEW_RECEIVERS,
     SKIP_UNKNOWN_TRANSMITTER,
     Candidates,
@@ -30,6 +31,8 @@ def test_config_defaults_are_the_papers():
     assert (c.position_eps_m, c.position_min_samples, c.max_speed_mps) == (0.5, 10, 10.0)
     assert (c.max_rotation_deg, c.rotation_period_s, c.primary) == (180.0, 0.5, "position")
     assert c.rotation_model.gap_s == pytest.approx(0.25)
+    # the paper leaves acquisition open: pooled over 0.1 s by default (0 = per packet)
+    assert c.acquisition_window_s == 0.1
     with pytest.raises(InputError, match="k = 0"):
         TrackerConfig(k=0)
     with pytest.raises(InputError, match="primary"):
@@ -85,12 +88,96 @@ def test_track_step_is_pure():
     cand = _two_mode_candidates()
     before = cand.positions_m.copy()
     s0 = TrackState()
-    s1, out = track_step("full", cand, 1.0, s0, TrackerConfig())
+    s1, out = track_step("full", cand, 1.0, s0, TrackerConfig(acquisition_window_s=0.0))
+    assert out.ok
     assert s0 == TrackState()
     np.testing.assert_array_equal(cand.positions_m, before)
     assert s1.position_m == out.position_m and s1.last_time_s == 1.0
+    pooling, out = track_step("full", cand, 1.0, s0, TrackerConfig())  # the default pools
+    assert s0 == TrackState()
+    assert not out.ok and len(pooling.pending) == 1 and pooling.last_time_s == 1.0
     top = step_top(cand, 0.0, s0, TrackerConfig())
     assert top.position_m == tuple(cand.positions_m[0])
+
+
+def _swapped_candidates() -> Candidates:
+    """:func:`_two_mode_candidates` with the roles swapped: mode A (2, 2, 12°) has
+    70 candidates and the better MSEs."""
+    c = _two_mode_candidates()
+    a = np.linalg.norm(c.positions_m[:, :2] - 2.0, axis=1) < 1.0
+    mse = np.where(a, c.mse_db2 - 1.0, c.mse_db2 + 1.0)  # A: 1–2 dB², B: 2–3 dB²
+    extra = np.flatnonzero(~a)[:40]  # 40 more A members: move 40 B ones over
+    pos, ori = c.positions_m.copy(), c.orientations_deg.copy()
+    pos[extra] = pos[np.flatnonzero(a)[0]]
+    ori[extra] = ori[np.flatnonzero(a)[0]]
+    mse[extra] = 1.5
+    order = np.argsort(mse, kind="stable")
+    return Candidates(pos[order], ori[order], mse[order])
+
+
+@pytest.mark.parametrize("b_at", [0, 2])
+def test_pooled_acquisition_waits_for_n_packets_and_follows_the_majority(b_at):
+    # two packets favour mode A, one (first or last) mode B: neither the first
+    # nor the last packet alone decides
+    packets = [_swapped_candidates(), _swapped_candidates()]
+    packets.insert(b_at, _two_mode_candidates())
+    # one packet at a time: a packet's best mode (B) is taken at once
+    per_packet = TrackerConfig(acquisition_window_s=0.0)
+    s, out = track_step("full", packets[b_at], 0.0, TrackState(), per_packet)
+    assert out.ok and abs(out.orientation_deg[0] - 200.0) < 1.5
+    # three pooled: nothing until the third packet, then the pose most packets favour (A)
+    cfg = TrackerConfig(acquisition_window_s=0.01)
+    s = TrackState()
+    outs = []
+    for i, cand in enumerate(packets):
+        s, out = track_step("full", cand, 0.005 * i, s, cfg)
+        outs.append(out)
+    assert [o.reason for o in outs[:2]] == [SKIP_ACQUIRING, SKIP_ACQUIRING]
+    assert outs[2].ok and abs(outs[2].orientation_deg[0] - 12.0) < 1.5
+    assert np.linalg.norm(np.array(outs[2].position_m[:2]) - [2, 2]) < 0.2
+    assert s.pending == () and s.position_time_s == pytest.approx(0.01)
+    # tracking afterwards is per packet, under the motion models, as in the paper
+    s2, out = track_step("full", packets[b_at], 0.1, s, cfg)
+    assert out.ok and abs(out.orientation_deg[0] - 12.0) < 1.5 and s2.pending == ()
+
+
+def test_acquisition_window_with_sparse_packets_is_the_single_packet_rule():
+    cfg = TrackerConfig(acquisition_window_s=0.05)
+    s, out = track_step("full", _two_mode_candidates(), 0.0, TrackState(), cfg)
+    assert out.reason == SKIP_ACQUIRING and len(s.pending) == 1 and s.acquiring_since_s == 0.0
+    # the next packet comes after the window: it acquires from itself alone
+    s, out = track_step("full", _swapped_candidates(), 1.0, s, cfg)
+    assert out.ok and abs(out.orientation_deg[0] - 12.0) < 1.5
+    assert s.pending == () and s.acquiring_since_s is None
+    with pytest.raises(InputError, match="acquisition_window_s"):
+        TrackerConfig(acquisition_window_s=-1.0)
+
+
+def test_acquisition_retries_every_packet_once_the_window_has_run():
+    cfg = TrackerConfig(acquisition_window_s=0.01)
+    rng = np.random.default_rng(3)
+    scattered = Candidates(  # 5 candidates: no cluster of 10
+        rng.uniform(0, 10, (5, 3)),
+        np.column_stack([rng.uniform(0, 360, 5), np.zeros((5, 2))]),
+        np.linspace(1.0, 2.0, 5),
+    )
+    s, out = track_step("full", scattered, 0.0, TrackState(), cfg)
+    s, out = track_step("full", scattered, 0.02, s, cfg)
+    assert not out.ok and out.reason != SKIP_ACQUIRING  # tried: the pool has no cluster
+    assert s.acquiring_since_s == 0.0 and [t for t, _ in s.pending] == [0.02]
+    s, out = track_step("full", _swapped_candidates(), 0.025, s, cfg)  # tries again at once
+    assert out.ok and abs(out.orientation_deg[0] - 12.0) < 1.5
+
+
+def test_pooled_acquisition_streaming_equals_batch(small_sim):
+    cfg = TrackerConfig(acquisition_window_s=0.015)
+    res = locate(small_sim.site, small_sim.packets, "full", cfg)
+    assert dict(res.summary.skipped).get(SKIP_ACQUIRING, 0) >= 3
+    tracker = Tracker(small_sim.site, "full", cfg)
+    streamed = [tracker.update(o)[0] for o in group_packets(small_sim.packets)]
+    got = [e for e in streamed if e is not None]
+    assert len(got) == len(res.estimates) > 0
+    np.testing.assert_array_equal(np.array([e.position_m for e in got]), res.estimates.position_m)
 
 
 def test_every_method_runs_and_counts_add_up(small_sim):

@@ -22,8 +22,8 @@ assignment of border points reachable from two clusters — tested against
 scikit-learn on random data) for the small top-k sets of the hot path, where
 scikit-learn's per-call validation and tree building cost ~2 ms per call, i.e.
 most of a packet's budget. Two compiled (numba) routines do it: a sorted
-two-pointer scan on a line (the orientation axes) and a brute-force ``O(n²)``
-pass otherwise (positions). Larger inputs go to scikit-learn.
+two-pointer scan on a line (the orientation axes, any size) and a brute-force
+``O(n²)`` pass otherwise (positions, up to 2,000 points; more go to scikit-learn).
 """
 
 from __future__ import annotations
@@ -39,7 +39,8 @@ from radiopose.units import FloatArray, circular_mean_deg, wrap_deg
 IntArray = NDArray[np.int64]
 
 SMALL_DBSCAN_MAX_POINTS = 2000
-"""Inputs up to this size use the compiled implementations; larger go to scikit-learn."""
+"""Points of more than one dimension up to this many use the compiled brute-force
+pass; more go to scikit-learn. Points on a line always use the sorted scan."""
 
 
 def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, NDArray]:
@@ -63,6 +64,8 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
     x = np.asarray(points, dtype=np.float64)
     x = x.reshape(x.shape[0], -1)
     n = x.shape[0]
+    if x.shape[1] == 1:  # O(n log n) at any size
+        return _dbscan_sorted_1d(np.ascontiguousarray(x[:, 0]), float(eps), int(min_samples))
     if n > SMALL_DBSCAN_MAX_POINTS:
         from sklearn.cluster import DBSCAN  # imported here: ~1 s of start-up otherwise
 
@@ -70,8 +73,6 @@ def dbscan(points: FloatArray, eps: float, min_samples: int) -> tuple[IntArray, 
         core = np.zeros(n, dtype=bool)
         core[db.core_sample_indices_] = True
         return db.labels_.astype(np.int64), core
-    if x.shape[1] == 1:
-        return _dbscan_sorted_1d(np.ascontiguousarray(x[:, 0]), float(eps), int(min_samples))
     return _dbscan_dense(np.ascontiguousarray(x), float(eps), int(min_samples))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -25,6 +26,14 @@ def locate(
             "reference (exhaustive); all give the same estimates."
         ),
     ] = "numba",
+    acquisition_window_ms: Annotated[
+        float | None,
+        typer.Option(
+            help="Window over which packets are pooled to (re-)acquire a track, ms "
+            "(0: each packet on its own, the paper's pipeline applied literally). "
+            "Default: TrackerConfig's."
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Estimate position and orientation of every packet; write ESTIMATES.csv.
@@ -46,6 +55,8 @@ def locate(
     the_site = load_site(site)
     pk = read_packets_csv(packets)
     config = TrackerConfig(kernel=kernel)
+    if acquisition_window_ms is not None:
+        config = replace(config, acquisition_window_s=acquisition_window_ms / 1000.0)
     show = not quiet and sys.stderr.isatty()
     if show:
         from radiopose.cli import count_progress
