@@ -150,10 +150,12 @@ def test_dbscan_on_a_line_equals_scikit_learn_at_rounding_edges(seed, n, step):
 
 def test_dbscan_large_inputs_equal_scikit_learn():
     # a pooled acquisition clusters thousands of angles (sorted scan at any size)
-    # and up to ~2,000 positions (brute force; more go to scikit-learn)
+    # and ~2,100 positions (brute force up to 5,000 points; more: scikit-learn)
     rng = np.random.default_rng(7)
     line = (rng.integers(0, 720, (6000, 1)) * 0.5).astype(float)
-    for pts, eps in ((line, 2.0), (np.round(rng.normal(0, 3, (2500, 2)) * 4) / 4, 0.5)):
+    near = np.round(rng.normal(0, 3, (2500, 2)) * 4) / 4
+    wide = np.round(rng.normal(0, 40, (5200, 2)) * 4) / 4
+    for pts, eps in ((line, 2.0), (near, 0.5), (wide, 0.5)):
         labels, core = dbscan(pts, eps, 10)
         sk_labels, sk_core = _sk(pts, eps, 10)
         np.testing.assert_array_equal(core, sk_core)
