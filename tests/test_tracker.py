@@ -276,3 +276,17 @@ def test_config_is_replaceable_and_frozen():
     assert c.k == 50
     with pytest.raises(AttributeError):
         c.k = 3  # type: ignore[misc]
+
+
+def test_a_state_pickled_before_the_acquisition_fields_still_loads():
+    # live-server checkpoints written before TrackState had pending/acquiring_since_s
+    import pickle
+
+    s = TrackState(1.0, 1.0, (8.0, 8.0, 1.0), 1.0, (200.0, 0.0, 0.0))  # on mode B
+    fields = {k: v for k, v in s.__dict__.items() if k not in ("pending", "acquiring_since_s")}
+    old = object.__new__(TrackState)
+    old.__dict__.update(fields)
+    loaded = pickle.loads(pickle.dumps(old))
+    assert loaded.pending == () and loaded.acquiring_since_s is None
+    _, out = track_step("full", _two_mode_candidates(), 1.1, loaded, TrackerConfig())
+    assert out.ok  # 0.1 s after the last estimate: tracking, not acquiring
