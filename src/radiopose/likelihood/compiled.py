@@ -163,8 +163,8 @@ def _load_position(w, heard, posf, posi, m, p, j0, e, k, f, t, g):
 
     ``posf[p, r] = (B, f, row weight)`` and ``posi[p, r] = (o, first row)`` are
     position-major, so one position's terms for every receiver share a cache line
-    or two: receiver-major tables cost one cache miss per receiver and field on
-    the sparse positions that survive the prefilter (≈ 2/3 of the main pass's time).
+    or two, where receiver-major tables cost one cache miss per receiver and field
+    on the sparse positions that survive the prefilter.
     """  # pragma: no cover - compiled
     for q in range(heard.shape[0]):
         r = heard[q]
@@ -624,9 +624,9 @@ class ShiftScorer:
         phi, theta = direction_to_pattern_angles_deg(d)  # world angles (n_rx, n_pos)
         u = wrap_deg(phi) / row_step
         i0 = np.floor(u)
-        self.frac = (u - i0).astype(np.float32)
+        frac = (u - i0).astype(np.float32)
         i0 = i0.astype(np.int64) % n
-        self.off = (((-i0 - 1) % n) + 1).astype(np.int32)
+        off = (((-i0 - 1) % n) + 1).astype(np.int32)
 
         identity = bool(np.all(self.qs_deg == 0.0))
         if pattern.is_slice and identity:
@@ -639,13 +639,13 @@ class ShiftScorer:
             polar = lo + ts * np.arange(round((hi - lo) / ts) + 1)
         self.rows_per_q = polar.size
         if polar.size == 1:
-            self.row0 = np.zeros(phi.shape, np.int32)
-            self.roww = np.zeros(phi.shape, np.float32)
+            row0 = np.zeros(phi.shape, np.int32)
+            roww = np.zeros(phi.shape, np.float32)
         else:
             tt = (np.clip(theta, 0.0, 180.0) - polar[0]) / ts
             t0 = np.clip(np.floor(tt), 0, polar.size - 2)
-            self.row0 = t0.astype(np.int32)
-            self.roww = np.clip(tt - t0, 0.0, 1.0).astype(np.float32)
+            row0 = t0.astype(np.int32)
+            roww = np.clip(tt - t0, 0.0, 1.0).astype(np.float32)
         rows, self.resample_error_db = _rotated_rows(pattern, self.qs_deg, row_step, polar, ts)
 
         # Reversed, repeated rows: Rv[k] = S[(-k) mod n], long enough for any window.
@@ -670,17 +670,14 @@ class ShiftScorer:
                 for r in range(space.n_receivers)
             ]
         )
-        self.base = np.ascontiguousarray(base - self.centre_db[:, None], dtype=np.float32)
+        base = (base - self.centre_db[:, None]).astype(np.float32)
         with np.errstate(invalid="ignore"):
-            self.base_max = np.nanmax(np.abs(self.base), axis=1).astype(np.float64)
+            self.base_max = np.nanmax(np.abs(base), axis=1).astype(np.float64)
         self.d_max = float(np.max(np.abs(rows)))
-        # position-major copies of base/frac/roww and off/row0 for the kernels
-        self.posf = np.ascontiguousarray(
-            np.stack([self.base, self.frac, self.roww], axis=-1).transpose(1, 0, 2)
-        )
-        self.posi = np.ascontiguousarray(
-            np.stack([self.off, self.row0], axis=-1).transpose(1, 0, 2)
-        )
+        # Per-(receiver, position) terms, stored position-major for the kernels
+        # (``base``, ``frac``, ``roww``, ``off``, ``row0`` are views of these).
+        self.posf = np.ascontiguousarray(np.stack([base, frac, roww], axis=-1).transpose(1, 0, 2))
+        self.posi = np.ascontiguousarray(np.stack([off, row0], axis=-1).transpose(1, 0, 2))
         self.all_positions = np.arange(space.n_positions, dtype=np.int64)
         if parallel is None:
             terms = space.n_positions * n_o * space.n_receivers
@@ -690,12 +687,37 @@ class ShiftScorer:
         # Whole-row bounds per (receiver, position) over every (pitch, roll)
         # combination, for the vectorised prefilter (float64; ±inf: excluded).
         qoff = np.arange(self.n_q)[:, None, None] * self.rows_per_q
-        lo_q = self.row_min[self.row0[None] + qoff].min(axis=0).astype(np.float64)
-        hi_q = self.row_max[self.row0[None] + qoff].max(axis=0).astype(np.float64)
-        b64 = self.base.astype(np.float64)
+        lo_q = self.row_min[row0[None] + qoff].min(axis=0).astype(np.float64)
+        hi_q = self.row_max[row0[None] + qoff].max(axis=0).astype(np.float64)
+        b64 = base.astype(np.float64)
         bad = ~np.isfinite(b64)
         self.pre_lo = np.ascontiguousarray(np.where(bad, np.inf, b64 + lo_q))
         self.pre_hi = np.ascontiguousarray(np.where(bad, -np.inf, b64 + hi_q))
+
+    @property
+    def base(self) -> np.ndarray:
+        """``(n_rx, n_pos)`` float32 ``M + P_tx − centre`` (NaN: excluded); a view."""
+        return self.posf[:, :, 0].T
+
+    @property
+    def frac(self) -> np.ndarray:
+        """``(n_rx, n_pos)`` float32 fractional azimuth offset ``f``; a view."""
+        return self.posf[:, :, 1].T
+
+    @property
+    def roww(self) -> np.ndarray:
+        """``(n_rx, n_pos)`` float32 weight of the second pattern row (0: single row); a view."""
+        return self.posf[:, :, 2].T
+
+    @property
+    def off(self) -> np.ndarray:
+        """``(n_rx, n_pos)`` int32 azimuth offset ``o`` in ``[1, n]``; a view."""
+        return self.posi[:, :, 0].T
+
+    @property
+    def row0(self) -> np.ndarray:
+        """``(n_rx, n_pos)`` int32 first pattern row; a view."""
+        return self.posi[:, :, 1].T
 
     @property
     def nbytes(self) -> int:
@@ -704,11 +726,6 @@ class ShiftScorer:
             self.rows,
             self.drows,
             *self.bounds,
-            self.base,
-            self.off,
-            self.frac,
-            self.row0,
-            self.roww,
             self.posf,
             self.posi,
             self.pre_lo,
