@@ -149,8 +149,9 @@ def test_acquisition_window_with_sparse_packets_is_the_single_packet_rule():
     s, out = track_step("full", _swapped_candidates(), 1.0, s, cfg)
     assert out.ok and abs(out.orientation_deg[0] - 12.0) < 1.5
     assert s.pending == () and s.acquiring_since_s is None
-    with pytest.raises(InputError, match="acquisition_window_s"):
-        TrackerConfig(acquisition_window_s=-1.0)
+    for bad in (-1.0, float("nan"), float("inf")):  # inf: no track would ever start
+        with pytest.raises(InputError, match="acquisition_window_s"):
+            TrackerConfig(acquisition_window_s=bad)
 
 
 def test_acquisition_retries_every_packet_once_the_window_has_run():

@@ -26,6 +26,7 @@ whole packets table and returns the estimates with a :class:`RunSummary`.
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Callable, Mapping
@@ -174,7 +175,7 @@ class TrackerConfig:
             ("primary", self.primary in ("position", "orientation")),
             ("min_receivers", self.min_receivers >= 1),
             ("search", self.search in ("full", "bounded")),
-            ("acquisition_window_s", self.acquisition_window_s >= 0),
+            ("acquisition_window_s", 0 <= self.acquisition_window_s < math.inf),
         ]
         for name, ok in checks:
             if not ok:

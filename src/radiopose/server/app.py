@@ -147,7 +147,8 @@ class BodyLimit:
 #: How much of an oversized body is read and discarded before the 413 goes out.
 #: Answering while the client is still sending makes the server close a socket
 #: with unread data, and the client then sees a connection reset instead of the
-#: 413 (a real race, seen in CI); past this cap the server answers anyway.
+#: 413 (a real race: a local test run failed on it); past this cap the server
+#: answers anyway.
 DRAIN_CAP_BYTES = 16_000_000
 
 
