@@ -96,7 +96,8 @@ def test_rule_unique_missing_duplicate_spread_and_far_repeat() -> None:
     assert counts.ambiguous_duplicate == 1
     assert counts.ambiguous_spread == 1
     assert counts.ambiguous_frames == 6
-    assert repeated == 1
+    assert repeated.repeated == 1
+    assert (repeated.shared, repeated.shared_matched) == (4, 2)
 
 
 def test_rule_uses_the_clock_models() -> None:
@@ -175,6 +176,11 @@ def test_esp32_offset_drift_and_matches(esp32: list) -> None:
     assert clock.residual_rms_s < 1e-3
     assert report.counts.packets_by_receivers[2] == 108
     assert report.counts.ambiguous_duplicate == report.counts.ambiguous_spread == 0
+    # All 154 byte-identical frames are accounted for: 108 matched on the clock
+    # line, 46 only ever hours apart (the same bytes sent again, not one packet).
+    h = report.hashes
+    assert (h.shared, h.shared_matched, h.shared_ambiguous, h.shared_apart) == (154, 108, 0, 46)
+    assert any("hashes heard by 2+ receivers: 154" in line for line in report.lines())
 
     # Every common hash is either matched or far (hours) from any copy at the other receiver.
     a, b = esp32[0].frames, esp32[1].frames
@@ -421,3 +427,156 @@ def test_cli_duplicate_receiver_ids(tmp_path: Path, capsys: pytest.CaptureFixtur
         ["sync", str(a), str(b), "-o", str(tmp_path / "o.csv"), "--receiver", f"rx2={b}"], capsys
     )
     assert code == 0, err
+
+
+def test_cli_output_path_errors_are_one_line(
+    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    _, sim = simulated
+    rx1 = sim.paths["rx1"]
+    before = rx1.read_bytes()
+    cases = [
+        (str(tmp_path), "is a directory"),  # -o names a directory
+        (str(rx1 / "x.csv"), "a parent is not a directory"),
+        (str(rx1), "would overwrite one of the captures"),
+    ]
+    for target, message in cases:
+        code, _, err = _run(["sync", str(rx1), str(sim.paths["rx2"]), "-o", target], capsys)
+        assert code == 2, target
+        assert message in err
+        assert err.count("\n") == 1 and err.startswith("radiopose: ")
+    assert rx1.read_bytes() == before
+    code, _, err = _run(
+        [
+            "sync",
+            str(rx1),
+            "-o",
+            str(tmp_path / "o.csv"),
+            "--receiver",
+            f"a={rx1}",
+            "--receiver",
+            f"b={rx1}",
+        ],
+        capsys,
+    )
+    assert code == 2 and "already named 'a'" in err
+
+
+def test_default_reference_skips_a_receiver_without_frames(simulated, tmp_path: Path) -> None:
+    _, sim = simulated
+    nothing = write_receiver_pcaps(
+        [("1", 1.0, "02:00:00:00:00:01", "mute", 5.0)],  # +5 dBm: implausible, skipped
+        tmp_path / "m",
+        rng=np.random.default_rng(0),
+    ).paths["mute"]
+    caps = [read_pcap(nothing), *(read_pcap(sim.paths[r]) for r in RX)]
+    assert caps[0].stats[0].frames_kept == 0
+    _, report = synchronise(caps)
+    assert report.reference == "rx1"
+    assert sorted(c.method for c in report.clocks[1:]) == ["none"] + ["offset+drift"] * 3
+
+
+# --------------------------------------------------------------------------
+# radiopose simulate --pcap -> radiopose sync
+
+
+def _packet_rows(path: Path) -> list[list[str]]:
+    with open(path, newline="") as fh:
+        return list(csv.reader(fh))
+
+
+def test_cli_simulate_pcap_sync_round_trip(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """simulate --pcap -> sync gives back the simulator's own packets.csv."""
+    sim_dir = tmp_path / "sim"
+    code, out, err = _run(
+        [
+            "simulate",
+            "-o",
+            str(sim_dir),
+            "--seed",
+            "41",
+            "--pcap",
+            "--loss",
+            "0.1",
+            "--duration-s",
+            "70",
+            "--interval-ms",
+            "50",
+            "--clock-drift-ppm",
+            "30",
+        ],
+        capsys,
+    )
+    assert code == 0, err
+    pcaps = sorted((sim_dir / "captures").glob("*.pcap"))
+    assert [p.name for p in pcaps] == ["rx1.pcap", "rx2.pcap", "rx3.pcap", "rx4.pcap"]
+    assert all(str(p) in out for p in pcaps)
+    assert not (sim_dir / "captures" / "pcap_truth.csv").exists()  # no duplicates: packets.csv
+    synced = tmp_path / "synced.csv"
+    code, out, err = _run(["sync", *map(str, pcaps), "-o", str(synced)], capsys)
+    assert code == 0, err
+
+    want, got = _packet_rows(sim_dir / "packets.csv"), _packet_rows(synced)
+    assert len(got) == len(want) > 4000
+    # Every column equal except the time, which carries the receivers' timestamp
+    # latency (half-normal, 20 us scale) through the clock correction.
+    assert [r[:1] + r[2:] for r in got] == [r[:1] + r[2:] for r in want]
+    dt = np.array([float(g[1]) - float(w[1]) for g, w in zip(got[1:], want[1:], strict=True)])
+    assert np.all(np.abs(dt) < 1e-4)
+    # the receivers' true clocks were recovered
+    clocks = {
+        r[0]: (float(r[1]), float(r[2]))
+        for r in _packet_rows(sim_dir / "captures" / "clocks.csv")[1:]
+    }
+    assert clocks["rx1"] == (0.0, 0.0)
+    for rid in ("rx2", "rx3", "rx4"):
+        offset_s, drift_ppm = clocks[rid]
+        line = next(x for x in out.splitlines() if x.strip().startswith(f"{rid}: offset"))
+        assert "offset+drift" in line
+        assert float(line.split("drift ")[1].split()[0]) == pytest.approx(drift_ppm, abs=0.5)
+        assert 0.0 <= offset_s <= 1.0
+
+
+def test_cli_simulate_pcap_duplicates_are_dropped_by_the_rule(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    sim_dir = tmp_path / "sim"
+    code, _, err = _run(
+        ["simulate", "-o", str(sim_dir), "--seed", "42", "--pcap", "--duplicates", "0.05"],
+        capsys,
+    )
+    assert code == 0, err
+    synced = tmp_path / "synced.csv"
+    code, out, err = _run(
+        ["sync", *map(str, sorted((sim_dir / "captures").glob("*.pcap"))), "-o", str(synced)],
+        capsys,
+    )
+    assert code == 0, err
+    from radiopose.packets import read_packets_csv
+
+    sim_packets = read_packets_csv(sim_dir / "packets.csv")
+    expected = read_packets_csv(sim_dir / "captures" / "pcap_truth.csv")
+    got = read_packets_csv(synced)
+    n_sim = len(set(sim_packets.packet_id))
+    n_kept = len(set(expected.packet_id))
+    assert 0 < n_kept < n_sim  # some packets were recorded twice somewhere
+    assert f"ambiguous: {n_sim - n_kept} duplicated at a receiver" in out
+    _assert_same_packets(got, expected, 1e-4)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--duplicates", "1.5"], "duplicate_fraction must be in [0, 1]"),
+        (["--jitter-us", "-1"], "jitter_s must be in"),
+        (["--clock-drift-ppm", "nan"], "drift_max_ppm must be in"),
+    ],
+)
+def test_cli_simulate_pcap_bad_settings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], extra: list[str], message: str
+) -> None:
+    code, _, err = _run(["simulate", "-o", str(tmp_path / "s"), "--pcap", *extra], capsys)
+    assert code == 2 and message in err and err.count("\n") == 1
+    assert not (tmp_path / "s").exists()

@@ -54,6 +54,7 @@ from radiopose.packets import Packets
 
 __all__ = [
     "ClockModel",
+    "HashCounts",
     "MatchCounts",
     "StreamingMatcher",
     "SyncConfig",
@@ -200,6 +201,34 @@ class MatchCounts:
 
 
 @dataclass(frozen=True)
+class HashCounts:
+    """What became of the frame hashes (batch matching only).
+
+    Attributes
+    ----------
+    repeated
+        Hashes that formed more than one chain (the same bytes far apart in time).
+    shared
+        Hashes heard by two or more receivers, at any times.
+    shared_matched
+        Of those, hashes in at least one packet heard by two or more receivers.
+    shared_ambiguous
+        Of the rest, hashes whose copies at two or more receivers met within the
+        tolerance only in dropped (ambiguous) chains.
+    shared_apart
+        Of the rest, hashes whose copies at different receivers are never
+        within the tolerance after clock correction: the same bytes sent at
+        different times (e.g. a repeated probe request), not one packet.
+    """
+
+    repeated: int = 0
+    shared: int = 0
+    shared_matched: int = 0
+    shared_ambiguous: int = 0
+    shared_apart: int = 0
+
+
+@dataclass(frozen=True)
 class SyncReport:
     """Everything ``radiopose sync`` reports.
 
@@ -215,8 +244,8 @@ class SyncReport:
         Clock estimate per receiver (reference first).
     counts
         Matching counts.
-    repeated_hashes
-        Hashes that formed more than one chain (the same bytes far apart in time).
+    hashes
+        What became of the frame hashes (shared between receivers or not).
     """
 
     reference: str
@@ -224,7 +253,12 @@ class SyncReport:
     receivers: tuple[ReceiverStats, ...]
     clocks: tuple[ClockModel, ...]
     counts: MatchCounts
-    repeated_hashes: int = 0
+    hashes: HashCounts = field(default_factory=HashCounts)
+
+    @property
+    def repeated_hashes(self) -> int:
+        """Hashes that formed more than one chain."""
+        return self.hashes.repeated
 
     def lines(self) -> list[str]:
         """A human-readable summary, one item per line."""
@@ -261,6 +295,12 @@ class SyncReport:
             f"{k.ambiguous_spread} spread over more than the tolerance "
             f"({k.ambiguous_frames} frames dropped); "
             f"hashes recurring far apart: {self.repeated_hashes}"
+        )
+        h = self.hashes
+        out.append(
+            f"hashes heard by 2+ receivers: {h.shared}; in a packet of 2+ receivers: "
+            f"{h.shared_matched}; only in ambiguous chains: {h.shared_ambiguous}; "
+            f"never within the tolerance (same bytes sent at other times): {h.shared_apart}"
         )
         if k.late_frames:
             out.append(f"late frames dropped: {k.late_frames}")
@@ -458,13 +498,12 @@ def match_packets(
 
     Returns
     -------
-    packets, counts, repeated_hashes
-        The ``packets.csv`` rows, the counts and the number of hashes that
-        formed more than one chain.
+    packets, counts, hashes
+        The ``packets.csv`` rows, the counts and what became of the hashes.
     """
     n = len(frames)
     if n == 0:
-        return _empty_packets(), MatchCounts(), 0
+        return _empty_packets(), MatchCounts(), HashCounts()
     tol = round(tolerance_s * _NS_PER_S)
     rx = _rx_index(frames, receivers)
     tau = _reference_times(frames, rx, _clock_list(receivers, clocks))
@@ -492,6 +531,7 @@ def match_packets(
 
     ghash = h[starts]
     repeated = int(np.count_nonzero(np.bincount(ghash) > 1))
+    hashes = _hash_counts(h, r, gid, ghash, valid, repeated)
 
     vg = np.flatnonzero(valid)
     pk_order = vg[np.lexsort((ghash[vg], last[vg]))]
@@ -521,7 +561,39 @@ def match_packets(
         ambiguous_spread=int(np.count_nonzero(spread & ~dup)),
         ambiguous_frames=int(size[~valid].sum()),
     )
-    return packets, counts, repeated
+    return packets, counts, hashes
+
+
+def _hash_counts(
+    h: NDArray[np.intp],
+    r: NDArray[np.intp],
+    gid: NDArray[np.intp],
+    ghash: NDArray[np.intp],
+    valid: NDArray[np.bool_],
+    repeated: int,
+) -> HashCounts:
+    """Account for every hash heard by 2+ receivers (sorted frame arrays of
+    :func:`match_packets`: hash code, receiver index, chain id per frame)."""
+    n_hash = int(h.max()) + 1
+    # distinct receivers per hash, and per chain
+    pairs = np.unique(np.stack([h, r]), axis=1)
+    shared = np.bincount(pairs[0], minlength=n_hash) >= 2
+    chain_pairs = np.unique(np.stack([gid, r]), axis=1)
+    multi = np.bincount(chain_pairs[0], minlength=ghash.size) >= 2  # chain spans 2+ receivers
+    matched = np.zeros(n_hash, dtype=bool)
+    matched[ghash[valid & multi]] = True
+    met = np.zeros(n_hash, dtype=bool)
+    met[ghash[~valid & multi]] = True
+    n_shared = int(np.count_nonzero(shared))
+    n_matched = int(np.count_nonzero(shared & matched))
+    n_ambiguous = int(np.count_nonzero(shared & ~matched & met))
+    return HashCounts(
+        repeated=repeated,
+        shared=n_shared,
+        shared_matched=n_matched,
+        shared_ambiguous=n_ambiguous,
+        shared_apart=n_shared - n_matched - n_ambiguous,
+    )
 
 
 # --------------------------------------------------------------------------
@@ -755,7 +827,8 @@ def synchronise(
             if s.receiver_id in seen:
                 raise InputError(
                     f"receiver id {s.receiver_id!r} appears in both {seen[s.receiver_id]} "
-                    f"and {s.source}; name receivers with --receiver ID=FILE"
+                    f"and {s.source}; name pcap receivers with --receiver ID=FILE, "
+                    "or rename them in the CSV"
                 )
             seen[s.receiver_id] = s.source
             stats.append(s)
@@ -764,16 +837,17 @@ def synchronise(
         raise InputError(
             "the captures hold no frames of any receiver (a CSV capture without rows?)"
         )
-    ref = cfg.reference if cfg.reference is not None else receivers[0]
+    # Default reference: the first receiver that kept any frame (a capture
+    # whose frames were all skipped cannot anchor the others' clocks).
+    kept = [s.receiver_id for s in stats if s.frames_kept > 0]
+    ref = cfg.reference if cfg.reference is not None else (kept or receivers)[0]
     if ref not in seen:
         raise InputError(f"unknown reference receiver {ref!r} (receivers: {', '.join(receivers)})")
     if cfg.reference != ref:
         cfg = SyncConfig(**{**cfg.__dict__, "reference": ref})
     frames = FrameRecords.concat([c.frames for c in captures])
     clocks = estimate_clocks(frames, receivers, cfg)
-    packets, counts, repeated = match_packets(
-        frames, receivers, clocks, tolerance_s=cfg.tolerance_s
-    )
+    packets, counts, hashes = match_packets(frames, receivers, clocks, tolerance_s=cfg.tolerance_s)
     order = [ref] + [r for r in receivers if r != ref]
     report = SyncReport(
         reference=ref,
@@ -781,6 +855,6 @@ def synchronise(
         receivers=tuple(stats),
         clocks=tuple(clocks[r] for r in order),
         counts=counts,
-        repeated_hashes=repeated,
+        hashes=hashes,
     )
     return packets, report

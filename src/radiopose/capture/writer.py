@@ -12,7 +12,7 @@ are written with ``dpkt.pcap.Writer``.
 
 Receiver clock model (the same one :mod:`radiopose.capture.sync` estimates)::
 
-    t_rx = t + offset_s + drift_ppm·1e-6·(t - t_first) + epoch_s + jitter
+    t_rx = t + offset_s + drift_ppm·1e-6·(t - t_first) + epoch_s + latency
 
 with ``t`` the packet time and ``t_first`` the earliest packet time. The
 ground truth of what ``radiopose sync`` should recover from the files is
@@ -29,7 +29,7 @@ import os
 import struct
 import zlib
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,18 +39,24 @@ import numpy as np
 from radiopose.capture.radiotap import FIELD_ALIGN_SIZE
 from radiopose.capture.records import LINKTYPE_IEEE802_11_RADIOTAP, PLAUSIBLE_RSS_DBM
 from radiopose.packets import Packets, read_packets_csv, write_packets_csv
+from radiopose.tables import write_table
 
 __all__ = [
+    "CLOCKS_FILE",
     "TRUTH_FILE",
+    "CaptureConfig",
     "PcapSimulation",
     "pack_radiotap",
     "probe_request",
     "radiotap_header",
     "read_pcap_truth",
+    "simulate_captures",
+    "whole_dbm",
     "write_receiver_pcaps",
 ]
 
 TRUTH_FILE = "pcap_truth.csv"
+CLOCKS_FILE = "clocks.csv"
 
 _VENDOR_OUI = b"\x02\x52\x50"  # locally administered, "RP"
 
@@ -186,11 +192,15 @@ class PcapSimulation:
         The packets ``radiopose sync`` should recover (also in ``pcap_truth.csv``).
     frames_written
         ``receiver_id -> frames`` written, duplicates included.
+    clocks
+        ``receiver_id -> (offset_s, drift_ppm)`` of each receiver's clock
+        (filled by :func:`simulate_captures`).
     """
 
     paths: dict[str, Path]
     truth: Packets
     frames_written: dict[str, int]
+    clocks: dict[str, tuple[float, float]] = field(default_factory=dict)
 
 
 def _columns(packets: Any) -> dict[str, np.ndarray]:
@@ -256,7 +266,9 @@ def write_receiver_pcaps(
         Receiver clock offset (s) and drift (ppm), one value for all receivers
         or ``receiver_id -> value`` (missing receivers: 0).
     jitter_s
-        Standard deviation of Gaussian timestamp noise, seconds.
+        Scale of the timestamp latency, seconds: each timestamp is late by
+        ``|N(0, jitter_s)|`` (half-normal; a receiver stamps a frame after it
+        arrives, and the constant part of its latency is its clock offset).
     loss_fraction
         Probability that a receiver misses a frame.
     duplicate_fraction
@@ -298,7 +310,8 @@ def write_receiver_pcaps(
     lost = rng.random(n) < loss_fraction
     dup = (rng.random(n) < duplicate_fraction) & ~lost
     dup_delay_s = rng.uniform(0.0, duplicate_delay_s, n)
-    noise_s = rng.normal(0.0, jitter_s, n) if jitter_s > 0 else np.zeros(n)
+    # Timestamp latency: a receiver stamps a frame after it arrives, never before.
+    noise_s = np.abs(rng.normal(0.0, jitter_s, n)) if jitter_s > 0 else np.zeros(n)
 
     t = cols["timestamp_s"]
     t_first = float(t.min()) if n else 0.0
@@ -385,3 +398,125 @@ def read_pcap_truth(out_dir: str | os.PathLike[str]) -> Packets:
     sync reference.
     """
     return read_packets_csv(Path(out_dir) / TRUTH_FILE)
+
+
+# --------------------------------------------------------------------------
+# simulated deployments (``radiopose simulate --pcap``)
+
+
+@dataclass(frozen=True)
+class CaptureConfig:
+    """How imperfect the simulated receivers' captures are.
+
+    The first receiver is the reference: its clock is the simulation clock
+    (offset 0, drift 0), so ``radiopose sync`` with it as reference (the
+    default) maps every packet back to the simulation's time axis.
+
+    Attributes
+    ----------
+    clock_offset_max_s
+        The other receivers' clock offsets are drawn from ``U(0, max)``, seconds
+        (ahead of the reference, so that no pcap timestamp is negative).
+    drift_max_ppm
+        Their clock drifts are drawn from ``U(-max, max)``, ppm.
+    jitter_s
+        Scale of the half-normal timestamp latency of every receiver, seconds.
+    duplicate_fraction
+        Probability that a receiver records a frame twice (within 1 ms). By
+        the synchronisation rule such a packet is ambiguous and dropped, so it
+        is missing from ``radiopose sync``'s output (``pcap_truth.csv`` lists
+        what remains).
+    """
+
+    clock_offset_max_s: float = 1.0
+    drift_max_ppm: float = 20.0
+    jitter_s: float = 20e-6
+    duplicate_fraction: float = 0.0
+
+    def validate(self) -> None:
+        """Raise :class:`ValueError` naming the first setting out of range."""
+        checks = (
+            ("clock_offset_max_s", self.clock_offset_max_s, 0.0, 3600.0),
+            ("drift_max_ppm", self.drift_max_ppm, 0.0, 1000.0),
+            ("jitter_s", self.jitter_s, 0.0, 1e-3),
+            ("duplicate_fraction", self.duplicate_fraction, 0.0, 1.0),
+        )
+        for name, value, lo, hi in checks:
+            if not lo <= value <= hi:
+                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value}")
+
+
+def whole_dbm(packets: Packets) -> Packets:
+    """The same rows with RSS rounded to whole dBm, as radiotap carries it."""
+    return replace(packets, rss_dbm=np.rint(packets.rss_dbm) + 0.0)  # + 0.0: no "-0"
+
+
+def simulate_captures(
+    packets: Packets,
+    receiver_ids: Sequence[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    seed: int,
+    config: CaptureConfig | None = None,
+) -> PcapSimulation:
+    """Write what the receivers of a simulated scenario would have captured.
+
+    Parameters
+    ----------
+    packets
+        The simulation's ``packets.csv`` rows; RSS should already be whole
+        dBm (:func:`whole_dbm`) for ``radiopose sync`` to reproduce them exactly.
+    receiver_ids
+        All receivers, reference first (a receiver may have heard nothing).
+    out_dir
+        Directory for ``<receiver_id>.pcap``, ``pcap_truth.csv`` and
+        ``clocks.csv`` (``receiver_id, offset_s, drift_ppm``).
+    seed
+        The simulation's seed; the captures use their own random stream, so
+        writing them does not change any other simulated file.
+    config
+        Imperfections (default :class:`CaptureConfig`).
+
+    Returns
+    -------
+    PcapSimulation
+        Paths, expected packets and each receiver's true clock.
+    """
+    cfg = config or CaptureConfig()
+    cfg.validate()
+    rng = np.random.default_rng([seed, 0x70636170])  # "pcap": a stream of its own
+    ids = list(receiver_ids)
+    clocks = {ids[0]: (0.0, 0.0)}
+    for rid in ids[1:]:
+        clocks[rid] = (
+            float(rng.uniform(0.0, cfg.clock_offset_max_s)),
+            float(rng.uniform(-cfg.drift_max_ppm, cfg.drift_max_ppm)),
+        )
+    sim = write_receiver_pcaps(
+        packets,
+        out_dir,
+        rng=rng,
+        clock_offset_s={r: c[0] for r, c in clocks.items()},
+        drift_ppm={r: c[1] for r, c in clocks.items()},
+        jitter_s=cfg.jitter_s,
+        duplicate_fraction=cfg.duplicate_fraction,
+    )
+    out = Path(out_dir)
+    paths = dict(sim.paths)
+    for rid in ids:  # a receiver that heard nothing still has a (valid, empty) capture
+        if rid not in paths:
+            paths[rid] = out / f"{rid}.pcap"
+            with open(paths[rid], "wb") as fh:
+                dpkt.pcap.Writer(
+                    fh, snaplen=65535, linktype=LINKTYPE_IEEE802_11_RADIOTAP, nano=True
+                )
+    write_table(
+        out / CLOCKS_FILE,
+        {
+            "receiver_id": ids,
+            "offset_s": [clocks[r][0] for r in ids],
+            "drift_ppm": [clocks[r][1] for r in ids],
+        },
+        decimals={"offset_s": 9, "drift_ppm": 6},
+    )
+    return PcapSimulation({r: paths[r] for r in ids}, sim.truth, sim.frames_written, clocks)

@@ -79,6 +79,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except typer.Exit as exc:
         return int(exc.exit_code or 0)
+    except OSError as exc:
+        # A path the user gave cannot be read or written (a directory where a
+        # file is expected, no permission, a full disk, ...): one line, no trace.
+        where = f"{exc.filename}: " if exc.filename else ""
+        reason = exc.strerror or str(exc)
+        print(f"radiopose: {where}{reason}", file=sys.stderr)
+        return 2
     except typer.Abort:
         print("radiopose: aborted", file=sys.stderr)
         return 130

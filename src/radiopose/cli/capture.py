@@ -29,6 +29,10 @@ def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
         key = Path(file).resolve()
         if key not in by_path:
             raise InputError(f"--receiver {item!r}: unknown capture {file} (not among CAPTURE...)")
+        if by_path[key] in out:
+            raise InputError(
+                f"--receiver {item!r}: {file} already named {out[by_path[key]]!r} by --receiver"
+            )
         out[by_path[key]] = rid
     return out
 
@@ -92,6 +96,8 @@ def sync(
         raise InputError(f"--max-drift-ppm must be >= 0, got {max_drift_ppm}")
     if len({p.resolve() for p in captures}) != len(captures):
         raise InputError("the same capture is given twice")
+    if output.resolve() in {p.resolve() for p in captures}:
+        raise InputError("-o would overwrite one of the captures", path=output)
     names = _receiver_map(receiver or [], captures)
     sizes = {}
     for p in captures:

@@ -44,6 +44,43 @@ def simulate(
     survey_noise_db: Annotated[
         float, typer.Option("--survey-noise-db", help="σ of noise on survey RSS, dB.")
     ] = 0.0,
+    pcap: Annotated[
+        bool,
+        typer.Option(
+            "--pcap",
+            help="Also write DIR/captures/: one radiotap pcap per receiver, as sniffers would "
+            "record the packets (RSS in whole dBm, also in packets.csv); `radiopose sync "
+            "DIR/captures/*.pcap` recovers packets.csv.",
+        ),
+    ] = False,
+    clock_offset_ms: Annotated[
+        float,
+        typer.Option(
+            "--clock-offset-ms",
+            help="--pcap: receiver clocks run U(0, this) milliseconds ahead of the first.",
+        ),
+    ] = 1000.0,
+    clock_drift_ppm: Annotated[
+        float,
+        typer.Option(
+            "--clock-drift-ppm", help="--pcap: receiver clock drift drawn from U(±this), ppm."
+        ),
+    ] = 20.0,
+    jitter_us: Annotated[
+        float,
+        typer.Option(
+            "--jitter-us",
+            help="--pcap: scale of the half-normal timestamp latency, microseconds.",
+        ),
+    ] = 20.0,
+    duplicates: Annotated[
+        float,
+        typer.Option(
+            "--duplicates",
+            help="--pcap: fraction of frames a receiver records twice, 0–1 (sync drops "
+            "those packets as ambiguous; DIR/captures/pcap_truth.csv lists what remains).",
+        ),
+    ] = 0.0,
 ) -> None:
     """Simulate a scenario: writes DIR/site/, DIR/packets.csv and DIR/truth.csv."""
     from dataclasses import replace
@@ -68,9 +105,43 @@ def simulate(
         loss_fraction=loss,
         motion=replace(MotionConfig(), rotation=rotation, speed_mps=speed_mps),  # type: ignore[arg-type]
     )
+    capture_cfg = None
+    if pcap:
+        from radiopose.capture.writer import CaptureConfig
+
+        capture_cfg = CaptureConfig(
+            clock_offset_max_s=clock_offset_ms / 1e3,
+            drift_max_ppm=clock_drift_ppm,
+            jitter_s=jitter_us / 1e6,
+            duplicate_fraction=duplicates,
+        )
+        try:
+            capture_cfg.validate()
+        except ValueError as exc:
+            raise InputError(f"--pcap settings: {exc}") from None
     sim = run(cfg, seed=seed)
+    if capture_cfg is not None:
+        from radiopose.capture.writer import whole_dbm
+
+        sim = replace(sim, packets=whole_dbm(sim.packets))
     for p in sim.write(out):
         print(p)
+    if capture_cfg is not None:
+        from radiopose.capture.writer import CLOCKS_FILE, TRUTH_FILE, simulate_captures
+
+        caps = simulate_captures(
+            sim.packets,
+            [r.receiver_id for r in sim.site.receivers],
+            out / "captures",
+            seed=seed,
+            config=capture_cfg,
+        )
+        for p in [*caps.paths.values(), out / "captures" / CLOCKS_FILE]:
+            print(p)
+        if duplicates > 0:
+            print(out / "captures" / TRUTH_FILE)
+        else:
+            (out / "captures" / TRUTH_FILE).unlink()  # equal to packets.csv
     n_pk = len(sim.truth)
     print(f"{n_pk} packets, {len(sim.packets)} receptions at {receivers} receivers", flush=True)
 
