@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import struct
 import zlib
+from fractions import Fraction
 from pathlib import Path
 
 import dpkt
@@ -32,6 +33,10 @@ ESP32 = [
     DATA / f"probe-request-project_sc6-61_position_{k}_2024-03-17_anonymized.pcap" for k in (1, 2)
 ]
 TX = "02:00:00:00:00:07"
+# the hypothesis settings of this module's fuzz and property tests (fixed: no profile)
+FUZZ = settings(
+    max_examples=200, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 
 
 def _pcap(path: Path, records: list[tuple[float, bytes]], *, nano: bool = True) -> Path:
@@ -253,6 +258,74 @@ def test_pcapng_interfaces_resolutions_and_sections(tmp_path: Path) -> None:
     assert list(cap.frames.rss_dbm) == [-40.0, -41.0, -43.0, -44.0]
 
 
+def _one_interface_pcapng(
+    path: Path, tsresol: int | None, tsoffset: int | None, ticks: list[int]
+) -> Path:
+    ng = dpkt.pcapng
+    blob = bytes(ng.SectionHeaderBlockLE())
+    blob += bytes(_idb(ng.InterfaceDescriptionBlockLE, 127, tsresol=tsresol, tsoffset=tsoffset))
+    for k, t in enumerate(ticks):
+        blob += _epb(
+            ng.EnhancedPacketBlockLE, 0, t, radiotap_header(-40) + probe_request(TX, k, b"")
+        )
+    path.write_bytes(blob)
+    return path
+
+
+def test_pcapng_timestamps_outside_int64_are_counted(tmp_path: Path) -> None:
+    i64 = 2**63 - 1
+    cases = [
+        # (if_tsresol, if_tsoffset, ticks) -> kept timestamps; the others are bad_timestamp
+        (0, None, [10**11, 5], [5_000_000_000]),  # 1e11 s is beyond year 2262
+        (9, 2**62, [1], []),  # offset of 2^62 s
+        (9, -(2**62), [0], []),  # before 1677
+        (9, None, [i64, i64 + 1, 2**64 - 1], [i64]),  # ns ticks: the int64 edge is exact
+        (9, -1, [0], [-1_000_000_000]),  # a negative time that fits is kept
+    ]
+    for k, (tsresol, tsoffset, ticks, kept) in enumerate(cases):
+        path = _one_interface_pcapng(tmp_path / f"t{k}.pcapng", tsresol, tsoffset, ticks)
+        cap = read_pcap(path)
+        (s,) = cap.stats
+        assert (s.frames_read, s.frames_kept) == (len(ticks), len(kept))
+        bad = len(ticks) - len(kept)
+        assert s.skipped == ({"bad_timestamp": bad} if bad else {})
+        assert cap.frames.timestamp_ns.dtype == np.int64
+        assert [int(t) for t in cap.frames.timestamp_ns] == kept
+    assert SKIP_REASONS.index("bad_timestamp") < SKIP_REASONS.index("truncated_record")
+    # a packet of a non-radiotap interface is counted under its first reason
+    ng = dpkt.pcapng
+    blob = bytes(ng.SectionHeaderBlockLE())
+    blob += bytes(_idb(ng.InterfaceDescriptionBlockLE, 127))
+    blob += bytes(_idb(ng.InterfaceDescriptionBlockLE, 105, tsresol=0))
+    blob += _epb(ng.EnhancedPacketBlockLE, 1, 10**11, probe_request(TX, 1, b""))
+    blob += _epb(ng.EnhancedPacketBlockLE, 0, 1, radiotap_header(-40) + probe_request(TX, 2, b""))
+    path = tmp_path / "mixed.pcapng"
+    path.write_bytes(blob)
+    (s,) = read_pcap(path).stats
+    assert (s.frames_kept, s.skipped) == (1, {"wrong_link_type": 1})
+
+
+@FUZZ
+@given(
+    tsresol=st.one_of(st.none(), st.integers(0, 30), st.integers(0x80, 0x80 | 70)),
+    tsoffset=st.one_of(st.none(), st.integers(-(2**63), 2**63 - 1)),
+    ticks=st.integers(0, 2**64 - 1),
+)
+def test_pcapng_timestamps_are_exact(
+    tmp_path: Path, tsresol: int | None, tsoffset: int | None, ticks: int
+) -> None:
+    """ns = floor(ticks / ticks-per-second · 10^9) + if_tsoffset · 10^9, or a counted skip."""
+    r = 6 if tsresol is None else tsresol
+    per_second = (2 if r & 0x80 else 10) ** (r & 0x7F)
+    expected = int(Fraction(ticks * 10**9, per_second) // 1) + (tsoffset or 0) * 10**9
+    path = _one_interface_pcapng(tmp_path / "exact.pcapng", tsresol, tsoffset, [ticks])
+    cap = read_pcap(path)
+    if -(2**63) <= expected < 2**63:
+        assert [int(t) for t in cap.frames.timestamp_ns] == [expected]
+    else:
+        assert cap.stats[0].skipped == {"bad_timestamp": 1}
+
+
 def test_pcapng_without_radiotap_interface_is_an_error(tmp_path: Path) -> None:
     ng = dpkt.pcapng
     blob = bytes(ng.SectionHeaderBlockLE()) + bytes(_idb(ng.InterfaceDescriptionBlockLE, 105))
@@ -301,6 +374,13 @@ def test_truncated_pcap_keeps_the_frames_before(tmp_path: Path) -> None:
             "corrupt pcap record",
         ),
         (b"\x0a\x0d\x0d\x0a\x1c\x00\x00\x00\x99\x99\x99\x99", "bad byte-order magic"),
+        (  # a second section header claiming 4 GiB: refused, not read into memory
+            bytes(dpkt.pcapng.SectionHeaderBlockLE())
+            + b"\x0a\x0d\x0d\x0a"
+            + struct.pack("<I", 0xFFFFFFF0)
+            + b"\x4d\x3c\x2b\x1a",
+            r"corrupt pcapng block at byte \d+: length 4294967280",
+        ),
     ],
 )
 def test_bad_files_give_one_line_errors(tmp_path: Path, content: bytes, message: str) -> None:
@@ -359,6 +439,96 @@ def test_reader_survives_garbage_after_a_valid_header(
         read_capture(p, "rx")
     except InputError as exc:
         assert "\n" not in str(exc)
+
+
+def _fuzz_base_pcapng() -> bytes:
+    """A valid pcapng: two sections (LE, BE), four interfaces with options, all packet blocks."""
+    ng = dpkt.pcapng
+    frame = [radiotap_header(-40 - k) + probe_request(TX, k, b"fz") for k in range(6)]
+    le = bytes(ng.SectionHeaderBlockLE())
+    le += bytes(_idb(ng.InterfaceDescriptionBlockLE, 127, tsresol=9, tsoffset=1_700_000_000))
+    le += bytes(_idb(ng.InterfaceDescriptionBlockLE, 127, tsresol=0x80 | 20, tsoffset=-5))
+    le += bytes(_idb(ng.InterfaceDescriptionBlockLE, 105))
+    le += bytes(_idb(ng.InterfaceDescriptionBlockLE, 127, tsresol=3))
+    le += _epb(ng.EnhancedPacketBlockLE, 0, 123_456_789, frame[0])
+    le += _epb(ng.EnhancedPacketBlockLE, 1, 3 * 2**20, frame[1])
+    le += _epb(ng.EnhancedPacketBlockLE, 2, 7, frame[2])
+    n3 = len(frame[3])
+    pb = ng.PacketBlockLE(iface_id=3, ts_low=42, caplen=n3, pkt_len=n3, pkt_data=frame[3])
+    le += bytes(pb)  # the obsolete packet block
+    be = bytes(ng.SectionHeaderBlock())
+    be += bytes(_idb(ng.InterfaceDescriptionBlock, 127, tsresol=6, tsoffset=2**30))
+    be += _epb(ng.EnhancedPacketBlock, 0, 2**50, frame[4])
+    spb = frame[5] + b"\0" * (-len(frame[5]) % 4)
+    be += (
+        struct.pack(">III", 3, 16 + len(spb), len(frame[5]))
+        + spb
+        + struct.pack(">I", 16 + len(spb))
+    )
+    return le + be
+
+
+def test_fuzz_base_pcapng_is_valid(tmp_path: Path) -> None:
+    p = tmp_path / "base.pcapng"
+    p.write_bytes(_fuzz_base_pcapng())
+    cap = read_pcap(p)
+    (s,) = cap.stats
+    assert (s.frames_read, s.frames_kept) == (6, 4)
+    assert s.skipped == {"wrong_link_type": 1, "no_timestamp": 1}
+    assert [int(t) for t in cap.frames.timestamp_ns] == [
+        1_700_000_000_123_456_789,
+        -2_000_000_000,
+        42_000_000,
+        2**30 * 10**9 + 2**50 * 1000,
+    ]
+
+
+_MUTATION = st.tuples(
+    st.sampled_from(("flip", "overwrite", "insert", "delete", "truncate")),
+    st.floats(0.0, 1.0, exclude_max=True),  # where, as a fraction of the current length
+    st.integers(0, 255),
+    st.binary(min_size=1, max_size=12),
+)
+
+
+def _mutate(raw: bytearray, op: str, where: float, byte: int, blob: bytes) -> None:
+    pos = int(where * len(raw)) if raw else 0
+    if op == "flip" and raw:
+        raw[pos] ^= 1 << (byte % 8)
+    elif op == "overwrite" and raw:
+        raw[pos : pos + len(blob)] = blob[: len(raw) - pos]
+    elif op == "insert":
+        raw[pos:pos] = blob
+    elif op == "delete":
+        del raw[pos : pos + 1 + byte % 16]
+    elif op == "truncate":
+        del raw[pos:]
+
+
+@FUZZ
+@given(mutations=st.lists(_MUTATION, min_size=1, max_size=6))
+def test_pcapng_reader_survives_mutations(
+    tmp_path: Path, mutations: list[tuple[str, float, int, bytes]]
+) -> None:
+    """Flipped, overwritten, inserted, deleted or cut bytes of a valid multi-interface
+    pcapng: either frames with int64 times and consistent counts, or a one-line InputError."""
+    raw = bytearray(_fuzz_base_pcapng())
+    for m in mutations:
+        _mutate(raw, *m)
+    p = tmp_path / "mut.pcapng"
+    p.write_bytes(bytes(raw))
+    try:
+        cap = read_pcap(p, "rx")
+    except InputError as exc:
+        assert "\n" not in str(exc)
+        assert str(p) in str(exc)
+        return
+    (s,) = cap.stats
+    assert s.frames_kept + sum(s.skipped.values()) == s.frames_read
+    assert set(s.skipped) <= set(SKIP_REASONS)
+    ts = cap.frames.timestamp_ns
+    assert ts.dtype == np.int64
+    assert ts.shape == (s.frames_kept,)
 
 
 # --------------------------------------------------------------------------

@@ -15,11 +15,34 @@ def run(args: list[str], capsys) -> tuple[int, str, str]:
     return code, out, err
 
 
-def test_help_lists_every_command(capsys):
+COMMANDS = (
+    "simulate",
+    "demo",
+    "enrol",
+    "sync",
+    "locate",
+    "score",
+    "serve",
+    "receiver",
+    "evaluate",
+    "spoof",
+    "pattern",
+    "token",
+    "db",
+)
+
+
+def test_help_lists_every_command(capsys, monkeypatch):
+    monkeypatch.setenv("COLUMNS", "80")
     code, out, _ = run(["--help"], capsys)
     assert code == 0
-    for cmd in ("simulate", "demo"):
-        assert cmd in out
+    rows = [line.strip("│ ").split() for line in out.splitlines() if line.startswith("│ ")]
+    listed = [r[0] for r in rows if r and r[0] in COMMANDS]
+    assert sorted(listed) == sorted(COMMANDS)  # every command, each once
+    # one line each: no continuation rows (rows that start with blank space)
+    block = out.split("Commands")[1]
+    cont = [ln for ln in block.splitlines() if ln.startswith("│" + " " * 10)]
+    assert cont == []
 
 
 def test_simulate_contract_call(tmp_path, capsys):
@@ -58,6 +81,13 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--receivers", "0"], "n_receivers = 0 is out of range"),
         (["--rotation", "spin"], "--rotation must be one of"),
         (["--noise-db", "-2"], "noise_db"),
+        (["--duration-s", "0.001"], "shorter than one packet interval"),
+        (["--duration-s", "inf"], "duration_s = inf is out of range"),
+        (["--size-m", "1.5"], "leaves no room to walk"),
+        (["--speed-mps", "1", "nan"], "--speed-mps needs"),
+        (["--pcap", "--duplicates", "2"], "duplicate_fraction"),
+        (["--rotation-rate-dps", "100", "50"], "linear_rate_deg_s = (100.0, 50.0) needs"),
+        (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),
     ],
 )
 def test_simulate_errors_one_line(tmp_path, capsys, args, needle):
@@ -85,3 +115,39 @@ def test_demo_writes_and_reports(tmp_path, capsys):
         assert (tmp_path / "d" / name).stat().st_size > 10_000
         assert name in out
     assert Path(tmp_path / "d" / "scenario" / "packets.csv").is_file()
+
+
+def test_simulate_refuses_unwritable_outputs_before_writing(tmp_path, capsys):
+    out = tmp_path / "s"
+    (out / "packets.csv").mkdir(parents=True)  # a directory where a file goes
+    code, _, err = run(["simulate", "-o", str(out)], capsys)
+    assert code == 2 and "packets.csv: is a directory" in err and err.count("\n") == 1
+    assert sorted(p.name for p in out.iterdir()) == ["packets.csv"]  # nothing else written
+    out2 = tmp_path / "s2"
+    out2.mkdir()
+    (out2 / "captures").write_text("not a directory")
+    code, _, err = run(["simulate", "-o", str(out2), "--pcap"], capsys)
+    assert code == 2 and "a parent is not a directory" in err
+    assert sorted(p.name for p in out2.iterdir()) == ["captures"]
+
+
+def test_demo_bad_setting_leaves_no_directory(tmp_path, capsys):
+    code, _, err = run(["demo", "-o", str(tmp_path / "d"), "--duration-s", "0.001"], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize(("rotation", "lo", "hi"), [("linear", 100, 120), ("fast", 700, 720)])
+def test_simulate_rotation_rate_option(tmp_path, capsys, rotation, lo, hi):
+    import numpy as np
+
+    from radiopose.packets import read_truth_csv
+
+    out = tmp_path / "s"
+    args = ["simulate", "-o", str(out), "--duration-s", "0.5", "--rotation", rotation]
+    code, _, err = run([*args, "--rotation-rate-dps", str(lo), str(hi)], capsys)
+    assert code == 0, err
+    t = read_truth_csv(out / "truth.csv")
+    rate = np.degrees(np.diff(np.unwrap(np.radians(t.orientation_deg[:, 0]))))
+    rate_dps = np.abs(rate / np.diff(t.timestamp_s))
+    assert np.all((rate_dps > lo - 0.01) & (rate_dps < hi + 0.01))

@@ -83,6 +83,28 @@ def test_estimate_without_truth_is_an_error():
         score(tr, e)
 
 
+def test_score_cli_names_the_estimates_file_and_line(tmp_path, capsys):
+    from radiopose.cli import main
+    from radiopose.estimates import write_estimates_csv
+    from radiopose.packets import write_truth_csv
+
+    tr = _truth()
+    e = _est(tr, [0, 1, 2])
+    e = Estimates(
+        e.timestamp_s + np.array([0.0, 0.0, 1.0]),
+        *(
+            getattr(e, f)
+            for f in ("transmitter", "packet_id", "position_m", "orientation_deg", "method")
+        ),
+    )
+    write_truth_csv(tr, tmp_path / "truth.csv")
+    write_estimates_csv(e, tmp_path / "est.csv")
+    code = main(["score", str(tmp_path / "truth.csv"), str(tmp_path / "est.csv")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert f"{tmp_path / 'est.csv'}:4, column 'timestamp_s': estimate 3" in err
+
+
 def test_error_stats():
     s = error_stats(np.arange(101, dtype=float))
     assert (s.mean, s.median, s.p95) == (50.0, 50.0, 95.0)

@@ -42,7 +42,10 @@ def test_reads_and_ignores_extra_columns(tmp_path):
         ("x_m,name,azimuth_deg\n1,a,1\n1,b,360\n", "t.csv:3, column 'azimuth_deg': value 360"),
         ("x_m,name,azimuth_deg\n1,a,-0.5\n", "column 'azimuth_deg': value -0.5 out of range"),
         ("x_m,name,azimuth_deg\n1,,1\n", "t.csv:2, column 'name': empty value"),
-        ("x_m,name,azimuth_deg\n1,a\n", "t.csv:2: row has 2 fields, header has 3"),
+        (
+            "x_m,name,azimuth_deg\n1,a\n",
+            "t.csv:2, column 'azimuth_deg': row has 2 fields, header has 3",
+        ),
         ("", "empty file"),
         ("x_m,x_m,name,azimuth_deg\n1,1,a,1\n", "column appears more than once"),
     ],

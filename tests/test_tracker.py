@@ -239,6 +239,12 @@ def test_bad_input_errors(small_sim):
         InputError, match=r"p\.csv:5, column 'receiver_id'.*'rx99' is not in the site"
     ):
         locate(site, _packets(bad_rx))
+    twice = [*rows[:4], rows[1]]  # packet 0's rx2 row again, as line 6
+    assert rows[1][0] == "0" and rows[4][0] != "0"
+    with pytest.raises(
+        InputError, match=r"p\.csv:6, column 'receiver_id'.*two rows for receiver.*first on line 3"
+    ):
+        locate(site, _packets(twice))
     backwards = [r for r in rows if r[0] == "1"] + [r for r in rows if r[0] == "0"]
     with pytest.raises(InputError, match=r"timestamp_s.*earlier than the previous packet"):
         locate(site, _packets(backwards))

@@ -33,8 +33,8 @@ def run_demo(
 
     t0 = time.perf_counter()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     sim = simulate(ScenarioConfig(noise_db=noise_db, duration_s=duration_s), seed=seed)
+    out.mkdir(parents=True, exist_ok=True)  # only once the settings proved valid
     written = sim.write(out / "scenario")
     echo(
         f"simulated {len(sim.truth)} packets (seed {seed}, σ = {noise_db:g} dB) "

@@ -66,9 +66,18 @@ class Estimates:
     position_m: FloatArray
     orientation_deg: FloatArray
     method: np.ndarray
+    lines: np.ndarray | None = None  # file line of each row, if read from a file
+    path: str | None = None  # the file, if read from one
 
     def __len__(self) -> int:
         return int(self.timestamp_s.shape[0])
+
+    def where(self, row: int) -> dict[str, str | int | None]:
+        """``path``/``line`` keywords of :class:`InputError` for row ``row`` (0-based)."""
+        return {
+            "path": self.path,
+            "line": None if self.lines is None else int(self.lines[row]),
+        }
 
     @classmethod
     def from_poses(cls, poses: Sequence[PoseEstimate]) -> Estimates:
@@ -91,6 +100,8 @@ class Estimates:
             self.position_m[mask],
             self.orientation_deg[mask],
             self.method[mask],
+            None if self.lines is None else self.lines[mask],
+            self.path,
         )
 
 
@@ -103,6 +114,8 @@ def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
         t["packet_id"],
         *read_pose_columns(t),
         t["method"],
+        t.lines,
+        t.path,
     )
 
 

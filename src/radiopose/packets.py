@@ -76,6 +76,8 @@ class PacketObservation:
         ``(k,)`` their RSS, dBm.
     line
         First file line of the packet, for messages (``None`` if not from a file).
+    row_lines
+        ``(k,)`` file line of each receiver's row (empty if not from a file).
     """
 
     packet_id: str
@@ -84,6 +86,11 @@ class PacketObservation:
     receiver_ids: tuple[str, ...]
     rss_dbm: FloatArray
     line: int | None = None
+    row_lines: tuple[int, ...] = ()
+
+    def line_of(self, k: int) -> int | None:
+        """File line of the packet's ``k``-th row (the first line if unknown)."""
+        return self.row_lines[k] if k < len(self.row_lines) else self.line
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,6 +192,7 @@ def group_packets(packets: Packets) -> list[PacketObservation]:
                 tuple(str(r) for r in packets.receiver_id[idx]),
                 packets.rss_dbm[idx].astype(float),
                 None if packets.lines is None else int(packets.lines[idx[0]]),
+                () if packets.lines is None else tuple(int(v) for v in packets.lines[idx]),
             )
         )
     return out

@@ -157,8 +157,13 @@ def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table
                 if not row or all(not f.strip() for f in row):
                     continue  # blank lines are not rows
                 if len(row) != width:
+                    short = len(row) < width
                     raise InputError(
-                        f"row has {len(row)} fields, header has {width}", path=p, line=line
+                        f"row has {len(row)} fields, header has {width}"
+                        + ("" if short else f" (extra after '{header[-1].strip()}')"),
+                        path=p,
+                        line=line,
+                        column=header[len(row)].strip() if short else None,
                     )
                 for col in columns:
                     raw = row[index[col.name]]
@@ -225,6 +230,32 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def check_output_paths(
+    files: Sequence[str | os.PathLike[str]] = (), dirs: Sequence[str | os.PathLike[str]] = ()
+) -> None:
+    """Refuse, before anything is written, outputs that could not be written.
+
+    ``files`` must not be existing directories, ``dirs`` not existing files, and
+    no existing parent of either may be a file. Raises :class:`OSError` with
+    the offending path (the CLI prints it as one line).
+    """
+    for kind, paths in (("file", files), ("dir", dirs)):
+        for p in map(Path, paths):
+            if kind == "file" and p.is_dir():
+                raise IsADirectoryError(
+                    errno.EISDIR, "is a directory, expected a file path", str(p)
+                )
+            if kind == "dir" and p.exists() and not p.is_dir():
+                raise NotADirectoryError(errno.ENOTDIR, "is a file, expected a directory", str(p))
+            for parent in p.parents:
+                if parent.exists():
+                    if not parent.is_dir():
+                        raise NotADirectoryError(
+                            errno.ENOTDIR, "cannot create: a parent is not a directory", str(p)
+                        )
+                    break
 
 
 def write_table(

@@ -716,16 +716,17 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
     obs = group_packets(packets)
     last: dict[str, tuple[float, str]] = {}
     for o in obs:
-        seen = set()
-        for rid in o.receiver_ids:
+        seen: dict[str, int] = {}
+        for k, rid in enumerate(o.receiver_ids):
             if rid in seen:
                 raise InputError(
-                    f"packet {o.packet_id!r} of {o.transmitter} has two rows for receiver {rid!r}",
+                    f"packet {o.packet_id!r} of {o.transmitter} has two rows for receiver "
+                    f"{rid!r} (the first on line {o.line_of(seen[rid])})",
                     path=packets.path,
-                    line=o.line,
+                    line=o.line_of(k),
                     column="receiver_id",
                 )
-            seen.add(rid)
+            seen[rid] = k
         key = o.transmitter.lower()
         prev = last.get(key)
         if prev is not None and o.timestamp_s < prev[0]:

@@ -8,14 +8,21 @@ the receiver's own clock), ``frame_sha256`` (hex), ``transmitter`` (addr2,
 
 Record layer
 ------------
-File and interface headers are parsed with dpkt's header classes
+File, section and interface headers are parsed with dpkt's header classes
 (``dpkt.pcap.FileHdr``, ``dpkt.pcapng.SectionHeaderBlock``,
-``InterfaceDescriptionBlock``); the per-record headers use the same layouts
-(``dpkt.pcap.PktHdr``, the pcapng EPB/PB header) through precompiled
-``struct`` formats, because building a dpkt object per record costs more than
-decoding the frame. Timestamps are exact integers: pcap µs or ns files, and
-pcapng with any number of sections and interfaces, each with its own
-``if_tsresol`` (powers of 10 or 2) and ``if_tsoffset``.
+``InterfaceDescriptionBlock`` and its options). The per-record loop is our
+own: the record headers use the same layouts (``dpkt.pcap.PktHdr``, the
+pcapng EPB/PB header) through precompiled ``struct`` formats. Neither
+library's record reader meets the requirements (measured with dpkt 1.9.8 and
+scapy 2.8.0, details in ``docs/capture.md``): ``dpkt.pcap.Reader`` yields
+float/Decimal timestamps and no original length, ``dpkt.pcapng.Reader`` reads
+only the first interface; scapy's ``RawPcapNgReader`` keeps the interfaces of
+a previous section, ignores ``if_tsoffset``, does not report the interface id
+and ends silently on a truncated or corrupt block. Timestamps are exact
+integers: pcap µs or ns files, and pcapng with any number of sections and
+interfaces, each with its own ``if_tsresol`` (powers of 10 or 2) and
+``if_tsoffset``; a pcapng timestamp outside the int64 nanosecond range is
+skipped as ``bad_timestamp``.
 
 What is hashed
 --------------
@@ -34,8 +41,10 @@ present but wrong), ``no_signal``, ``implausible_rss`` (outside
 :data:`PLAUSIBLE_RSS_DBM`), ``short_frame``, ``unsupported_frame`` (802.11
 protocol version not 0, extension frames), ``no_transmitter`` (ACK, CTS,
 ...), ``wrong_link_type`` (pcapng interface that is not radiotap),
-``no_timestamp`` (pcapng simple packet blocks), ``truncated_record`` (file
-cut short inside a record: the frames before it are kept).
+``no_timestamp`` (pcapng simple packet blocks), ``bad_timestamp`` (pcapng
+timestamp plus ``if_tsoffset`` outside the int64 nanosecond range, about
+years 1677–2262), ``truncated_record`` (file cut short inside a record: the
+frames before it are kept).
 """
 
 from __future__ import annotations
@@ -108,11 +117,16 @@ SKIP_REASONS: tuple[str, ...] = (
     "no_transmitter",
     "wrong_link_type",
     "no_timestamp",
+    "bad_timestamp",
     "truncated_record",
 )
 
 # A record larger than this is a corrupt length field, not a frame (libpcap's limit).
 _MAX_RECORD_BYTES = 262_144
+
+# Range of timestamp_ns (int64); pcapng ticks, resolution and offset can exceed it.
+_NS_MIN = -(2**63)
+_NS_MAX = 2**63 - 1
 
 _PCAP_MAGICS = {
     dpkt.pcap.TCPDUMP_MAGIC,
@@ -366,7 +380,7 @@ def _iter_pcapng(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, in
         btype, blen = struct.unpack(endian + "II", buf[:8])
         if blen < 12 or blen % 4:
             raise InputError(f"corrupt pcapng block at byte {offset}: length {blen}", path=path)
-        if blen > _MAX_RECORD_BYTES + 1024 and btype != dpkt.pcapng.PCAPNG_BT_SHB:
+        if blen > _MAX_RECORD_BYTES + 1024:  # also for a section header: it is read whole
             raise InputError(f"corrupt pcapng block at byte {offset}: length {blen}", path=path)
         rest = read(blen - len(buf))
         block = buf + rest
@@ -424,7 +438,10 @@ def _iter_pcapng(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, in
             link, mul, div, shift, off_ns = interfaces[iface]
             ticks = (hi << 32) | lo
             ts_ns = (((ticks * mul) >> shift) // div) + off_ns
-            yield ts_ns, link, block[28 : 28 + caplen], length
+            if _NS_MIN <= ts_ns <= _NS_MAX or link != LINKTYPE_IEEE802_11_RADIOTAP:
+                yield ts_ns, link, block[28 : 28 + caplen], length
+            else:  # wrong_link_type comes first among the skip reasons
+                yield -3, -3, b"", -3  # timestamp outside int64 ns marker
         elif btype == dpkt.pcapng.PCAPNG_BT_SPB:
             yield -2, -2, b"", -2  # no timestamp marker
         offset += blen
@@ -438,7 +455,8 @@ def iter_raw_records(
 
     A record cut short by the end of the file is yielded once as
     ``(-1, -1, b"", -1)`` and ends the iteration; a pcapng simple packet block
-    (no timestamp) as ``(-2, -2, b"", -2)``.
+    (no timestamp) as ``(-2, -2, b"", -2)``; a radiotap pcapng packet whose
+    timestamp in nanoseconds does not fit in int64 as ``(-3, -3, b"", -3)``.
 
     Raises
     ------
@@ -572,6 +590,8 @@ def _decode_stream(
                 skipped["truncated_record"] += 1
             elif link == -2:
                 skipped["no_timestamp"] += 1
+            elif link == -3:
+                skipped["bad_timestamp"] += 1
             else:
                 skipped["wrong_link_type"] += 1
                 other_links.add(link)

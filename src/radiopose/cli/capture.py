@@ -37,7 +37,7 @@ def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
     return out
 
 
-@app.command()
+@app.command(short_help="Match the receivers' captures into packets.csv.")
 def sync(
     captures: Annotated[
         list[Path],

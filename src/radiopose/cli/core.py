@@ -12,7 +12,7 @@ from radiopose.cli import app
 ROTATIONS = ("linear", "periodic", "fast")
 
 
-@app.command()
+@app.command(short_help="Simulate a scenario: site/, packets.csv, truth.csv.")
 def simulate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")],
     seed: Annotated[int, typer.Option(help="Random seed; same seed → byte-identical files.")] = 0,
@@ -33,6 +33,14 @@ def simulate(
         tuple[float, float],
         typer.Option("--speed-mps", help="Speed range drawn uniformly, metres/second (MIN MAX)."),
     ] = (0.5, 1.5),
+    rotation_rate_dps: Annotated[
+        tuple[float, float] | None,
+        typer.Option(
+            "--rotation-rate-dps",
+            help="Rotation rate range drawn uniformly (random sign), degrees/second (MIN MAX); "
+            "for --rotation linear (default 10 90) or fast (default 450 900).",
+        ),
+    ] = None,
     loss: Annotated[
         float, typer.Option(help="Fraction of packets each receiver misses, 0–1.")
     ] = 0.0,
@@ -93,6 +101,12 @@ def simulate(
         raise InputError(f"--rotation must be one of {', '.join(ROTATIONS)}, got {rotation!r}")
     if not 0 < speed_mps[0] <= speed_mps[1]:
         raise InputError(f"--speed-mps needs 0 < MIN <= MAX, got {speed_mps[0]} {speed_mps[1]}")
+    motion = replace(MotionConfig(), rotation=rotation, speed_mps=speed_mps)  # type: ignore[arg-type]
+    if rotation_rate_dps is not None:
+        if rotation == "periodic":
+            raise InputError("--rotation-rate-dps applies to --rotation linear or fast")
+        rate = "linear_rate_deg_s" if rotation == "linear" else "fast_rate_deg_s"
+        motion = replace(motion, **{rate: tuple(rotation_rate_dps)})
     cfg = ScenarioConfig(
         size_m=size_m,
         step_m=step_m,
@@ -103,7 +117,7 @@ def simulate(
         duration_s=duration_s,
         azimuth_step_deg=azimuth_step_deg,
         loss_fraction=loss,
-        motion=replace(MotionConfig(), rotation=rotation, speed_mps=speed_mps),  # type: ignore[arg-type]
+        motion=motion,
     )
     capture_cfg = None
     if pcap:
@@ -121,6 +135,9 @@ def simulate(
             raise InputError(f"--pcap settings: {exc}") from None
     sim = run(cfg, seed=seed)
     if capture_cfg is not None:
+        from radiopose.tables import check_output_paths
+
+        check_output_paths([out / "captures" / "clocks.csv"], [out / "captures"])
         from radiopose.capture.writer import whole_dbm
 
         sim = replace(sim, packets=whole_dbm(sim.packets))
@@ -146,7 +163,7 @@ def simulate(
     print(f"{n_pk} packets, {len(sim.packets)} receptions at {receivers} receivers", flush=True)
 
 
-@app.command()
+@app.command(short_help="Simulate, localise with the five methods, plot.")
 def demo(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")] = Path(
         "radiopose-demo"

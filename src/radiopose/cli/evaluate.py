@@ -54,7 +54,7 @@ def _command(
     return " ".join(shlex.quote(p) for p in parts)
 
 
-@app.command()
+@app.command(short_help="Run the paper's evaluation; write a report.")
 def evaluate(
     out: Annotated[
         Path, typer.Option("-o", "--out", help="Output directory (created; resumed if present).")

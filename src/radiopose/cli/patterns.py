@@ -23,6 +23,7 @@ from radiopose.tables import atomic_writer
 pattern_app = typer.Typer(
     name="pattern",
     help="Radiation patterns: import industry files and real measurements, plot.",
+    short_help="Radiation patterns: import files and measurements, plot.",
     no_args_is_help=True,
 )
 app.add_typer(pattern_app, name="pattern")

@@ -13,7 +13,7 @@ import typer
 from radiopose.cli import app
 
 
-@app.command()
+@app.command(short_help="Estimate each packet's position and orientation.")
 def locate(
     site: Annotated[Path, typer.Argument(help="Site directory (site.toml, receivers.csv, …).")],
     packets: Annotated[Path, typer.Argument(help="Synchronised packets.csv.")],
@@ -76,7 +76,7 @@ def locate(
     print(f"wrote {out}", file=sys.stderr)
 
 
-@app.command()
+@app.command(short_help="Errors and coverage of estimates vs. the truth.")
 def score(
     truth: Annotated[Path, typer.Argument(help="truth.csv of the packets.")],
     estimates: Annotated[Path, typer.Argument(help="estimates.csv to score.")],

@@ -13,7 +13,7 @@ import typer
 from radiopose.cli import app
 
 
-@app.command()
+@app.command(short_help="Run the spoofing experiments; write a report.")
 def spoof(
     experiments: Annotated[
         list[str] | None,

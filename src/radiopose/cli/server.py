@@ -29,8 +29,8 @@ def _database(db: str):  # type: ignore[no-untyped-def]
         from radiopose.server.db import Database
     except ModuleNotFoundError as exc:
         raise InputError(
-            f"the live server needs the 'server' extra ({exc.name} is missing): "
-            "pip install 'radiopose[server]'"
+            f"the live server needs {exc.name}, which is missing: reinstall radiopose "
+            "(pip install radiopose)"
         ) from None
     return Database(_url(db))
 
@@ -45,7 +45,7 @@ def _partition(value: str) -> tuple[int, int]:
     return k, n
 
 
-@app.command()
+@app.command(short_help="The central server: API, live tracking, dashboard.")
 def serve(
     site: Annotated[Path, typer.Argument(help="Site directory, imported into the database.")],
     db: Annotated[
@@ -142,7 +142,7 @@ def token_create(
         database.close()
 
 
-@app.command()
+@app.command(short_help="Ship one receiver's frame reports to the server.")
 def receiver(
     server: Annotated[str, typer.Option(help="Server URL, e.g. http://127.0.0.1:8000.")],
     token: Annotated[str, typer.Option(help="This receiver's bearer token.")],
@@ -186,7 +186,7 @@ def receiver(
         )
     except ModuleNotFoundError as exc:
         raise InputError(
-            f"the receiver needs httpx ({exc.name} is missing): pip install 'radiopose[server]'"
+            f"the receiver needs httpx ({exc.name} is missing): reinstall radiopose"
         ) from None
     stop = threading.Event()
     try:

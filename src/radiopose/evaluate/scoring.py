@@ -101,7 +101,9 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
         if key not in by_tx:
             raise InputError(
                 f"estimate {i + 1} (packet {estimates.packet_id[i]!r}): transmitter "
-                f"{estimates.transmitter[i]!r} has no truth rows"
+                f"{estimates.transmitter[i]!r} has no truth rows",
+                column="transmitter",
+                **estimates.where(i),
             )
         times, rows = by_tx[key]
         j = int(np.searchsorted(times, e_ns[i]))
@@ -116,7 +118,9 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
             raise InputError(
                 f"estimate {i + 1} (packet {estimates.packet_id[i]!r}, "
                 f"{estimates.timestamp_s[i]:.9g} s): no truth row of {estimates.transmitter[i]} "
-                f"within {tolerance_s:g} s"
+                f"within {tolerance_s:g} s",
+                column="timestamp_s",
+                **estimates.where(i),
             )
         out[i] = rows[best]
     return out

@@ -138,22 +138,25 @@ class CandidateSpace:
             A receiver not in the site, or one receiver twice in the packet.
         """
         idx = []
-        for rid in packet.receiver_ids:
+        for k, rid in enumerate(packet.receiver_ids):
             try:
-                idx.append(self.receiver_ids.index(rid))
+                i = self.receiver_ids.index(rid)
             except ValueError:
                 raise InputError(
                     f"packet {packet.packet_id!r}: receiver {rid!r} is not in the site",
-                    line=packet.line,
+                    line=packet.line_of(k),
                     column="receiver_id",
                 ) from None
+            if i in idx:
+                first = packet.line_of(idx.index(i))
+                raise InputError(
+                    f"packet {packet.packet_id!r}: receiver {rid!r} appears more than once "
+                    f"(first on line {first})",
+                    line=packet.line_of(k),
+                    column="receiver_id",
+                )
+            idx.append(i)
         ridx = np.asarray(idx, dtype=np.int64)
-        if np.unique(ridx).size != ridx.size:
-            raise InputError(
-                f"packet {packet.packet_id!r}: a receiver appears more than once",
-                line=packet.line,
-                column="receiver_id",
-            )
         order = np.argsort(ridx)
         return HeardRss(ridx[order], np.asarray(packet.rss_dbm, dtype=np.float64)[order])
 

@@ -7,6 +7,6 @@ and roles), :mod:`~radiopose.server.db` (SQLAlchemy models and repository),
 :mod:`~radiopose.server.live` (matcher and tracker pipeline),
 :mod:`~radiopose.server.app` (the FastAPI app), :mod:`~radiopose.server.export`
 (replayable export), :mod:`~radiopose.server.demo` (``radiopose demo --live``)
-and ``static/`` (the dashboard). Needs the ``server`` extra
-(``pip install 'radiopose[server]'``). See ``docs/server.md``.
+and ``static/`` (the dashboard). Its dependencies (FastAPI, uvicorn,
+SQLAlchemy, httpx) are part of the core install. See ``docs/server.md``.
 """

@@ -18,6 +18,7 @@ same config and seed give byte-identical files.
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +42,7 @@ from radiopose.site import (
     assemble_site,
     write_site,
 )
+from radiopose.tables import check_output_paths
 from radiopose.units import FloatArray
 
 DEFAULT_TRANSMITTER = "02:00:00:00:00:01"
@@ -123,10 +125,21 @@ class ScenarioConfig:
             ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0),
         ]
         for name, ok in checks:
-            if not ok:
-                raise InputError(
-                    f"scenario setting {name} = {getattr(self, name)!r} is out of range"
-                )
+            value = getattr(self, name)
+            if not ok or (isinstance(value, float) and not math.isfinite(value)):
+                raise InputError(f"scenario setting {name} = {value!r} is out of range")
+        if round(self.duration_s / (self.interval_ms / 1000.0)) < 1:
+            raise InputError(
+                f"duration_s = {self.duration_s!r} is shorter than one packet interval "
+                f"({self.interval_ms:g} ms): no packet would be sent"
+            )
+        self.motion.validate()
+        if self.size_m <= 2 * self.motion.margin_m:
+            raise InputError(
+                f"size_m = {self.size_m!r} leaves no room to walk: the device keeps "
+                f"{self.motion.margin_m:g} m from every edge, so size_m must exceed "
+                f"{2 * self.motion.margin_m:g} m"
+            )
         n = round(360.0 / self.azimuth_step_deg)
         if abs(n * self.azimuth_step_deg - 360.0) > 1e-6:
             raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
@@ -147,6 +160,7 @@ class Simulation:
     def write(self, directory: str | os.PathLike[str]) -> list[Path]:
         """Write ``DIR/site/``, ``DIR/packets.csv`` and ``DIR/truth.csv``; return the paths."""
         root = Path(directory)
+        check_output_paths([root / "packets.csv", root / "truth.csv"], [root / "site"])
         write_site(self.site, root / "site")
         write_packets_csv(self.packets, root / "packets.csv")
         write_truth_csv(self.truth, root / "truth.csv")

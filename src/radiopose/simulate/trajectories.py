@@ -2,8 +2,9 @@
 
 Paper, "2D Proof of Concept Simulations": the transmitter moves in a straight
 line at constant speed while rotating linearly. Also available: a periodic,
-human-like rotation (sum of two sinusoids, peak rate within the rotation
-model's 360°/s) and a rotation faster than the rotation model allows.
+human-like rotation (sum of two sinusoids, peak rate at most 377°/s and
+almost always within the rotation model's 360°/s) and a rotation faster than
+the rotation model allows.
 
 Positions stay inside the area shrunk by ``margin_m``: a start point and heading
 are drawn until the whole straight path fits (200 tries); if none fits (a long
@@ -12,11 +13,13 @@ run in a small area) the path reflects off the margin like a billiard ball.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
+from radiopose.errors import InputError
 from radiopose.units import FloatArray, wrap_deg
 
 RotationKind = Literal["linear", "periodic", "fast"]
@@ -51,6 +54,26 @@ class MotionConfig:
     periodic_amplitude_deg: tuple[float, float] = (20.0, 60.0)
     periodic_frequency_hz: tuple[float, float] = (0.2, 0.6)
     margin_m: float = 1.0
+
+    def validate(self) -> None:
+        """Raise :class:`InputError` naming the first out-of-range setting."""
+        if self.rotation not in ("linear", "periodic", "fast"):
+            raise InputError(f"motion setting rotation = {self.rotation!r} is unknown")
+        ranges = {
+            "speed_mps": (self.speed_mps, 0.0, 100.0),
+            "linear_rate_deg_s": (self.linear_rate_deg_s, 0.0, 36_000.0),
+            "fast_rate_deg_s": (self.fast_rate_deg_s, 0.0, 36_000.0),
+            "periodic_amplitude_deg": (self.periodic_amplitude_deg, 0.0, 180.0),
+            "periodic_frequency_hz": (self.periodic_frequency_hz, 0.0, 100.0),
+        }
+        for name, ((lo, hi), lo_ok, hi_ok) in ranges.items():
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo_ok <= lo <= hi <= hi_ok):
+                raise InputError(
+                    f"motion setting {name} = ({lo!r}, {hi!r}) needs "
+                    f"{lo_ok:g} <= MIN <= MAX <= {hi_ok:g}"
+                )
+        if not (math.isfinite(self.margin_m) and self.margin_m >= 0):
+            raise InputError(f"motion setting margin_m = {self.margin_m!r} is out of range")
 
 
 def _reflect(x: FloatArray, lo: float, hi: float) -> FloatArray:
