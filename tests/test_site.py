@@ -87,31 +87,40 @@ def test_irregular_survey_and_outside_policy():
 
 
 # ------------------------------------------------------------------ bad input
+# (file, old, new, line, column, what): the error names file, line and column/key.
+# site.toml as written by write_site_toml: [area] on line 3, step_m 9,
+# [orientations] 11, azimuth_step_deg 12, [survey] 16, pattern 18.
 CASES = [
-    ("receivers.csv", ",rx1", ",rx1bogus", "unknown pattern 'rx1bogus'"),
-    ("receivers.csv", "rx2,", "rx1,", "duplicate receiver id 'rx1'"),
-    ("receivers.csv", "receiver_id,", "rid,", "column 'receiver_id': missing required column"),
-    ("devices.csv", ",device,", ",nodevice,", "unknown pattern 'nodevice'"),
-    ("devices.csv", ",15\n", ",abc\n", "column 'tx_power_dbm': not a number"),
-    ("survey.csv", ",rx1,", ",rx9,", "unknown receiver 'rx9'"),
-    ("survey.csv", "\n0,0,1,rx1,", "\n0,0,nan,rx1,", "column 'z_m': not a finite number"),
-    ("site.toml", "step_m = 0.25", "step_m = -1.0", "key 'area.step_m': must be > 0"),
-    ("site.toml", "step_m = 0.25", "step_m = 'x'", "key 'area.step_m': expected a number"),
-    ("site.toml", "azimuth_step_deg = 1.0", "azimuth_step_deg = 7.0", "does not divide 360"),
-    ("site.toml", "azimuth_step_deg = 1.0", "azimuth_stepdeg = 1.0", "unknown key"),
-    ("site.toml", 'pattern = "survey-tx"', 'pattern = "nope"', "key 'survey.pattern'"),
-    ("site.toml", "[area]", "[area", "invalid TOML"),
-]
+    ("receivers.csv", ",rx1", ",rx1bogus", 2, "pattern", "unknown pattern 'rx1bogus'"),
+    ("receivers.csv", "rx2,", "rx1,", 3, "receiver_id", "duplicate receiver id 'rx1'"),
+    ("receivers.csv", "receiver_id,", "rid,", 1, "receiver_id", "missing required column"),
+    ("devices.csv", ",device,", ",nodevice,", 2, "pattern", "unknown pattern 'nodevice'"),
+    ("devices.csv", ",15\n", ",abc\n", 2, "tx_power_dbm", "not a number"),
+    ("survey.csv", ",rx1,", ",rx9,", 2, "receiver_id", "unknown receiver 'rx9'"),
+    ("survey.csv", "\n0,0,1,rx1,", "\n0,0,nan,rx1,", 2, "z_m", "not a finite number"),
+    ("site.toml", "step_m = 0.25", "step_m = -1.0", 9, "area.step_m", "must be > 0"),
+    ("site.toml", "step_m = 0.25", "step_m = 'x'", 9, "area.step_m", "expected a number"),
+    ("site.toml", "azimuth_step_deg = 1.0", "azimuth_step_deg = 7.0", 12,
+     "orientations.azimuth_step_deg", "does not divide 360"),
+    ("site.toml", "azimuth_step_deg = 1.0", "azimuth_stepdeg = 1.0", 12,
+     "orientations.azimuth_stepdeg", "unknown key"),
+    ("site.toml", 'pattern = "survey-tx"', 'pattern = "nope"', 18, "survey.pattern",
+     "unknown pattern 'nope'"),
+    ("site.toml", "[area]", "[area", 3, None, "invalid TOML"),
+]  # fmt: skip
 
 
-@pytest.mark.parametrize(("fname", "old", "new", "needle"), CASES)
-def test_bad_site_is_one_line_error(small_site_dir, fname, old, new, needle):
+@pytest.mark.parametrize(("fname", "old", "new", "line", "column", "needle"), CASES)
+def test_bad_site_is_one_line_error(small_site_dir, fname, old, new, line, column, needle):
     edit(small_site_dir / fname, old, new)
     with pytest.raises(InputError) as exc:
         load_site(small_site_dir)
-    msg = str(exc.value)
-    assert needle in msg
-    assert fname in msg
+    err = exc.value
+    msg = str(err)
+    assert needle in err.reason
+    assert (Path(err.path).name, err.line, err.column) == (fname, line, column)
+    where = f"{fname}:{line}" + (f", column '{column}'" if column else "")
+    assert msg.startswith(str(small_site_dir / where)), msg
     assert "\n" not in msg
 
 
@@ -120,8 +129,10 @@ def test_receiver_without_survey(small_site_dir):
     (small_site_dir / "survey.csv").write_text(
         "".join([lines[0]] + [ln for ln in lines[1:] if ",rx3," not in ln])
     )
-    with pytest.raises(InputError, match="receiver 'rx3' has no survey rows"):
+    with pytest.raises(InputError, match="receiver 'rx3' has no survey rows") as exc:
         load_site(small_site_dir)
+    # no survey line to point at: the receiver's own line in receivers.csv
+    assert exc.value.path.endswith("receivers.csv") and exc.value.line == 4
 
 
 def test_missing_files(small_site_dir):

@@ -13,6 +13,16 @@ receiver ids unique, grid sane, every receiver surveyed, survey rows name known
 receivers) and builds the survey map (:mod:`radiopose.survey`).
 :func:`write_site` writes one (atomically, file by file).
 
+Validation limits (documented in ``docs/site.md``): coordinates within
+±:data:`COORD_LIMIT_M`; at most :data:`MAX_GRID_POINTS` candidate positions,
+:data:`MAX_ORIENTATIONS` candidate orientations and :data:`MAX_CANDIDATES`
+positions × orientations; each area span a whole number of ``step_m`` (within
+:data:`STEP_TOLERANCE` of a step per step); pitches and rolls distinct (rolls
+modulo 360); each receiver's survey points spanning an area (3 points not on
+one line) whose convex hull holds at least :data:`MIN_SURVEY_COVERAGE` of the
+candidate positions. Candidates outside a receiver's hull follow ``[survey]
+outside``.
+
 Optional ``site.toml`` keys beyond the contract (documented in
 ``docs/site.md``): ``[survey] interpolation = "cubic"|"linear"``,
 ``[survey] outside = "nearest"|"exclude"``.
@@ -20,6 +30,8 @@ Optional ``site.toml`` keys beyond the contract (documented in
 
 from __future__ import annotations
 
+import json
+import math
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -35,21 +47,42 @@ from radiopose.geometry import (
     pattern_angles_deg,
 )
 from radiopose.patterns.pattern import Pattern, read_pattern_csv, write_pattern_csv
-from radiopose.survey import SurveyMap, SurveyPoints, average_by_point, build_survey_map
-from radiopose.tables import Column, atomic_writer, read_table, write_table
+from radiopose.survey import (
+    SurveyMap,
+    SurveyPoints,
+    average_by_point,
+    build_survey_map,
+    hull_coverage,
+    spans_two_dimensions,
+)
+from radiopose.tables import Column, Table, atomic_writer, read_table, write_table
 from radiopose.units import FloatArray
 
+COORD_LIMIT_M = 1e6
+"""Bound on every coordinate (site.toml area, receivers.csv, survey.csv), metres."""
 MAX_GRID_POINTS = 25_000_000
+"""Most candidate positions (``nx · ny``)."""
+MAX_ORIENTATIONS = 100_000
+"""Most candidate orientations (azimuths × pitches × rolls); azimuth step ≥ 0.0036°."""
+MAX_CANDIDATES = 250_000_000
+"""Most candidate poses, positions × orientations (the standard scenario has
+201² × 360 ≈ 14.5 million); beyond it a packet's exhaustive scoring and the
+numpy scorer's float32 table (5 GB at 4 receivers) stop being practical."""
+STEP_TOLERANCE = 1e-9
+"""An area span is a whole number ``k`` of steps if ``|span/step − k| ≤ 1e-9 · max(k, 1)``."""
+MIN_SURVEY_COVERAGE = 0.5
+"""Least fraction of candidate positions inside each receiver's surveyed convex hull."""
 ANGLE_COLUMNS = (
     Column("azimuth_deg", low=-360.0, high=360.0),
     Column("pitch_deg", low=-90.0, high=90.0),
     Column("roll_deg", low=-360.0, high=360.0),
 )
+_XYZ_COLUMNS = tuple(
+    Column(c, low=-COORD_LIMIT_M, high=COORD_LIMIT_M) for c in ("x_m", "y_m", "z_m")
+)
 RECEIVER_COLUMNS = (
     Column("receiver_id", "str"),
-    Column("x_m"),
-    Column("y_m"),
-    Column("z_m"),
+    *_XYZ_COLUMNS,
     *ANGLE_COLUMNS,
     Column("pattern", "str"),
 )
@@ -59,13 +92,25 @@ DEVICE_COLUMNS = (
     Column("tx_power_dbm", low=-100.0, high=60.0),
 )
 SURVEY_COLUMNS = (
-    Column("x_m"),
-    Column("y_m"),
-    Column("z_m"),
+    *_XYZ_COLUMNS,
     Column("receiver_id", "str"),
     Column("rss_dbm", low=-200.0, high=50.0),
     *ANGLE_COLUMNS,
 )
+
+
+def grid_steps(span: float, step: float) -> tuple[int, bool]:
+    """Whole steps of ``step`` that fit in ``span`` and whether they fill it.
+
+    Returns ``(k, exact)``: ``k = round(span/step)`` if that is within
+    :data:`STEP_TOLERANCE` (relative) of ``span/step`` and ``exact`` is true;
+    otherwise ``k = floor(span/step)`` and ``exact`` is false.
+    """
+    k = span / step
+    r = round(k)
+    if abs(k - r) <= STEP_TOLERANCE * max(abs(k), 1.0):
+        return int(r), True
+    return int(np.floor(k)), False
 
 
 @dataclass(frozen=True)
@@ -73,8 +118,9 @@ class AreaGrid:
     """Candidate positions: a regular grid at one height.
 
     ``x_m()`` runs ``x_min_m, x_min_m + step_m, …`` up to ``x_max_m`` (inclusive
-    within 1e-9 m); likewise ``y_m()``. Flattened candidates are in ``ij``
-    order: index ``ix * ny + iy``.
+    when the span is a whole number of steps within :data:`STEP_TOLERANCE`,
+    which :func:`load_site` requires); likewise ``y_m()``. Flattened candidates
+    are in ``ij`` order: index ``ix * ny + iy``.
     """
 
     x_min_m: float
@@ -85,8 +131,7 @@ class AreaGrid:
     step_m: float
 
     def _axis(self, lo: float, hi: float) -> FloatArray:
-        n = int(np.floor((hi - lo) / self.step_m + 1e-9)) + 1
-        return lo + np.arange(n) * self.step_m
+        return lo + np.arange(grid_steps(hi - lo, self.step_m)[0] + 1) * self.step_m
 
     def x_m(self) -> FloatArray:
         return self._axis(self.x_min_m, self.x_max_m)
@@ -255,37 +300,105 @@ def device_directivity_dbi(
 
 
 # ----------------------------------------------------------------------------- loading
-def _read_site_toml(path: Path) -> tuple[str, AreaGrid, OrientationGrid, SurveyConfig]:
+@dataclass(frozen=True)
+class _SiteToml:
+    name: str
+    area: AreaGrid
+    orientations: OrientationGrid
+    survey: SurveyConfig
+    area_section: Section
+    survey_section: Section
+
+
+def _safe_pattern_name(name: str) -> bool:
+    """A pattern name is a plain file name: ``patterns/<name>.csv`` stays in ``patterns/``."""
+    return "/" not in name and "\\" not in name and "\0" not in name and name not in (".", "..")
+
+
+def _axis_steps(a: Section, axis: str, lo: float, hi: float, step: float) -> int:
+    """Steps along one area axis; the span must be a whole number of steps."""
+    if hi < lo:
+        raise a.error(f"{axis}_max_m", f"must be >= {axis}_min_m ({lo:g}), got {hi:g}")
+    k = (hi - lo) / step  # inf when a subnormal step overflows the division
+    if not np.isfinite(k) or k + 1 > MAX_GRID_POINTS:
+        raise a.error(
+            "step_m",
+            f"{axis} span {hi - lo:g} m / step {step:g} m gives more than "
+            f"{MAX_GRID_POINTS:,} candidate positions",
+        )
+    n, exact = grid_steps(hi - lo, step)
+    if not exact:
+        raise a.error(
+            "step_m",
+            f"the {axis} span {hi - lo:g} m ({axis}_min_m to {axis}_max_m) must be a whole "
+            f"number of steps of {step:g} m, got {k:.6g} steps",
+        )
+    return n
+
+
+def _distinct(o: Section, name: str, values: tuple[float, ...], period: float | None) -> None:
+    """Reject repeated angles (modulo ``period`` if given: roll 180 = roll -180)."""
+    seen: dict[float, int] = {}
+    for i, v in enumerate(values):
+        key = v if period is None else (v + period / 2) % period - period / 2
+        key = round(key, 9) + 0.0  # -0.0 == 0.0; float noise below 1e-9 deg
+        if period is not None and key == round(period / 2, 9):
+            key = -key
+        if key in seen:
+            same = "the same as" if period is None else f"equal modulo {period:g} to"
+            raise o.error(
+                name, f"item {i} = {v:g} is {same} item {seen[key]}; values must be distinct"
+            )
+        seen[key] = i
+
+
+def _read_site_toml(path: Path) -> _SiteToml:
     root = Section(load_toml(path), path)
     name = root.string("name", path.parent.name)
     a = root.section("area")
-    area = AreaGrid(
-        x_min_m=a.number("x_min_m", required=True),
-        x_max_m=a.number("x_max_m", required=True),
-        y_min_m=a.number("y_min_m", required=True),
-        y_max_m=a.number("y_max_m", required=True),
-        z_m=a.number("z_m", required=True),
-        step_m=a.number("step_m", required=True, positive=True),
-    )
-    if area.x_max_m < area.x_min_m:
-        raise a.error("x_max_m", "must be >= x_min_m")
-    if area.y_max_m < area.y_min_m:
-        raise a.error("y_max_m", "must be >= y_min_m")
-    nx, ny = area.shape
+    lim = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
+    x_min = a.number("x_min_m", required=True, **lim)
+    x_max = a.number("x_max_m", required=True, **lim)
+    y_min = a.number("y_min_m", required=True, **lim)
+    y_max = a.number("y_max_m", required=True, **lim)
+    z = a.number("z_m", required=True, **lim)
+    step = a.number("step_m", required=True, positive=True, high=2 * COORD_LIMIT_M)
+    nx = _axis_steps(a, "x", x_min, x_max, step) + 1
+    ny = _axis_steps(a, "y", y_min, y_max, step) + 1
     if nx * ny > MAX_GRID_POINTS:
         raise a.error("step_m", f"grid of {nx}x{ny} candidates exceeds {MAX_GRID_POINTS:,}")
     a.finish()
+    area = AreaGrid(x_min, x_max, y_min, y_max, z, step)
+
     o = root.section("orientations")
-    step = o.number("azimuth_step_deg", 1.0, positive=True, high=360.0)
-    n = round(360.0 / step)
-    if abs(n * step - 360.0) > 1e-6:
-        raise o.error("azimuth_step_deg", f"{step:g} does not divide 360")
-    orient = OrientationGrid(
-        azimuth_step_deg=step,
-        pitch_deg=o.numbers("pitch_deg", (0.0,), low=-90.0, high=90.0),
-        roll_deg=o.numbers("roll_deg", (0.0,), low=-180.0, high=180.0),
-    )
+    az_step = o.number("azimuth_step_deg", 1.0, positive=True, high=360.0)
+    n_az = 360.0 / az_step
+    if n_az > MAX_ORIENTATIONS + 0.5:
+        raise o.error(
+            "azimuth_step_deg",
+            f"{az_step:g} gives {n_az:.4g} azimuths, more than {MAX_ORIENTATIONS:,} candidate "
+            f"orientations (the step must be >= {360.0 / MAX_ORIENTATIONS:g})",
+        )
+    if abs(round(n_az) * az_step - 360.0) > 1e-6:
+        raise o.error("azimuth_step_deg", f"{az_step:g} does not divide 360")
+    pitch = o.numbers("pitch_deg", (0.0,), low=-90.0, high=90.0)
+    _distinct(o, "pitch_deg", pitch, None)
+    roll = o.numbers("roll_deg", (0.0,), low=-360.0, high=360.0)
+    _distinct(o, "roll_deg", roll, 360.0)
+    orient = OrientationGrid(az_step, pitch, roll)
+    if len(orient) > MAX_ORIENTATIONS:
+        raise o.table_error(
+            f"{orient.n_azimuth} azimuths x {len(pitch)} pitches x {len(roll)} rolls = "
+            f"{len(orient):,} candidate orientations, more than {MAX_ORIENTATIONS:,}"
+        )
+    if nx * ny * len(orient) > MAX_CANDIDATES:
+        raise o.table_error(
+            f"{nx * ny:,} positions x {len(orient):,} orientations = "
+            f"{nx * ny * len(orient):.3g} candidate poses, more than {MAX_CANDIDATES:,}; "
+            "use a coarser [area] step_m or fewer orientations"
+        )
     o.finish()
+
     s = root.section("survey")
     survey = SurveyConfig(
         tx_power_dbm=s.number("tx_power_dbm", required=True, low=-100.0, high=60.0),
@@ -293,9 +406,57 @@ def _read_site_toml(path: Path) -> tuple[str, AreaGrid, OrientationGrid, SurveyC
         interpolation=s.string("interpolation", "cubic", choices=("cubic", "linear")),
         outside=s.string("outside", "nearest", choices=("nearest", "exclude")),
     )
+    if not _safe_pattern_name(survey.pattern):
+        raise s.error("pattern", f"pattern name {survey.pattern!r} is not a plain file name")
     s.finish()
     root.finish()
-    return name, area, orient, survey
+    return _SiteToml(name, area, orient, survey, a, s)
+
+
+def _percent(fraction: float) -> str:
+    """``0.4996`` → ``"49.9%"``: rounded down, so a rejected value never reads as the limit."""
+    return f"{math.floor(fraction * 1000) / 10:g}%"
+
+
+def _check_survey_geometry(st: Table, rows: SurveyRows, toml: _SiteToml) -> None:
+    """Each receiver's survey spans an area whose hull covers enough of the grid.
+
+    Raises :class:`InputError` naming survey.csv (the receiver's first row) or,
+    when the whole survey misses the area, site.toml's ``[area]``.
+    """
+    gx, gy = toml.area.x_m(), toml.area.y_m()
+    xy = np.unique(np.round(rows.xyz_m[:, :2], 6), axis=0)
+    per_rx: list[tuple[str, int, FloatArray]] = []
+    for rid in dict.fromkeys(rows.receiver_id):
+        sel = rows.receiver_id == rid
+        first = int(np.argmax(sel))
+        pts = np.unique(np.round(rows.xyz_m[sel, :2], 6), axis=0)
+        if not spans_two_dimensions(pts):
+            raise st.error(
+                first,
+                "receiver_id",
+                f"receiver {rid!r}: its {len(pts)} surveyed point(s) do not span an area "
+                "(need at least 3 points (x_m, y_m) not on one line)",
+            )
+        per_rx.append((str(rid), first, pts))
+    cover = hull_coverage(xy, gx, gy)
+    lo, hi = xy.min(axis=0), xy.max(axis=0)
+    if cover < MIN_SURVEY_COVERAGE:
+        raise toml.area_section.table_error(
+            f"only {_percent(cover)} of the candidate positions lie inside the surveyed "
+            f"convex hull (survey.csv spans x {lo[0]:g}..{hi[0]:g} m, y {lo[1]:g}..{hi[1]:g} m); "
+            f"at least {_percent(MIN_SURVEY_COVERAGE)} must"
+        )
+    for rid, first, pts in per_rx:
+        cover = hull_coverage(pts, gx, gy)
+        if cover < MIN_SURVEY_COVERAGE:
+            raise st.error(
+                first,
+                "receiver_id",
+                f"receiver {rid!r}: only {_percent(cover)} of the candidate positions (site.toml "
+                f"[area]) lie inside the convex hull of its survey points; at least "
+                f"{_percent(MIN_SURVEY_COVERAGE)} must",
+            )
 
 
 def load_site(directory: str | os.PathLike[str]) -> Site:
@@ -309,7 +470,7 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
     root = Path(directory)
     if not root.is_dir():
         raise InputError("site directory not found", path=root)
-    name, area, orient, survey_cfg = _read_site_toml(root / "site.toml")
+    toml = _read_site_toml(root / "site.toml")
 
     rt = read_table(root / "receivers.csv", RECEIVER_COLUMNS)
     if len(rt) == 0:
@@ -343,24 +504,24 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
         devices.append(Device(tx, str(dt["pattern"][i]), float(dt["tx_power_dbm"][i])))
 
     # Patterns: every referenced name must exist as patterns/<name>.csv.
-    wanted: dict[str, tuple[str, int | None, str]] = {}
+    survey_key = toml.survey_section
+    wanted: dict[str, InputError] = {}
     for i, r in enumerate(receivers):
-        wanted.setdefault(r.pattern, (rt.path, int(rt.lines[i]), "pattern"))
+        wanted.setdefault(r.pattern, rt.error(i, "pattern", ""))
     for i, d in enumerate(devices):
-        wanted.setdefault(d.pattern, (dt.path, int(dt.lines[i]), "pattern"))
-    wanted.setdefault(survey_cfg.pattern, (str(root / "site.toml"), None, None))
+        wanted.setdefault(d.pattern, dt.error(i, "pattern", ""))
+    wanted.setdefault(toml.survey.pattern, survey_key.error("pattern", ""))
     patterns: dict[str, Pattern] = {}
-    for pname, (where, line, col) in wanted.items():
+    for pname, where in wanted.items():
         ppath = root / "patterns" / f"{pname}.csv"
-        if not ppath.is_file():
-            what = "key 'survey.pattern': " if col is None else ""
-            raise InputError(
-                f"{what}unknown pattern {pname!r}: no file patterns/{pname}.csv",
-                path=where,
-                line=line,
-                column=col,
-            )
-        patterns[pname] = read_pattern_csv(ppath, name=pname)
+        if not _safe_pattern_name(pname):
+            problem = f"pattern name {pname!r} is not a plain file name"
+        elif not ppath.is_file():
+            problem = f"unknown pattern {pname!r}: no file patterns/{pname}.csv"
+        else:
+            patterns[pname] = read_pattern_csv(ppath, name=pname)
+            continue
+        raise InputError(problem, path=where.path, line=where.line, column=where.column)
 
     st = read_table(root / "survey.csv", SURVEY_COLUMNS)
     if len(st) == 0:
@@ -374,14 +535,17 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
         rss_dbm=st["rss_dbm"],
         orientation_deg=np.column_stack([st["azimuth_deg"], st["pitch_deg"], st["roll_deg"]]),
     )
-    for r in receivers:
+    for i, r in enumerate(receivers):
         if not np.any(rows.receiver_id == r.receiver_id):
-            raise InputError(f"receiver {r.receiver_id!r} has no survey rows", path=st.path)
+            raise rt.error(
+                i, "receiver_id", f"receiver {r.receiver_id!r} has no survey rows in survey.csv"
+            )
+    _check_survey_geometry(st, rows, toml)
     return assemble_site(
-        name,
-        area,
-        orient,
-        survey_cfg,
+        toml.name,
+        toml.area,
+        toml.orientations,
+        toml.survey,
         tuple(receivers),
         tuple(devices),
         patterns,
@@ -434,6 +598,11 @@ def _toml_number(x: float) -> str:
     return repr(float(x))
 
 
+def _toml_string(text: str) -> str:
+    """A TOML basic string (JSON's escapes are TOML's; DEL must be escaped too)."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
 def write_site_toml(
     path: str | os.PathLike[str],
     name: str,
@@ -443,7 +612,7 @@ def write_site_toml(
 ) -> None:
     """Write ``site.toml`` (atomically)."""
     lines = [
-        f'name = "{name}"',
+        f"name = {_toml_string(name)}",
         "",
         "[area]",
         *(
@@ -458,7 +627,7 @@ def write_site_toml(
         "",
         "[survey]",
         f"tx_power_dbm = {_toml_number(survey.tx_power_dbm)}",
-        f'pattern = "{survey.pattern}"',
+        f"pattern = {_toml_string(survey.pattern)}",
         f'interpolation = "{survey.interpolation}"',
         f'outside = "{survey.outside}"',
         "",

@@ -24,6 +24,12 @@ outside the surveyed convex hull follow ``outside``: ``"nearest"`` (default,
 the value of the nearest surveyed point) or ``"exclude"`` (NaN: the candidate
 is never scored). Interpolation is 2-D in ``(x, y)`` at the candidate height;
 survey heights are not used for interpolation.
+
+A loaded site (:func:`radiopose.site.load_site`) guarantees each receiver's
+survey points span an area (:func:`spans_two_dimensions`) whose hull covers
+most of the candidate grid (:func:`hull_coverage`). :func:`interpolate_points`
+itself still accepts one point (a constant map) or collinear points (the
+``outside`` policy everywhere).
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from scipy.interpolate import (
     RectBivariateSpline,
     RegularGridInterpolator,
 )
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from radiopose.units import FloatArray
 
@@ -74,6 +80,65 @@ def average_by_point(xy_m: FloatArray, values_db: FloatArray, decimals: int = 6)
     sums = np.zeros(uniq.shape[0])
     np.add.at(sums, inverse.reshape(-1), values_db)
     return SurveyPoints(uniq, sums / counts, counts.astype(np.int64))
+
+
+def spans_two_dimensions(xy_m: FloatArray, rel_tol: float = 1e-6) -> bool:
+    """Whether points span an area: at least 3 of them, not all on one line.
+
+    Parameters
+    ----------
+    xy_m
+        ``(n, 2)`` points, metres.
+    rel_tol
+        The points count as collinear when their spread across their principal
+        axis is at most ``rel_tol`` times their spread along it (singular values
+        of the centred points).
+    """
+    xy = np.asarray(xy_m, float).reshape(-1, 2)
+    if xy.shape[0] < 3 or not np.all(np.isfinite(xy)):
+        return False
+    sv = np.linalg.svd(xy - xy.mean(axis=0), compute_uv=False)
+    return bool(sv[0] > 0 and sv[1] > rel_tol * sv[0])
+
+
+def hull_coverage(xy_m: FloatArray, x_m: FloatArray, y_m: FloatArray, tol_m: float = 1e-6) -> float:
+    """Fraction of the grid ``x_m × y_m`` inside the convex hull of ``xy_m``.
+
+    Exact for grid points (boundary points, within ``tol_m``, count as inside):
+    for each value of the shorter axis the hull's half-planes bound an interval
+    of the longer one, counted by binary search, so the cost is
+    ``min(nx, ny) × hull edges``.
+
+    Parameters
+    ----------
+    xy_m
+        ``(n, 2)`` points spanning an area (:func:`spans_two_dimensions`).
+    x_m, y_m
+        ``(nx,)``, ``(ny,)`` increasing grid axes, metres.
+
+    Returns
+    -------
+    In ``[0, 1]``; 0 when the hull cannot be built (degenerate points).
+    """
+    try:
+        eq = ConvexHull(np.asarray(xy_m, float).reshape(-1, 2)).equations  # a·p + c <= 0 inside
+    except (QhullError, ValueError):
+        return 0.0
+    x, y = np.asarray(x_m, float), np.asarray(y_m, float)
+    if x.size == 0 or y.size == 0:
+        return 0.0
+    u, v, au, av = (x, y, eq[:, 0], eq[:, 1]) if x.size <= y.size else (y, x, eq[:, 1], eq[:, 0])
+    # For each u: a_v·v <= -c - a_u·u + tol, facet by facet.
+    rhs = -eq[None, :, 2] - au[None, :] * u[:, None] + tol_m  # (nu, facets)
+    flat = np.abs(av) < 1e-12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = rhs / np.where(flat, 1.0, av)[None, :]
+    hi = np.min(np.where((av > 0) & ~flat, bound, np.inf), axis=1)
+    lo = np.max(np.where((av < 0) & ~flat, bound, -np.inf), axis=1)
+    out = np.any(flat[None, :] & (rhs < 0), axis=1)
+    count = np.searchsorted(v, hi, side="right") - np.searchsorted(v, lo, side="left")
+    count = np.where(out, 0, np.maximum(count, 0))
+    return float(count.sum()) / (x.size * y.size)
 
 
 def _regular_axes(xy: FloatArray) -> tuple[FloatArray, FloatArray] | None:
