@@ -87,6 +87,7 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--speed-mps", "1", "nan"], "--speed-mps needs"),
         (["--pcap", "--duplicates", "2"], "duplicate_fraction"),
         (["--rotation-rate-dps", "100", "50"], "linear_rate_deg_s = (100.0, 50.0) needs"),
+        (["--size-m", "10", "--step-m", "0.3"], "step_m = 0.3 does not divide size_m = 10.0"),
         (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),
     ],
 )
@@ -151,3 +152,22 @@ def test_simulate_rotation_rate_option(tmp_path, capsys, rotation, lo, hi):
     rate = np.degrees(np.diff(np.unwrap(np.radians(t.orientation_deg[:, 0]))))
     rate_dps = np.abs(rate / np.diff(t.timestamp_s))
     assert np.all((rate_dps > lo - 0.01) & (rate_dps < hi + 0.01))
+
+
+def test_unexpected_errors_are_one_line(tmp_path, capsys, monkeypatch):
+    import radiopose.simulate
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("kaboom\nsecond line")
+
+    monkeypatch.setattr(radiopose.simulate, "simulate", boom)
+    monkeypatch.delenv("RADIOPOSE_TRACEBACK", raising=False)
+    code, _, err = run(["simulate", "-o", str(tmp_path / "s")], capsys)
+    assert code == 3
+    assert err == (
+        "radiopose: internal error, RuntimeError: kaboom second line "
+        "(please report it; RADIOPOSE_TRACEBACK=1 shows where)\n"
+    )
+    monkeypatch.setenv("RADIOPOSE_TRACEBACK", "1")
+    with pytest.raises(RuntimeError, match="kaboom"):
+        main(["simulate", "-o", str(tmp_path / "s")])

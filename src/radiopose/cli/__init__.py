@@ -8,6 +8,7 @@ stderr with exit status 2 — no traceback reaches the user.
 
 from __future__ import annotations
 
+import os
 import sys
 from typing import Any
 
@@ -101,7 +102,20 @@ def main(argv: list[str] | None = None) -> int:
             where = ctx.command_path if ctx is not None else "radiopose"
             print(f"{where}: {' '.join(str(fmt()).split())}", file=sys.stderr)
             return code
-        raise
+        # Anything else is a bug (or memory ran out): still one line for the
+        # user; RADIOPOSE_TRACEBACK=1 shows the traceback for a report.
+        if os.environ.get("RADIOPOSE_TRACEBACK"):
+            raise
+        if isinstance(exc, MemoryError):
+            print("radiopose: out of memory (reduce the grid or the trace)", file=sys.stderr)
+            return 3
+        what = " ".join(str(exc).split()) or "no message"
+        print(
+            f"radiopose: internal error, {type(exc).__name__}: {what} "
+            "(please report it; RADIOPOSE_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
+        return 3
     return 0
 
 

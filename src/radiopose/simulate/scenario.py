@@ -40,6 +40,7 @@ from radiopose.site import (
     SurveyConfig,
     SurveyRows,
     assemble_site,
+    grid_steps,
     write_site,
 )
 from radiopose.tables import check_output_paths
@@ -140,6 +141,12 @@ class ScenarioConfig:
                 f"{self.motion.margin_m:g} m from every edge, so size_m must exceed "
                 f"{2 * self.motion.margin_m:g} m"
             )
+        for name in ("step_m", "survey_step_m"):
+            if not grid_steps(self.size_m, getattr(self, name))[1]:
+                raise InputError(
+                    f"{name} = {getattr(self, name)!r} does not divide size_m = {self.size_m!r}: "
+                    "the grid would stop short of the area's edge"
+                )
         n = round(360.0 / self.azimuth_step_deg)
         if abs(n * self.azimuth_step_deg - 360.0) > 1e-6:
             raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
