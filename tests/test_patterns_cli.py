@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +17,7 @@ from radiopose.patterns.enrol import simulate_positioner_measurements, write_mea
 from radiopose.patterns.pattern import read_pattern_csv
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+MSI_NAME = "python_antenna_pattern_simulated_05T.msi"
 
 
 @pytest.fixture
@@ -106,6 +109,86 @@ def test_enrol_existing_output_is_untouched_on_failure(tmp_path, capsys):
     code, _, err = _run(["enrol", str(src), "-o", str(out)], capsys)
     _assert_one_line_failure(code, err, "meas.csv:3")
     assert out.read_text() == "previous\n"
+
+
+def _files(root: Path) -> set[Path]:
+    return set(root.rglob("*"))
+
+
+@pytest.mark.parametrize("bad_plot", ["dir", "under_file", "same_as_output"])
+def test_enrol_plot_failure_writes_nothing(measurements_csv, tmp_path, capsys, bad_plot):
+    (tmp_path / "plots").mkdir()
+    (tmp_path / "a_file").write_text("x")
+    out = tmp_path / "new" / "deeper" / "p.csv"
+    plot = {
+        "dir": tmp_path / "plots",
+        "under_file": tmp_path / "a_file" / "sub" / "p.png",
+        "same_as_output": out,
+    }[bad_plot]
+    before = _files(tmp_path)
+    code, stdout, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(plot)], capsys
+    )
+    _assert_one_line_failure(code, err, str(plot))
+    assert stdout == ""
+    assert _files(tmp_path) == before  # no CSV, no PNG, no temporary file, no new directory
+
+
+def test_pattern_import_plot_failure_writes_nothing(shared_data, tmp_path, capsys):
+    msi = shared_data / "antenna-files" / MSI_NAME
+    out = tmp_path / "bs.csv"
+    out.write_text("previous\n")
+    (tmp_path / "BADDIR").mkdir()
+    before = _files(tmp_path)
+    argv = ["pattern", "import", str(msi), "-o", str(out), "--format", "msi"]
+    code, _, err = _run([*argv, "--plot", str(tmp_path / "BADDIR")], capsys)
+    _assert_one_line_failure(code, err, "BADDIR", "is a directory")
+    assert _files(tmp_path) == before and out.read_text() == "previous\n"
+
+
+def test_csv_failure_after_the_figure_is_staged_removes_it(measurements_csv, tmp_path, capsys):
+    (tmp_path / "a_file").write_text("x")
+    plot = tmp_path / "figs" / "p.png"
+    before = _files(tmp_path)
+    bad_out = tmp_path / "a_file" / "p.csv"  # parent is a file: the CSV cannot be written
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(bad_out), "--plot", str(plot)], capsys
+    )
+    _assert_one_line_failure(code, err, str(bad_out))
+    assert _files(tmp_path) == before
+
+
+def test_figure_rename_failure_removes_the_new_csv(measurements_csv, tmp_path, capsys, monkeypatch):
+    import radiopose.cli.patterns as cli_patterns
+
+    out, plot = tmp_path / "p.csv", tmp_path / "p.png"
+    real_replace = os.replace
+
+    def failing_replace(src, dst):
+        if Path(dst) == plot:
+            raise OSError(errno.EIO, "simulated failure", str(dst))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(cli_patterns.os, "replace", failing_replace)
+    before = _files(tmp_path)
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(plot)], capsys
+    )
+    _assert_one_line_failure(code, err, "simulated failure")
+    assert _files(tmp_path) == before
+
+
+def test_enrol_with_plot_into_new_directories(measurements_csv, tmp_path, capsys):
+    out, plot = tmp_path / "a" / "b" / "p.csv", tmp_path / "c" / "d" / "p.png"
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(plot)], capsys
+    )
+    assert code == 0, err
+    assert read_pattern_csv(out).name == "p"
+    assert plot.read_bytes().startswith(PNG_MAGIC)
+    assert not list(tmp_path.rglob("*.tmp"))
+    mode = plot.stat().st_mode & 0o777
+    assert mode == out.stat().st_mode & 0o777  # the figure gets the usual file mode
 
 
 def test_pattern_import_msi_and_basta(shared_data, tmp_path, capsys):

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from radiopose.errors import InputError
 from radiopose.patterns.importers import (
@@ -90,15 +92,55 @@ def test_msi_real_file(shared_data):
 @pytest.mark.parametrize(
     ("mutate", "line", "column", "match"),
     [
-        (lambda t: t.replace("GAIN 10 dBi\n", ""), None, "GAIN", "no GAIN"),
+        (lambda t: t.replace("GAIN 10 dBi\n", ""), 724, "GAIN", "no GAIN"),
         (lambda t: t.replace("GAIN 10 dBi", "GAIN ten dBi"), 3, "GAIN", "not a number"),
         (lambda t: t.replace("GAIN 10 dBi", "GAIN 10 dBm"), 3, "GAIN", "unknown gain unit"),
         (lambda t: t.replace("\n5 20.00\n", "\n5 abc\n"), 10, "HORIZONTAL attenuation", "number"),
         (lambda t: t.replace("\n5 20.00\n", "\n5 nan\n"), 10, "HORIZONTAL attenuation", "finite"),
         (lambda t: t.replace("\n5 20.00\n", "\n400 20.00\n"), 10, "HORIZONTAL angle", "range"),
-        (lambda t: t.replace("\n5 20.00\n", "\n4 20.00\n"), 4, "HORIZONTAL", "duplicate"),
-        (lambda t: t.split("VERTICAL")[0], None, "VERTICAL", "no VERTICAL"),
+        # the duplicate is reported at the offending line, naming the first
+        (
+            lambda t: t.replace("\n5 20.00\n", "\n4 20.00\n"),
+            10,
+            "HORIZONTAL angle",
+            r"duplicate angle 4 \(first at line 9\)",
+        ),
+        (
+            lambda t: t.replace("\n5 20.00\n", "\n5.5 20.00\n"),
+            10,
+            "HORIZONTAL angle",
+            "not a multiple of 1 deg",
+        ),
+        (lambda t: t.split("VERTICAL")[0], 364, "VERTICAL", "no VERTICAL"),
         (lambda t: t.replace("HORIZONTAL 360", "HORIZONTAL 999"), 4, "HORIZONTAL", "announces"),
+        # a stray data line between the blocks is not a header key
+        (
+            lambda t: t.replace("VERTICAL 360", "360 0.00\nVERTICAL 360"),
+            365,
+            "HORIZONTAL",
+            r"data line '360 0.00' outside a section \(after the 360 points",
+        ),
+        (lambda t: "0 1.00\n" + t, 1, None, "before any HORIZONTAL/VERTICAL section"),
+        # a deleted line: the next section header ends the block early
+        (
+            lambda t: t.replace("\n5 20.00\n", "\n"),
+            364,
+            "HORIZONTAL",
+            "announces 360 points but this line ends it after 359",
+        ),
+        (
+            lambda t: t + "HORIZONTAL 1\n0 0\n",
+            726,
+            "HORIZONTAL",
+            r"second HORIZONTAL section \(the first is at line 4\)",
+        ),
+        # one negative attenuation among positive ones: ambiguous, rejected at its line
+        (
+            lambda t: t.replace("\n5 20.00\n", "\n5 -20.00\n"),
+            10,
+            "HORIZONTAL attenuation",
+            "attenuation -20 dB has the opposite sign of the file's 717 positive values",
+        ),
     ],
 )
 def test_msi_bad_input(tmp_path, mutate, line, column, match):
@@ -109,6 +151,22 @@ def test_msi_bad_input(tmp_path, mutate, line, column, match):
         read_msi(path)
     assert err.value.path == str(path) and err.value.line == line
     assert err.value.column == column and "\n" not in str(err.value)
+
+
+def test_msi_negative_attenuations_throughout_read_by_magnitude(tmp_path):
+    h, v = _asymmetric_cuts()
+    pos, neg = tmp_path / "pos.msi", tmp_path / "neg.msi"
+    pos.write_text(_msi_text(h, v))
+    neg.write_text(_msi_text(-h, -v))
+    for mode in ("horizontal", "sphere"):
+        a, b = read_msi(pos, mode=mode), read_msi(neg, mode=mode)
+        np.testing.assert_array_equal(a.directivity_dbi, b.directivity_dbi)
+    # a majority of negative values: the lone positive one is the odd one out
+    text = _msi_text(-h, -v).replace("\n5 -20.00\n", "\n5 20.00\n")
+    neg.write_text(text)
+    with pytest.raises(InputError, match="opposite sign of the file's 717 negative") as err:
+        read_msi(neg)
+    assert (err.value.line, err.value.column) == (10, "HORIZONTAL attenuation")
 
 
 # ---------------------------------------------------------------- BASTA
@@ -184,54 +242,311 @@ def test_basta_real_file(shared_data):
     assert p.range_dbi == pytest.approx((-72.25, 15.11), abs=0.01)
 
 
+def _line_of(text: str, fragment: str, nth: int = 0) -> int:
+    """1-based line of the ``nth`` occurrence of ``fragment`` in ``text``."""
+    at = -1
+    for _ in range(nth + 1):
+        at = text.index(fragment, at + 1)
+    return text.count("\n", 0, at) + 1
+
+
 @pytest.mark.parametrize(
-    ("change", "column", "match"),
+    ("change", "column", "match", "fragment"),
     [
-        ({"Coordinate_System": "SPCS_Geo"}, "Coordinate_System", "unsupported"),
-        ({"Gain": {"value": "x", "unit": "dBi"}}, "Gain", "expected"),
-        ({"Gain": None}, "Gain", "missing"),
-        ({"Data_Set": [[1.0]] * 3}, "Data_Set", "rows"),
-        ({"Data_Set_Row_Structure": ["PhaseCo"]}, "Data_Set_Row_Structure", "MagAttenuation"),
-        ({"Theta_Sampling": [-90, 30, 100]}, "Theta_Sampling", "stop"),
-        ({"Theta_Sampling": [0, 30, 180]}, "Data_Set", "theta out of range"),
+        ({"Coordinate_System": "SPCS_Geo"}, "Coordinate_System", "unsupported", '"SPCS_Geo"'),
+        ({"Gain": {"value": "x", "unit": "dBi"}}, "Gain", "expected", '"Gain"'),
+        ({"Gain": None}, "Gain", r"missing \(the value is null\)", '"Gain"'),
+        ({"Data_Set": [[1.0]] * 3}, "Data_Set", "3 rows", "  [\n   1.0\n  ]\n ]"),
+        (
+            {"Data_Set_Row_Structure": ["PhaseCo"]},
+            "Data_Set_Row_Structure",
+            "MagAttenuation",
+            '"Data_Set_Row_Structure"',
+        ),
+        ({"Theta_Sampling": [-90, 30, 100]}, "Theta_Sampling", "stop", '"Theta_Sampling"'),
+        (
+            {"Theta_Sampling": [0, 30, 180]},
+            "Theta_Sampling",
+            r"covers 0…180, out of range \[-90, 90\] for SPCS_CW",
+            '"Theta_Sampling"',
+        ),
+        (
+            {"Phi_Sampling": [30, 30, 360]},
+            "Phi_Sampling",
+            r"out of range \[-180, 360\)",
+            '"Phi_Sampling"',
+        ),
+        # a theta range that stops short: the polar grid misses 180 (theta 90 = nadir)
+        (
+            {"Theta_Sampling": [-90, 30, 60], "Data_Set": [[1.0]] * 72},
+            "Theta_Sampling",
+            r"Data_Set row 60 \(Theta 60, Phi 0\): missing grid point azimuth 0, polar 180",
+            '"Theta_Sampling"',
+        ),
     ],
 )
-def test_basta_bad_input(tmp_path, change, column, match):
+def test_basta_bad_input(tmp_path, change, column, match, fragment):
     path = tmp_path / "b.json"
-    path.write_text(json.dumps(_basta(**{}) | change))
+    text = json.dumps(_basta() | change, indent=1)
+    path.write_text(text)
     with pytest.raises(InputError, match=match) as err:
         read_basta_json(path)
     assert err.value.column == column and str(path) in str(err.value)
+    assert err.value.line == _line_of(text, fragment) > 1
     assert "\n" not in str(err.value)
 
 
-def test_basta_nan_and_broken_json(tmp_path):
+def test_basta_missing_key_and_row_count(tmp_path):
+    d = _basta()
+    del d["Gain"]
+    path = tmp_path / "k.json"
+    path.write_text(json.dumps(d, indent=2))
+    with pytest.raises(InputError, match="missing key in the top-level object") as err:
+        read_basta_json(path)
+    assert (err.value.line, err.value.column) == (1, "Gain")
+    d = _basta()
+    d["Data_Set"] = d["Data_Set"] + [[1.0], [2.0]]  # 84 + 2 rows: the first extra is named
+    text = json.dumps(d, indent=2)
+    path.write_text(text)
+    with pytest.raises(
+        InputError, match="86 rows, Theta_Sampling × Phi_Sampling gives 7×12"
+    ) as err:
+        read_basta_json(path)
+    # four '[' open lists before the rows: row k is the (4 + k)-th
+    assert (err.value.line, err.value.column) == (_line_of(text, "[", 4 + 84), "Data_Set")
+
+
+@pytest.mark.parametrize("indent", [None, 2])
+def test_basta_nan_names_row_line_and_column(tmp_path, indent):
     d = _basta()
     d["Data_Set"][5] = [float("nan")]
     path = tmp_path / "n.json"
-    path.write_text(json.dumps(d))  # json writes the NaN literal
-    with pytest.raises(InputError, match="row 5 has NaN"):
+    text = json.dumps(d, indent=indent)  # json writes the NaN literal
+    path.write_text(text)
+    with pytest.raises(InputError, match="Data_Set row 5: not a finite number: NaN") as err:
         read_basta_json(path)
+    assert err.value.column == "MagAttenuationTP"
+    assert err.value.line == _line_of(text, "NaN")
+    assert (err.value.line == 1) == (indent is None)
+
+
+def test_basta_broken_json_and_non_numbers(tmp_path):
+    path = tmp_path / "n.json"
     path.write_text('{\n "Gain": {"value": 1,\n')
     with pytest.raises(InputError, match="invalid JSON") as err:
         read_basta_json(path)
     assert err.value.line == 3
-
-
-def test_basta_missing_direction(tmp_path):
+    for bad, literal in (("1.5", '"1.5"'), (True, "true"), (None, "null")):
+        d = _basta()
+        d["Data_Set"][7] = [bad]
+        text = json.dumps(d, indent=2)
+        path.write_text(text)
+        with pytest.raises(InputError, match=f"Data_Set row 7: not a number: {literal}") as err:
+            read_basta_json(path)
+        assert err.value.column == "MagAttenuationTP"
+        assert err.value.line == _line_of(text, "[", 4 + 7) + 1
     d = _basta()
+    d["Data_Set"][9] = [1.0, 2.0]
+    text = json.dumps(d, indent=2)
+    path.write_text(text)
+    with pytest.raises(
+        InputError, match="Data_Set row 9 is 2 values, Data_Set_Row_Structure names 1"
+    ):
+        read_basta_json(path)
+
+
+def test_basta_real_file_nan_line(shared_data, tmp_path):
+    """The real file's layout (indent 2, one value per line): the line of the value."""
+    d = json.loads((shared_data / "antenna-files" / BASTA_NAME).read_text())
+    d["Data_Set"][100][1] = float("inf")
+    text = json.dumps(d, indent=2)
+    path = tmp_path / "real.json"
+    path.write_text(text)
+    with pytest.raises(InputError, match="Data_Set row 100: not a finite number: Infinity") as err:
+        read_basta_json(path)
+    assert err.value.column == "MagAttenuationCr"
+    assert err.value.line == text.splitlines().index("      Infinity") + 1
+
+
+def _explicit(rows: list[list[float]], system: str = "SPCS_CW") -> dict:
+    d = _basta(system)
     d.update(
         Data_Set_Row_Structure=["Theta", "Phi", "MagAttenuationTP"],
-        Data_Set=[[0.0, 0.0, 1.0], [0.0, 180.0, 1.0], [-90.0, 0.0, 1.0]],
+        Data_Set=rows,
+        Theta_Sampling=None,
+        Phi_Sampling=None,
     )
+    return d
+
+
+def test_basta_missing_and_duplicate_direction(tmp_path):
     path = tmp_path / "m.json"
-    path.write_text(json.dumps(d))
-    with pytest.raises(InputError, match="missing direction"):
+    rows = [[-90.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 180.0, 1.0], [90.0, 0.0, 1.0]]
+    rows.append([90.0, 180.0, 1.0])  # theta-major, (Theta -90, Phi 180) left out
+    text = json.dumps(_explicit(rows), indent=2)
+    path.write_text(text)
+    with pytest.raises(InputError, match="missing grid point azimuth 180, polar 0 deg") as err:
         read_basta_json(path)
-    d["Data_Set"] = [[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]
-    path.write_text(json.dumps(d))
-    with pytest.raises(InputError, match="duplicate direction azimuth 0, polar 90"):
+    assert err.value.column == "Phi"  # within theta -90 the next phi is missing
+    assert "Data_Set row 0 (Theta -90, Phi 0)" in str(err.value)
+    assert err.value.line == _line_of(text, "[", 2 + 0) + 2  # row 0's Phi: expected after it
+    rows = [[-90.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 2.0], [90.0, 0.0, 1.0]]
+    text = json.dumps(_explicit(rows), indent=2)
+    path.write_text(text)
+    with pytest.raises(
+        InputError,
+        match=r"Data_Set row 2 \(Theta 0, Phi 0\): duplicate grid point azimuth 0, polar 90 deg "
+        r"\(first in row 1\)",
+    ) as err:
         read_basta_json(path)
+    assert err.value.column == "Phi"
+    assert err.value.line == _line_of(text, "[", 2 + 2) + 2
+
+
+def _sphere_rows(phis: list[float]) -> list[list[float]]:
+    return [[t, ph, 1.0] for t in (-90.0, 0.0, 90.0) for ph in phis]
+
+
+def test_basta_explicit_angles_out_of_range_are_rejected_not_wrapped(tmp_path):
+    path = tmp_path / "r.json"
+    for k, (col, value, match) in enumerate(
+        [
+            ("Phi", 361.0, r"Data_Set row 4: Phi 361 out of range \[-180, 360\) for SPCS_CW"),
+            ("Phi", 360.0, r"Phi 360 out of range"),
+            ("Phi", -181.0, r"Phi -181 out of range"),
+            ("Theta", 91.0, r"Data_Set row 4: Theta 91 out of range \[-90, 90\] for SPCS_CW"),
+        ]
+    ):
+        rows = _sphere_rows([0.0, 90.0, 180.0, 270.0])
+        rows[4][0 if col == "Theta" else 1] = value
+        text = json.dumps(_explicit(rows), indent=2)
+        path.write_text(text)
+        with pytest.raises(InputError, match=match) as err:
+            read_basta_json(path)
+        assert err.value.column == col, k
+        assert err.value.line == _line_of(text, "[", 2 + 4) + (1 if col == "Theta" else 2)
+    rows = _sphere_rows([0.0, 90.0])
+    rows[0][0] = -91.0
+    path.write_text(json.dumps(_explicit(rows, "SPCS_Polar")))
+    with pytest.raises(InputError, match=r"Theta -91 out of range \[0, 180\] for SPCS_Polar"):
+        read_basta_json(path)
+
+
+def test_basta_phi_minus_180_to_180_reads_like_0_to_360(tmp_path):
+    path = tmp_path / "s.json"
+    rows = _sphere_rows([0.0, 90.0, 180.0, 270.0])
+    for r in rows:
+        r[2] = 1.0 + r[1] / 90.0
+    path.write_text(json.dumps(_explicit(rows)))
+    a = read_basta_json(path)
+    for r in rows:
+        r[1] = r[1] - 360.0 if r[1] >= 180.0 else r[1]
+    path.write_text(json.dumps(_explicit(rows)))
+    np.testing.assert_array_equal(read_basta_json(path).directivity_dbi, a.directivity_dbi)
+    rows.append([0.0, 270.0, 1.0])  # −90 and 270 are one direction
+    path.write_text(json.dumps(_explicit(rows)))
+    with pytest.raises(InputError, match=r"row 12 \(Theta 0, Phi 270\): duplicate grid point"):
+        read_basta_json(path)
+
+
+_JSON_JUNK = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.text(max_size=5),
+    st.sampled_from([float("nan"), float("inf"), -1e400, 1e308, 10**400, -90, 0, 361, 360.0]),
+    st.lists(st.floats(-400, 400, allow_nan=False), max_size=4),
+    st.dictionaries(st.sampled_from(["value", "unit"]), st.sampled_from([1, "dBi", None])),
+)
+_BASTA_KEYS = [
+    "Coordinate_System",
+    "Gain",
+    "Theta_Sampling",
+    "Phi_Sampling",
+    "Data_Set_Row_Structure",
+    "Data_Set",
+]
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    edits=st.lists(
+        st.tuples(
+            st.sampled_from(["key", "row", "value", "delete"]),
+            st.sampled_from(_BASTA_KEYS),
+            st.integers(0, 83),
+            _JSON_JUNK,
+        ),
+        max_size=3,
+    ),
+    explicit=st.booleans(),
+    indent=st.sampled_from([None, 0, 1, 4]),
+)
+def test_basta_fuzz_only_input_errors_with_a_line(tmp_path_factory, edits, explicit, indent):
+    d = _basta()
+    if explicit:
+        rows = []
+        for k, (t, ph) in enumerate(
+            (t, ph) for t in range(-90, 91, 30) for ph in range(0, 360, 30)
+        ):
+            rows.append([float(t), float(ph), d["Data_Set"][k][0]])
+        d.update(Data_Set_Row_Structure=["Theta", "Phi", "MagAttenuationTP"], Data_Set=rows)
+    for kind, key, r, junk in edits:
+        if kind == "key":
+            d[key] = junk
+        elif kind == "delete":
+            d.pop(key, None)
+        elif isinstance(d.get("Data_Set"), list) and r < len(d["Data_Set"]):
+            if kind == "row":
+                d["Data_Set"][r] = junk
+            elif isinstance(d["Data_Set"][r], list) and d["Data_Set"][r]:
+                d["Data_Set"][r][r % len(d["Data_Set"][r])] = junk
+    try:
+        text = json.dumps(d, indent=indent)
+    except (TypeError, ValueError):
+        return
+    path = tmp_path_factory.mktemp("bj") / "f.json"
+    path.write_text(text)
+    try:
+        read_basta_json(path)
+    except InputError as exc:
+        assert "\n" not in str(exc) and exc.path == str(path)
+        assert exc.line is not None and 1 <= exc.line <= text.count("\n") + 1
+
+
+@settings(
+    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    edits=st.lists(
+        st.tuples(
+            st.integers(0, 724),
+            st.sampled_from(
+                ["", "360 0.00", "5 -1", "5 nan", "x y", "HORIZONTAL 3", "GAIN 3", "7", "1 2 3"]
+            ),
+            st.booleans(),
+        ),
+        max_size=3,
+    )
+)
+def test_msi_fuzz_only_input_errors_with_a_line(tmp_path_factory, edits):
+    h, v = _asymmetric_cuts()
+    lines = _msi_text(h, v).splitlines()
+    for at, text, insert in edits:
+        at = min(at, len(lines))
+        if insert or at == len(lines):
+            lines.insert(at, text)
+        else:
+            lines[at] = text
+    path = tmp_path_factory.mktemp("msi") / "f.msi"
+    path.write_text("\n".join(lines) + "\n")
+    for mode in ("horizontal", "sphere"):
+        try:
+            read_msi(path, mode=mode)
+        except InputError as exc:
+            assert "\n" not in str(exc) and exc.path == str(path)
+            assert exc.line is not None and 1 <= exc.line <= max(len(lines), 1)
 
 
 # ---------------------------------------------------------------- MIT LL
@@ -312,11 +627,43 @@ def test_mitll_bad_rows(tmp_path, extra, line, column, match):
 def test_mitll_missing_angle_and_empty_dir(tmp_path):
     path = tmp_path / "c.csv"
     path.write_text("2020,Device,Phone\n2020,Bluetooth,aa,-50,12,1.5e9,37\n")
-    with pytest.raises(InputError, match="no 'Angle'"):
+    with pytest.raises(
+        InputError, match="no 'Angle' header row before the first packet row"
+    ) as err:
         read_mitll_measurements(path)
+    assert (err.value.line, err.value.column) == (2, "Angle")
+    assert str(err.value).startswith(f"{path}:2, column 'Angle'")
+    path.write_text("2020,Device,Phone\n2020,Range,6\n2020,GPS,NA\n")
+    with pytest.raises(InputError, match="no 'Angle' header row in the file") as err:
+        read_mitll_measurements(path)
+    assert (err.value.line, err.value.column) == (3, "Angle")
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match=r"no \*\.csv"):
         read_mitll_measurements(tmp_path / "empty")
+
+
+def test_mitll_two_files_with_one_angle_are_rejected_naming_both(tmp_path):
+    d, _ = _mitll_dir(tmp_path, {37: 0.0})
+    # c1.csv claims 0 like c0.csv: 45 deg would be missing and silently interpolated
+    _mitll_file(d / "c1.csv", 0.0, {37: -60.0})
+    with pytest.raises(InputError, match=r"angle 0 deg again: .*c0\.csv:4 has it too") as err:
+        read_mitll_measurements(d)
+    assert err.value.path == str(d / "c1.csv")
+    assert (err.value.line, err.value.column) == (4, "Angle")
+    assert "\n" not in str(err.value)
+    _mitll_file(d / "c1.csv", 360.0, {37: -60.0})  # 360 is 0
+    with pytest.raises(InputError, match=r"angle 360 deg again: .*c0\.csv:4"):
+        read_mitll_measurements(d)
+
+
+def test_mitll_second_angle_row_in_one_file(tmp_path):
+    path = tmp_path / "c.csv"
+    _mitll_file(path, 0.0, {37: -50.0}, "2020,Angle,45\n")
+    with pytest.raises(
+        InputError, match=r"second 'Angle' row \(the first, at line 4, says 0\)"
+    ) as err:
+        read_mitll_measurements([path])
+    assert (err.value.line, err.value.column) == (12, "Angle")
 
 
 @pytest.mark.parametrize(

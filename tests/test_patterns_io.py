@@ -160,22 +160,157 @@ def test_bad_pattern_csv_names_file_line_column(tmp_path, text, line, column):
     _one_line_error(err.value, path, line, column)
 
 
+H = "azimuth_deg,polar_deg,directivity_dbi\n"
+
+
 def test_missing_grid_point_is_named(tmp_path):
-    text = "azimuth_deg,polar_deg,directivity_dbi\n0,0,1\n0,90,1\n0,180,1\n180,0,1\n180,180,1\n"
+    # azimuth 180 has polar 0 and 180 but not 90: reported after (180, 0), line 5
+    text = H + "0,0,1\n0,90,1\n0,180,1\n180,0,1\n180,180,1\n"
     path = _write(tmp_path, text)
-    with pytest.raises(InputError, match=r"missing grid point azimuth 180, polar 90") as err:
+    with pytest.raises(InputError, match=r"missing grid point azimuth 180, polar 90 deg") as err:
         read_pattern_csv(path)
-    assert "\n" not in str(err.value) and str(path) in str(err.value)
+    _one_line_error(err.value, path, 5, "polar_deg")
+    assert "expected after this row" in str(err.value)
+    assert "3 polar angles every 90 deg" in str(err.value)
 
 
 def test_irregular_grid_and_empty_file(tmp_path):
-    irregular = "azimuth_deg,polar_deg,directivity_dbi\n0,90,1\n100,90,1\n240,90,1\n"
-    with pytest.raises(InputError, match="constant step"):
-        read_pattern_csv(_write(tmp_path, irregular))
-    with pytest.raises(InputError, match="no pattern samples"):
-        read_pattern_csv(_write(tmp_path, "azimuth_deg,polar_deg,directivity_dbi\n"))
+    path = _write(tmp_path, H + "0,90,1\n100,90,1\n240,90,1\n")
+    with pytest.raises(InputError, match="azimuth 100 deg is not on a constant-step grid") as err:
+        read_pattern_csv(path)
+    _one_line_error(err.value, path, 3, "azimuth_deg")
+    assert "closest fit: 3 azimuths every 120 deg from 0" in str(err.value)
+    empty = _write(tmp_path, H, "empty.csv")
+    with pytest.raises(InputError, match="no pattern samples") as err:
+        read_pattern_csv(empty)
+    _one_line_error(err.value, empty, 2, None)
     with pytest.raises(InputError, match="file not found"):
         read_pattern_csv(tmp_path / "nope.csv")
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "column", "match"),
+    [
+        # one row of a 90° slice deleted: 180 belongs after line 3 (azimuth 90)
+        (
+            H + "0,90,1\n90,90,1\n270,90,1\n",
+            3,
+            "azimuth_deg",
+            "azimuth 180, polar 90 deg, expected after",
+        ),
+        # the very first grid point deleted: reported before the first row
+        (
+            H + "90,90,1\n180,90,1\n270,90,1\n",
+            2,
+            "azimuth_deg",
+            "azimuth 0, polar 90 deg, expected before",
+        ),
+        # a whole azimuth of a sphere missing (azimuth-major): the azimuth breaks the grid
+        (
+            H + "0,0,1\n0,90,1\n0,180,1\n90,0,1\n90,90,1\n90,180,1\n270,0,1\n270,90,1\n270,180,1\n",
+            7,
+            "azimuth_deg",
+            "azimuth 180, polar 0 deg, expected after",
+        ),
+        # polar-major file, one point missing: within polar 90 the azimuth 180 is missing
+        (
+            H + "0,0,1\n180,0,1\n0,90,1\n0,180,1\n180,180,1\n",
+            4,
+            "azimuth_deg",
+            "azimuth 180, polar 90 deg, expected after",
+        ),
+        # polar rows must reach 180: the 180 row is missing
+        (H + "0,0,1\n0,90,1\n", 3, "polar_deg", "azimuth 0, polar 180 deg, expected after"),
+        # a mistyped polar angle (120 -> 100)
+        (
+            H + "0,0,1\n0,60,1\n0,100,1\n0,180,1\n",
+            4,
+            "polar_deg",
+            r"polar 100 deg is not on a constant-step grid covering \[0, 180\] "
+            r"\(closest fit: 4 polar angles every 60 deg",
+        ),
+        # a mistyped azimuth (30 -> 31) in a 10° grid
+        (
+            H + "".join(f"{a if a != 30 else 31},90,1\n" for a in range(0, 360, 10)),
+            5,
+            "azimuth_deg",
+            "azimuth 31 deg is not on a constant-step grid covering",
+        ),
+        # equal within the grid tolerance (1e-5 deg): a duplicate, naming the first line
+        (
+            H + "0,90,1\n120,90,1\n0.000001,90,1\n240,90,1\n",
+            4,
+            "azimuth_deg",
+            r"duplicate grid point azimuth 1e-06, polar 90 deg.*\(first at line 2\)",
+        ),
+    ],
+)
+def test_grid_errors_name_the_line_where_the_grid_breaks(tmp_path, text, line, column, match):
+    path = _write(tmp_path, text)
+    with pytest.raises(InputError, match=match) as err:
+        read_pattern_csv(path)
+    _one_line_error(err.value, path, line, column)
+
+
+def test_grid_within_tolerance_and_offset_grids_load(tmp_path):
+    p = read_pattern_csv(_write(tmp_path, H + "0,90,1\n120.000004,90,2\n240,90,3\n"))
+    np.testing.assert_allclose(p.azimuth_deg, [0.0, 120.0, 240.0])
+    np.testing.assert_allclose(p.directivity_dbi[:, 0], [1.0, 2.0, 3.0])
+    q = read_pattern_csv(_write(tmp_path, H + "250,45,3\n10,45,1\n130,45,2\n", "off.csv"))
+    np.testing.assert_allclose(q.azimuth_deg, [10.0, 130.0, 250.0])
+    np.testing.assert_allclose(q.directivity_dbi[:, 0], [1.0, 2.0, 3.0])
+    assert q.polar_deg.tolist() == [45.0]
+    # every azimuth a hair below a multiple of the step: 359.9999999 is azimuth 0
+    text = H + "119.9999999,90,2\n239.9999999,90,3\n359.9999999,90,1\n"
+    r = read_pattern_csv(_write(tmp_path, text, "hair.csv"))
+    np.testing.assert_allclose(r.azimuth_deg, [0.0, 120.0, 240.0])
+    np.testing.assert_allclose(r.directivity_dbi[:, 0], [1.0, 2.0, 3.0])
+
+
+@st.composite
+def damaged_grids(draw) -> tuple[str, bool]:
+    """A valid grid CSV in shuffled or grid order, maybe damaged: (text, damaged)."""
+    pattern = draw(patterns())
+    phi, theta = np.meshgrid(pattern.azimuth_deg, pattern.polar_deg, indexing="ij")
+    rows = [
+        [f"{a:.6f}", f"{t:.6f}", f"{d:.6f}"]
+        for a, t, d in zip(phi.ravel(), theta.ravel(), pattern.directivity_dbi.ravel(), strict=True)
+    ]
+    if draw(st.booleans()):
+        rows = draw(st.permutations(rows))
+    damage = draw(st.sampled_from(["none", "delete", "duplicate", "azimuth", "polar"]))
+    if damage != "none" and len(rows) > 1:
+        k = draw(st.integers(0, len(rows) - 1))
+        if damage == "delete":
+            del rows[k]
+        elif damage == "duplicate":
+            rows.insert(draw(st.integers(0, len(rows))), list(rows[k]))
+        elif damage == "azimuth":
+            rows[k][0] = f"{draw(st.floats(0.0, 359.999, allow_nan=False)):.3f}"
+        else:
+            rows[k][1] = f"{draw(st.floats(0.0, 180.0, allow_nan=False)):.3f}"
+    else:
+        damage = "none"
+    text = H + "".join(",".join(r) + "\n" for r in rows)
+    return text, damage != "none"
+
+
+@HYP
+@given(case=damaged_grids())
+def test_grid_fuzz_loads_whole_grids_or_names_line_and_column(tmp_path_factory, case):
+    text, damaged = case
+    path = tmp_path_factory.mktemp("grid") / "g.csv"
+    path.write_text(text, encoding="utf-8")
+    n_rows = text.count("\n") - 1
+    try:
+        p = read_pattern_csv(path)
+    except InputError as exc:
+        assert damaged, str(exc)  # an undamaged grid in any row order always loads
+        assert "\n" not in str(exc) and exc.path == str(path)
+        assert exc.line is not None and 2 <= exc.line <= n_rows + 1
+        assert exc.column in ("azimuth_deg", "polar_deg")
+    else:
+        assert p.directivity_dbi.size == n_rows  # every grid point exactly once
 
 
 def test_good_pattern_csv_with_extra_columns_in_any_order(tmp_path):

@@ -7,6 +7,9 @@ written atomically, so a failure leaves no partial output.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import tempfile
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated
@@ -57,18 +60,93 @@ class MsiMode(StrEnum):
     sphere = "sphere"
 
 
+def _new_parents(path: Path) -> list[Path]:
+    """Create the missing parent directories of ``path``; return them, outermost first."""
+    missing: list[Path] = []
+    parent = path.parent
+    while not parent.exists() and parent != parent.parent:
+        missing.append(parent)
+        parent = parent.parent
+    created: list[Path] = []
+    try:
+        for d in reversed(missing):
+            d.mkdir()
+            created.append(d)
+    except OSError as exc:
+        _remove_dirs(created)
+        reason = (
+            "a parent is not a directory"
+            if isinstance(exc, (FileExistsError, NotADirectoryError))
+            else exc.strerror
+        )
+        raise InputError(f"cannot create the file: {reason}", path=path) from None
+    if not path.parent.is_dir():
+        raise InputError("cannot create the file: a parent is not a directory", path=path)
+    return created
+
+
+def _remove_dirs(created: list[Path]) -> None:
+    for d in reversed(created):
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
+def _check_target(path: Path, what: str) -> None:
+    if path.is_dir():
+        raise InputError(f"is a directory, expected a {what} file path", path=path)
+
+
 def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
+    """Write the pattern CSV and, if asked, its PNG: both or neither.
+
+    The figure is rendered and written to a temporary file beside its target
+    first, then the CSV is written atomically, then the figure is renamed into
+    place. On any failure the temporary file, a CSV this call created and any
+    directories it created are removed (a CSV that existed before is replaced
+    only when everything else has already succeeded).
+    """
+    _check_target(output, "CSV")
+    if plot is not None:
+        _check_target(plot, "PNG")
+        if plot.resolve() == output.resolve():
+            raise InputError("--plot is the same file as -o", path=plot)
     png = None
     if plot is not None:
         from radiopose.patterns.plot import pattern_png  # matplotlib only when asked
 
         png = pattern_png(pattern)
-    if output.exists() and output.is_dir():
-        raise InputError("is a directory, expected a CSV file path", path=output)
-    write_pattern_csv(pattern, output)
-    if png is not None and plot is not None:
-        with atomic_writer(plot, "wb") as fh:
-            fh.write(png)
+    created: list[Path] = []
+    tmp: Path | None = None
+    csv_is_new = not output.exists()
+    csv_written = False
+    try:
+        if png is not None and plot is not None:
+            created += _new_parents(plot)
+            try:
+                fd, name = tempfile.mkstemp(prefix=f".{plot.name}.", suffix=".tmp", dir=plot.parent)
+            except OSError as exc:
+                raise InputError(f"cannot write ({exc.strerror})", path=plot) from None
+            tmp = Path(name)
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(png)
+        created += _new_parents(output)
+        write_pattern_csv(pattern, output)
+        csv_written = True
+        if tmp is not None and plot is not None:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
+            os.replace(tmp, plot)
+            tmp = None
+    except BaseException:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+        if csv_written and csv_is_new:
+            with contextlib.suppress(OSError):
+                output.unlink()
+        _remove_dirs(created)
+        raise
 
 
 def _summary(pattern: Pattern, output: Path) -> None:

@@ -26,6 +26,7 @@ import csv
 import json
 import math
 import os
+import re
 from collections import Counter, defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,8 +36,15 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.patterns.enrol import EnrolConfig, Measurements, enrol
-from radiopose.patterns.pattern import Pattern
-from radiopose.units import FloatArray, dbm_to_mw, linear_to_db, mw_to_dbm, wrap_deg
+from radiopose.patterns.pattern import GridError, Pattern, pattern_from_samples
+from radiopose.units import (
+    FloatArray,
+    db_to_linear,
+    dbm_to_mw,
+    linear_to_db,
+    mw_to_dbm,
+    wrap_deg,
+)
 
 DBD_TO_DBI = 2.15
 """Gain of a half-wave dipole over isotropic, dB (``G_dBi = G_dBd + 2.15``)."""
@@ -93,6 +101,14 @@ def _parse_gain_dbi(text: str, path: Path, line: int) -> float:
     )
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _parse_msi(
     path: Path,
 ) -> tuple[dict[str, str], float, FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -100,6 +116,10 @@ def _parse_msi(
     header: dict[str, str] = {}
     gain_dbi: float | None = None
     cuts: dict[str, tuple[list[float], list[float]]] = {}
+    # every attenuation as written: (value, line, cut) — the sign rule needs the whole file
+    written: list[tuple[float, int, str]] = []
+    last_block: tuple[str, int, int] | None = None  # (cut, header line, points)
+    cuts_line: dict[str, int] = {}
     i = 0
     while i < len(lines):
         lineno = i + 1
@@ -110,6 +130,13 @@ def _parse_msi(
         key, _, rest = raw.partition(" ")
         key_u = key.upper()
         if key_u in ("HORIZONTAL", "VERTICAL"):
+            if key_u in cuts:
+                raise InputError(
+                    f"second {key_u} section (the first is at line {cuts_line[key_u]})",
+                    path=path,
+                    line=lineno,
+                    column=key_u,
+                )
             try:
                 n = int(rest.split()[0])
             except (ValueError, IndexError):
@@ -128,6 +155,14 @@ def _parse_msi(
             for k in range(n):
                 fields = lines[i + k].split()
                 ln = i + k + 1
+                if fields and not _is_number(fields[0]) and fields[0][:1].isalpha():
+                    raise InputError(
+                        f"the {key_u} section at line {lineno} announces {n} points "
+                        f"but this line ends it after {k}",
+                        path=path,
+                        line=ln,
+                        column=key_u,
+                    )
                 if len(fields) < 2:
                     raise InputError(
                         "expected 'angle attenuation_dB'", path=path, line=ln, column=key_u
@@ -141,40 +176,102 @@ def _parse_msi(
                         column=f"{key_u} angle",
                     )
                 angles.append(a)
-                # attenuation below the peak, written positive (some vendors: negative)
-                atten.append(abs(_finite(fields[1], path, ln, f"{key_u} attenuation")))
+                value = _finite(fields[1], path, ln, f"{key_u} attenuation")
+                written.append((value, ln, key_u))
+                atten.append(value)
+            _check_cut(np.array(angles), path, i + 1, key_u)
             cuts[key_u] = (angles, atten)
-            _check_cut(np.array(angles), path, lineno, key_u)
+            cuts_line[key_u] = lineno
+            last_block = (key_u, lineno, n)
             i += n
             continue
-        if key_u == "GAIN":
-            gain_dbi = _parse_gain_dbi(rest, path, lineno)
-        elif not header and not rest and key_u not in ("NAME",):
+        if not header and not cuts and gain_dbi is None and not rest and key_u != "NAME":
             header["NAME"] = raw  # a bare first line is the antenna name
             continue
+        if _is_number(key):
+            where = (
+                f"after the {last_block[2]} points the {last_block[0]} section at line "
+                f"{last_block[1]} announced"
+                if last_block is not None
+                else "before any HORIZONTAL/VERTICAL section"
+            )
+            raise InputError(
+                f"data line {raw[:40]!r} outside a section ({where})",
+                path=path,
+                line=lineno,
+                column=None if last_block is None else last_block[0],
+            )
+        if key_u == "GAIN":
+            gain_dbi = _parse_gain_dbi(rest, path, lineno)
         header[key_u] = rest.strip()
+    end_line = max(len(lines), 1)
     for cut in ("HORIZONTAL", "VERTICAL"):
         if cut not in cuts:
-            raise InputError(f"no {cut} section", path=path, column=cut)
+            raise InputError(f"no {cut} section in the file", path=path, line=end_line, column=cut)
     if gain_dbi is None:
-        raise InputError("no GAIN line (dBd, or 'dBi' after the value)", path=path, column="GAIN")
+        raise InputError(
+            "no GAIN line in the file (dBd, or 'dBi' after the value)",
+            path=path,
+            line=end_line,
+            column="GAIN",
+        )
+    sign = _msi_sign(written, path)
     h_ang, h_att = (np.array(v) for v in cuts["HORIZONTAL"])
     v_ang, v_att = (np.array(v) for v in cuts["VERTICAL"])
-    return header, gain_dbi, h_ang, h_att, v_ang, v_att
+    return header, gain_dbi, h_ang, sign * h_att, v_ang, sign * v_att
 
 
-def _check_cut(angles: FloatArray, path: Path, line: int, cut: str) -> None:
-    n = angles.size
-    got = np.sort(angles)
-    if np.any(np.diff(got) == 0):
-        raise InputError("duplicate angle", path=path, line=line, column=cut)
-    if not np.allclose(got, got[0] + np.arange(n) * 360.0 / n, atol=1e-6) or got[0] > 1e-6:
+def _msi_sign(written: list[tuple[float, int, str]], path: Path) -> float:
+    """+1 if the file writes attenuations positive, −1 if negative; mixed signs are an error.
+
+    MSI attenuation is dB *below* the gain, normally written ``>= 0``; some
+    vendors write every value ``<= 0``. A file with both signs is ambiguous (a
+    lone negative value among positive ones is a typo or a gain *above* the
+    stated peak): rejected at the first value of the minority sign.
+    """
+    pos = [w for w in written if w[0] > 0.0]
+    neg = [w for w in written if w[0] < 0.0]
+    if pos and neg:
+        first_nonzero = next(w for w in written if w[0] != 0.0)
+        majority_positive = len(pos) > len(neg) or (len(pos) == len(neg) and first_nonzero[0] > 0.0)
+        value, line, cut = (neg if majority_positive else pos)[0]
+        count, other = (len(pos), "positive") if majority_positive else (len(neg), "negative")
         raise InputError(
-            f"angles must be a constant step from 0 covering [0, 360) ({n} points)",
+            f"attenuation {value:g} dB has the opposite sign of the file's {count} {other} "
+            "values (dB below the gain: all >= 0, or all <= 0; mixed signs are ambiguous)",
             path=path,
             line=line,
-            column=cut,
+            column=f"{cut} attenuation",
         )
+    return -1.0 if neg else 1.0
+
+
+def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> None:
+    """Angles of one cut (line ``first_line + k`` holds ``angles[k]``): a constant
+    step from 0 covering ``[0, 360)``, each once; errors name the offending line."""
+    n = angles.size
+    step = 360.0 / n
+    k = np.round(angles / step)
+    off = np.nonzero(np.abs(angles - k * step) > 1e-6)[0]
+    if off.size:
+        j = int(off[0])
+        raise InputError(
+            f"angle {angles[j]:g} is not a multiple of {step:g} deg "
+            f"({n} points must be a constant step from 0 covering [0, 360))",
+            path=path,
+            line=first_line + j,
+            column=f"{cut} angle",
+        )
+    seen: dict[int, int] = {}
+    for j, idx in enumerate(np.mod(k.astype(np.int64), n).tolist()):  # 359.9999999 is 0
+        if idx in seen:
+            raise InputError(
+                f"duplicate angle {angles[j]:g} (first at line {first_line + seen[idx]})",
+                path=path,
+                line=first_line + j,
+                column=f"{cut} angle",
+            )
+        seen[idx] = j
 
 
 def _cut_at(angles: FloatArray, values: FloatArray, at_deg: FloatArray) -> FloatArray:
@@ -195,7 +292,9 @@ def read_msi(
     (``NAME``, ``FREQUENCY`` MHz, ``GAIN`` — dBd unless followed by ``dBi``,
     ``TILT``, …) then ``HORIZONTAL 360`` and ``VERTICAL 360`` blocks of
     ``angle attenuation`` lines. Attenuations are dB *below the peak gain*,
-    written positive. The **horizontal** angle ``h`` is measured from the
+    written positive; a file that writes every value ``<= 0`` is read by
+    magnitude, and a file mixing both signs is rejected at the first value of
+    the minority sign. The **horizontal** angle ``h`` is measured from the
     boresight, clockwise seen from above (a bearing); the **vertical** angle
     ``v`` from the front horizon, positive *downwards* (90 = nadir, 180 = back
     horizon, 270 = zenith) — a down-tilted antenna has its minimum at ``v = tilt``.
@@ -232,7 +331,8 @@ def read_msi(
     ------
     InputError
         Missing section or GAIN, bad number, angle out of range/duplicated/
-        irregular — naming file, line and key.
+        irregular, a data line outside a section, mixed attenuation signs —
+        naming file, line and key.
     """
     p = Path(path)
     _, gain_dbi, h_ang, h_att, v_ang, v_att = _parse_msi(p)
@@ -249,48 +349,182 @@ def read_msi(
     a_v = _cut_at(v_ang, v_att, wrap_deg(theta + 270.0))  # (181,)
     # A(phi, theta) = min(A_H(phi) + A_V(theta), A_max)
     atten = np.minimum(a_h[:, None] + a_v[None, :], max(h_att.max(), v_att.max()))
-    lin = 10.0 ** (-atten / 10.0)
+    lin = db_to_linear(-atten)
     for j in (0, 180):  # each pole is one direction
         lin[:, j] = lin[:, j].mean()
     return _normalised(Pattern(pname, az, theta, gain_dbi + linear_to_db(lin)), normalise)
 
 
 # ====================================================================== BASTA
-def _basta_key(data: dict[str, Any], key: str, path: Path) -> Any:
+_JSON_WS = re.compile(r"[ \t\n\r]*")
+
+
+class _JsonText:
+    """Where things are in a JSON text :func:`json.loads` has accepted.
+
+    ``json`` reports no positions for valid documents, so the error paths walk
+    the text again with :meth:`json.JSONDecoder.raw_decode`, one value at a time:
+    the offset of each top-level member's value and of each element of an
+    array, turned into 1-based line numbers. Only used once something is wrong.
+    """
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+        self._decoder = json.JSONDecoder()
+        self._members: dict[str, int] | None = None
+        self._rows: list[int] | None = None
+
+    def _skip(self, i: int) -> int:
+        m = _JSON_WS.match(self.text, i)
+        return i if m is None else m.end()
+
+    def _end(self, i: int) -> int:
+        return self._decoder.raw_decode(self.text, i)[1]
+
+    def line(self, offset: int) -> int:
+        return self.text.count("\n", 0, offset) + 1
+
+    def start(self) -> int:
+        return self._skip(0)
+
+    def members(self) -> dict[str, int]:
+        """Top-level key -> offset of its value (the last one if repeated, as json does)."""
+        if self._members is None:
+            out: dict[str, int] = {}
+            i = self._skip(self.start() + 1)
+            while self.text[i] != "}":
+                key, i = self._decoder.raw_decode(self.text, i)
+                i = self._skip(self._skip(i) + 1)  # the ':'
+                out[key] = i
+                i = self._skip(self._end(i))
+                if self.text[i] == ",":
+                    i = self._skip(i + 1)
+            self._members = out
+        return self._members
+
+    def elements(self, i: int) -> list[int]:
+        """Offsets of the elements of the array starting at offset ``i``."""
+        out: list[int] = []
+        i = self._skip(i + 1)
+        while self.text[i] != "]":
+            out.append(i)
+            i = self._skip(self._end(i))
+            if self.text[i] == ",":
+                i = self._skip(i + 1)
+        return out
+
+    def key_line(self, key: str) -> int:
+        """Line of ``key``'s value, or of the top-level object's start if absent."""
+        at = self.members().get(key)
+        return self.line(self.start() if at is None else at)
+
+    def row_offset(self, row: int, element: int | None = None) -> int:
+        if self._rows is None:
+            self._rows = self.elements(self.members()["Data_Set"])
+        at = self._rows[row]
+        if element is not None and self.text[at] == "[":
+            items = self.elements(at)
+            if element < len(items):
+                at = items[element]
+        return at
+
+    def row_line(self, row: int, element: int | None = None) -> int:
+        return self.line(self.row_offset(row, element))
+
+    def literal(self, row: int, element: int) -> str:
+        at = self.row_offset(row, element)
+        return self.text[at : self._end(at)]
+
+
+def _basta_key(data: dict[str, Any], key: str, path: Path, where: _JsonText) -> Any:
     if key not in data or data[key] is None:
-        raise InputError("missing key", path=path, column=key)
+        line = where.key_line(key)
+        what = (
+            "missing (the value is null)" if key in data else "missing key in the top-level object"
+        )
+        raise InputError(what, path=path, line=line, column=key)
     return data[key]
 
 
-def _sampling(values: Any, key: str, path: Path) -> FloatArray:
+def _sampling(values: Any, key: str, path: Path, line: int) -> FloatArray:
+    numbers = isinstance(values, list) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
+    )
     try:
+        if not numbers:
+            raise TypeError
         start, step, stop = (float(v) for v in values)
-    except (TypeError, ValueError):
-        raise InputError("expected [start, step, stop] numbers", path=path, column=key) from None
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(
+            "expected [start, step, stop] numbers", path=path, line=line, column=key
+        ) from None
     if not (math.isfinite(start) and math.isfinite(step) and math.isfinite(stop)) or step <= 0:
-        raise InputError("expected finite [start, step > 0, stop]", path=path, column=key)
+        raise InputError(
+            "expected finite [start, step > 0, stop]", path=path, line=line, column=key
+        )
     n = round((stop - start) / step)
     if n < 0 or abs(start + n * step - stop) > 1e-6:
-        raise InputError("stop is not start + k·step", path=path, column=key)
+        raise InputError("stop is not start + k·step", path=path, line=line, column=key)
     return start + np.arange(n + 1) * step
 
 
+_BASTA_SYSTEMS = ("SPCS_Polar", "SPCS_CW", "SPCS_CCW")
+_BASTA_PHI_RANGE = (-180.0, 360.0)  # [low, high): 0…359 and −180…179 files both read
+
+
+def _basta_theta_range(system: str) -> tuple[float, float]:
+    return (0.0, 180.0) if system == "SPCS_Polar" else (-90.0, 90.0)
+
+
 def _basta_to_polar(
-    system: str, theta: FloatArray, phi: FloatArray, path: Path
+    system: str, theta: FloatArray, phi: FloatArray
 ) -> tuple[FloatArray, FloatArray]:
     if system == "SPCS_Polar":
         polar, az = theta, phi
     elif system == "SPCS_CW":
         polar, az = theta + 90.0, -phi
-    elif system == "SPCS_CCW":
+    else:  # SPCS_CCW
         polar, az = theta + 90.0, phi
-    else:
-        raise InputError(
-            f"unsupported coordinate system {system!r} (SPCS_Polar, SPCS_CW, SPCS_CCW)",
-            path=path,
-            column="Coordinate_System",
-        )
     return polar, wrap_deg(az)
+
+
+def _basta_rows(rows: Any, structure: list[str], path: Path, where: _JsonText) -> FloatArray:
+    """``Data_Set`` as an ``(n_rows, n_columns)`` array; the first bad row/value is named."""
+    if not isinstance(rows, list) or not rows:
+        raise InputError(
+            "expected a non-empty list of rows",
+            path=path,
+            line=where.key_line("Data_Set"),
+            column="Data_Set",
+        )
+    ncol = len(structure)
+    for r, row in enumerate(rows):
+        if not isinstance(row, list) or len(row) != ncol:
+            got = f"{len(row)} values" if isinstance(row, list) else f"a {type(row).__name__}"
+            raise InputError(
+                f"Data_Set row {r} is {got}, Data_Set_Row_Structure names {ncol}",
+                path=path,
+                line=where.row_line(r),
+                column="Data_Set",
+            )
+        for k, v in enumerate(row):
+            finite = False
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                try:
+                    finite = math.isfinite(float(v))
+                except OverflowError:
+                    finite = False
+                what = "not a finite number"
+            else:
+                what = "not a number"
+            if not finite:
+                raise InputError(
+                    f"Data_Set row {r}: {what}: {where.literal(r, k)[:40]}",
+                    path=path,
+                    line=where.row_line(r, k),
+                    column=structure[k],
+                )
+    return np.array(rows, dtype=np.float64)
 
 
 def read_basta_json(
@@ -317,8 +551,11 @@ def read_basta_json(
                     theta_p = theta + 90,  phi_p = phi
         directivity_dbi = G_dBi − attenuation_dB,  G_dBi = G_dBd + 2.15
 
-    ``SPCS_Geo`` is rejected: its theta orientation is not pinned down by the
-    schema and readers disagree.
+    Angle ranges (explicit ``Theta``/``Phi`` values and the sampling's start
+    and stop): theta as above, phi in ``[−180, 360)`` (files write 0…359 or
+    −180…179); anything outside is rejected, not wrapped. ``SPCS_Geo`` is
+    rejected: its theta orientation is not pinned down by the schema and
+    readers disagree.
 
     Parameters
     ----------
@@ -332,8 +569,10 @@ def read_basta_json(
     Raises
     ------
     InputError
-        Bad JSON (with line), a missing/invalid key, a non-finite value, or a
-        grid that is not a complete regular sphere — naming file and key.
+        Bad JSON, a missing/invalid key, a non-number or non-finite value, an
+        angle out of range, or a grid that is not a complete regular sphere —
+        naming file, the line in the JSON text (of the key's value, or of the
+        offending ``Data_Set`` row/value) and the key or row-structure name.
     """
     p = Path(path)
     text = _read_text(p)
@@ -343,49 +582,119 @@ def read_basta_json(
         raise InputError(
             f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
         ) from None
+    where = _JsonText(text)
     if not isinstance(data, dict):
-        raise InputError("expected a JSON object", path=p)
-    system = str(_basta_key(data, "Coordinate_System", p))
-    gain = _basta_key(data, "Gain", p)
+        raise InputError("expected a JSON object", path=p, line=where.line(where.start()))
+    system = str(_basta_key(data, "Coordinate_System", p, where))
+    if system not in _BASTA_SYSTEMS:
+        raise InputError(
+            f"unsupported coordinate system {system!r} ({', '.join(_BASTA_SYSTEMS)})",
+            path=p,
+            line=where.key_line("Coordinate_System"),
+            column="Coordinate_System",
+        )
+    gain = _basta_key(data, "Gain", p, where)
     try:
         g_value = float(gain["value"])
         g_unit = str(gain["unit"])
-    except (TypeError, KeyError, ValueError):
-        raise InputError("expected {value: number, unit: dBi|dBd}", path=p, column="Gain") from None
+    except (TypeError, KeyError, ValueError, OverflowError):
+        raise InputError(
+            "expected {value: number, unit: dBi|dBd}",
+            path=p,
+            line=where.key_line("Gain"),
+            column="Gain",
+        ) from None
     if not math.isfinite(g_value) or g_unit not in ("dBi", "dBd"):
-        raise InputError("expected a finite value and unit dBi or dBd", path=p, column="Gain")
+        raise InputError(
+            "expected a finite value and unit dBi or dBd",
+            path=p,
+            line=where.key_line("Gain"),
+            column="Gain",
+        )
     gain_dbi = g_value + (DBD_TO_DBI if g_unit == "dBd" else 0.0)
 
-    structure = _basta_key(data, "Data_Set_Row_Structure", p)
+    structure = _basta_key(data, "Data_Set_Row_Structure", p, where)
+    s_line = where.key_line("Data_Set_Row_Structure")
     if not isinstance(structure, list) or not all(isinstance(s, str) for s in structure):
-        raise InputError("expected a list of names", path=p, column="Data_Set_Row_Structure")
-    rows = _basta_key(data, "Data_Set", p)
-    try:
-        table = np.array(rows, dtype=np.float64)
-    except (TypeError, ValueError):
         raise InputError(
-            "rows must be lists of numbers of one length", path=p, column="Data_Set"
-        ) from None
-    if table.ndim != 2 or table.shape[1] != len(structure) or table.shape[0] == 0:
-        raise InputError(
-            f"expected rows of {len(structure)} numbers (Data_Set_Row_Structure)",
-            path=p,
-            column="Data_Set",
+            "expected a list of names", path=p, line=s_line, column="Data_Set_Row_Structure"
         )
-    bad = np.nonzero(~np.isfinite(table).all(axis=1))[0]
-    if bad.size:
-        raise InputError(f"row {int(bad[0])} has NaN/inf", path=p, column="Data_Set")
+    repeated = sorted({s for s in structure if structure.count(s) > 1})
+    if repeated:
+        raise InputError(
+            f"{repeated[0]!r} appears more than once",
+            path=p,
+            line=s_line,
+            column="Data_Set_Row_Structure",
+        )
+    if not any(s in structure for s in ("MagAttenuationTP", "MagAttenuationCo")):
+        raise InputError(
+            "no MagAttenuationTP or MagAttenuationCo column",
+            path=p,
+            line=s_line,
+            column="Data_Set_Row_Structure",
+        )
+    if ("Theta" in structure) != ("Phi" in structure):
+        raise InputError(
+            "Theta and Phi come together (or neither, with Theta_/Phi_Sampling)",
+            path=p,
+            line=s_line,
+            column="Data_Set_Row_Structure",
+        )
+    table = _basta_rows(_basta_key(data, "Data_Set", p, where), structure, p, where)
     col = {s: table[:, k] for k, s in enumerate(structure)}
 
-    if "Theta" in col and "Phi" in col:
+    t_lo, t_hi = _basta_theta_range(system)
+    p_lo, p_hi = _BASTA_PHI_RANGE
+    explicit = "Theta" in col
+    if explicit:
         theta, phi = col["Theta"], col["Phi"]
+        for key, vals, lo, hi, rng in (
+            ("Theta", theta, t_lo, t_hi, f"[{t_lo:g}, {t_hi:g}]"),
+            ("Phi", phi, p_lo, p_hi, f"[{p_lo:g}, {p_hi:g})"),
+        ):
+            bad = np.nonzero((vals < lo) | (vals > hi) | ((key == "Phi") & (vals >= hi)))[0]
+            if bad.size:
+                r = int(bad[0])
+                raise InputError(
+                    f"Data_Set row {r}: {key} {vals[r]:g} out of range {rng} for {system}",
+                    path=p,
+                    line=where.row_line(r, structure.index(key)),
+                    column=key,
+                )
     else:
-        th = _sampling(_basta_key(data, "Theta_Sampling", p), "Theta_Sampling", p)
-        ph = _sampling(_basta_key(data, "Phi_Sampling", p), "Phi_Sampling", p)
+        th = _sampling(
+            _basta_key(data, "Theta_Sampling", p, where),
+            "Theta_Sampling",
+            p,
+            where.key_line("Theta_Sampling"),
+        )
+        ph = _sampling(
+            _basta_key(data, "Phi_Sampling", p, where),
+            "Phi_Sampling",
+            p,
+            where.key_line("Phi_Sampling"),
+        )
+        for key, vals, lo, hi, rng in (
+            ("Theta_Sampling", th, t_lo, t_hi, f"[{t_lo:g}, {t_hi:g}]"),
+            ("Phi_Sampling", ph, p_lo, p_hi, f"[{p_lo:g}, {p_hi:g})"),
+        ):
+            high = vals[-1] >= hi if key == "Phi_Sampling" else vals[-1] > hi
+            if vals[0] < lo or high:
+                raise InputError(
+                    f"covers {vals[0]:g}…{vals[-1]:g}, out of range {rng} for {system}",
+                    path=p,
+                    line=where.key_line(key),
+                    column=key,
+                )
         if th.size * ph.size != table.shape[0]:
+            n_rows = table.shape[0]
+            at = th.size * ph.size if n_rows > th.size * ph.size else n_rows - 1
             raise InputError(
-                f"{table.shape[0]} rows, sampling gives {th.size}×{ph.size}",
+                f"{n_rows} rows, Theta_Sampling × Phi_Sampling gives "
+                f"{th.size}×{ph.size} = {th.size * ph.size}",
                 path=p,
+                line=where.row_line(at),
                 column="Data_Set",
             )
         tt, pp = np.meshgrid(th, ph, indexing="ij")  # theta-major, phi fastest
@@ -393,49 +702,29 @@ def read_basta_json(
 
     if "MagAttenuationTP" in col:
         atten = col["MagAttenuationTP"]
-    elif "MagAttenuationCo" in col:
-        lin = 10.0 ** (-col["MagAttenuationCo"] / 10.0)
-        if "MagAttenuationCr" in col:
-            lin = lin + 10.0 ** (-col["MagAttenuationCr"] / 10.0)
-        atten = -linear_to_db(lin)
     else:
-        raise InputError(
-            "no MagAttenuationTP or MagAttenuationCo column",
-            path=p,
-            column="Data_Set_Row_Structure",
-        )
+        lin = db_to_linear(-col["MagAttenuationCo"])
+        if "MagAttenuationCr" in col:
+            lin = lin + db_to_linear(-col["MagAttenuationCr"])
+        atten = -linear_to_db(lin)
 
-    polar, az = _basta_to_polar(system, theta, phi, p)
+    polar, az = _basta_to_polar(system, theta, phi)
     polar = np.round(polar, _ROUND)
     az = np.round(az, _ROUND)
     az = np.where(az >= 360.0, 0.0, az)
-    if polar.min() < 0.0 or polar.max() > 180.0:
-        raise InputError(f"theta out of range for {system}", path=p, column="Data_Set")
-    return _grid_pattern(name or _stem(p), az, polar, gain_dbi - atten, p, normalise)
-
-
-def _grid_pattern(
-    name: str, az: FloatArray, polar: FloatArray, value_dbi: FloatArray, path: Path, normalise: bool
-) -> Pattern:
-    az_u, a_idx = np.unique(az, return_inverse=True)
-    po_u, p_idx = np.unique(polar, return_inverse=True)
-    flat = a_idx.reshape(-1) * po_u.size + p_idx.reshape(-1)
-    counts = np.bincount(flat, minlength=az_u.size * po_u.size)
-    for bad, what in ((counts.max() > 1, "duplicate"), (counts.min() == 0, "missing")):
-        if bad:
-            k = int(np.argmax(counts) if what == "duplicate" else np.argmin(counts))
-            az_k, po_k = az_u[k // po_u.size], po_u[k % po_u.size]
-            raise InputError(
-                f"{what} direction azimuth {az_k:g}, polar {po_k:g} deg",
-                path=path,
-                column="Data_Set",
-            )
-    grid = np.empty(az_u.size * po_u.size)
-    grid[flat] = value_dbi
     try:
-        pattern = Pattern(name, az_u, po_u, grid.reshape(az_u.size, po_u.size))
-    except ValueError as exc:
-        raise InputError(str(exc).split(": ", 1)[-1], path=path, column="Data_Set") from None
+        pattern = pattern_from_samples(name or _stem(p), az, polar, gain_dbi - atten)
+    except GridError as exc:
+        r = exc.row
+        msg = f"Data_Set row {r} (Theta {theta[r]:g}, Phi {phi[r]:g}): {exc.message}"
+        if exc.other_row is not None:
+            msg += f" (first in row {exc.other_row})"
+        key = "Phi" if exc.axis == "azimuth" else "Theta"
+        if explicit:
+            line, column = where.row_line(r, structure.index(key)), key
+        else:
+            line, column = where.key_line(f"{key}_Sampling"), f"{key}_Sampling"
+        raise InputError(msg, path=p, line=line, column=column) from None
     return _normalised(pattern, normalise)
 
 
@@ -456,9 +745,11 @@ def _mitll_files(path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
     return [Path(f) for f in path]
 
 
-def _read_mitll_file(path: Path) -> tuple[float, dict[str, dict[int, list[float]]]]:
-    """(angle_deg, {mac: {channel: [rss_dbm, …]}}) of one capture."""
+def _read_mitll_file(path: Path) -> tuple[float, int, dict[str, dict[int, list[float]]]]:
+    """(angle_deg, line of the Angle row, {mac: {channel: [rss_dbm, …]}}) of one capture."""
     angle: float | None = None
+    angle_line = 0
+    first_packet_line = 0
     packets: dict[str, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
     text = _read_text(path)
     reader = csv.reader(text.splitlines())
@@ -470,15 +761,24 @@ def _read_mitll_file(path: Path) -> tuple[float, dict[str, dict[int, list[float]
         if kind == "Angle":
             if len(row) < 3:
                 raise InputError("Angle row without a value", path=path, line=line, column="Angle")
-            angle = _finite(row[2].strip(), path, line, "Angle")
-            if not 0.0 <= angle <= 360.0:
+            value = _finite(row[2].strip(), path, line, "Angle")
+            if not 0.0 <= value <= 360.0:
                 raise InputError(
                     f"angle {row[2].strip()} out of range [0, 360]",
                     path=path,
                     line=line,
                     column="Angle",
                 )
+            if angle is not None:
+                raise InputError(
+                    f"second 'Angle' row (the first, at line {angle_line}, says {angle:g})",
+                    path=path,
+                    line=line,
+                    column="Angle",
+                )
+            angle, angle_line = value, line
         elif kind == "Bluetooth":
+            first_packet_line = first_packet_line or line
             if len(row) < 7:
                 raise InputError(
                     f"Bluetooth row has {len(row)} fields, expected 7", path=path, line=line
@@ -500,11 +800,18 @@ def _read_mitll_file(path: Path) -> tuple[float, dict[str, dict[int, list[float]
                     column="BLE channel",
                 )
             packets[row[2].strip().lower()][int(ch_text)].append(rss)
+    end_line = max(reader.line_num, 1)
     if angle is None:
-        raise InputError("no 'Angle' header row", path=path, column="Angle")
+        where = "before the first packet row" if first_packet_line else "in the file"
+        raise InputError(
+            f"no 'Angle' header row {where}",
+            path=path,
+            line=first_packet_line or end_line,
+            column="Angle",
+        )
     if not packets:
-        raise InputError("no Bluetooth packet rows", path=path)
-    return angle, packets
+        raise InputError("no Bluetooth packet rows in the file", path=path, line=end_line)
+    return angle, angle_line, packets
 
 
 def read_mitll_measurements(
@@ -525,6 +832,9 @@ def read_mitll_measurements(
     * ``Angle`` is taken as the contract's motor azimuth (``phi = 360 − Angle``)
       and the cut as the plane of the screen (``theta = 90``): the dataset
       does not document how the phone sat on the mast.
+    * One file per angle: two captures with the same ``Angle`` (``360`` is
+      ``0``) are rejected, naming both files and lines — silently merging them
+      would leave the other angle unmeasured and interpolated.
     * Packets: by default only the file's most frequent advertiser address is
       kept (the phone rotates its random address between files; a stray
       advertiser seen in one file is ignored). ``mac`` selects addresses
@@ -546,14 +856,27 @@ def read_mitll_measurements(
     Raises
     ------
     InputError
-        Unreadable file, bad number (file, line, column), missing Angle,
-        no packets, or no channel heard at every angle.
+        Unreadable file, bad number (file, line, column), missing or repeated
+        Angle (within a file or across files), no packets, or no channel heard
+        at every angle.
     """
     files = _mitll_files(path)
     wanted = None if mac is None else {m.strip().lower() for m in mac.split(",") if m.strip()}
     per_angle: dict[float, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
+    seen: dict[float, tuple[Path, int]] = {}
     for f in files:
-        angle, packets = _read_mitll_file(f)
+        angle, angle_line, packets = _read_mitll_file(f)
+        key = float(wrap_deg(angle))
+        if key in seen:
+            other, other_line = seen[key]
+            raise InputError(
+                f"angle {angle:g} deg again: {other}:{other_line} has it too (one capture per "
+                "angle; a repeated angle usually means another angle's file is mislabelled)",
+                path=f,
+                line=angle_line,
+                column="Angle",
+            )
+        seen[key] = (f, angle_line)
         if wanted is None:
             counts = Counter(
                 {m: sum(len(v) for v in chans.values()) for m, chans in packets.items()}
@@ -565,7 +888,7 @@ def read_mitll_measurements(
                 raise InputError(f"no packets from {mac}", path=f, column="MAC")
         for m in keep:
             for ch, rss in packets[m].items():
-                per_angle[float(wrap_deg(angle))][ch].extend(rss)
+                per_angle[key][ch].extend(rss)
     angles = sorted(per_angle)
     channels = [c for c in MITLL_CHANNELS if all(c in per_angle[a] for a in angles)]
     if not channels:

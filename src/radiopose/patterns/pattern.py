@@ -220,45 +220,256 @@ def mean_intensity(pattern: Pattern, linear: FloatArray | None = None) -> float:
     return float(integral / 2.0)  # (2π ∫ ring sinθ dθ) / 4π
 
 
+# ---------------------------------------------------------------------- sample grids
+GRID_TOL_DEG = 1e-5
+"""A sampled angle this close to a grid angle is that grid angle (printing noise)."""
+
+_MAX_STEP_CANDIDATES = 8
+_MISSING_PENALTY = 0.2
+
+
+class GridError(ValueError):
+    """Samples that do not form a complete regular grid (raised by :func:`pattern_from_samples`).
+
+    ``row`` is the 0-based index of the sample the problem is reported at,
+    ``axis`` (``"azimuth"`` or ``"polar"``) the angle that breaks the grid, and
+    ``other_row`` the earlier sample a duplicate repeats. Loaders turn it into an
+    :class:`~radiopose.errors.InputError` with their own file line and column.
+    """
+
+    def __init__(self, row: int, axis: str, message: str, other_row: int | None = None) -> None:
+        super().__init__(message)
+        self.row = row
+        self.axis = axis
+        self.message = message
+        self.other_row = other_row
+
+
+@dataclass(frozen=True)
+class _AxisFit:
+    step: float
+    first: float  # the first grid angle
+    n: int  # grid angles
+    index: np.ndarray  # grid index of each fitted value, -1 if off the grid
+
+
+def _step_candidates(u: FloatArray, span: float, periodic: bool) -> list[float]:
+    gaps = np.diff(u)
+    if periodic:
+        gaps = np.append(gaps, span - u[-1] + u[0])
+    gaps = gaps[gaps > GRID_TOL_DEG]
+    keys, counts = np.unique(np.round(gaps, 4), return_counts=True)
+    ordered = keys[np.argsort(-counts, kind="stable")][:_MAX_STEP_CANDIDATES]
+    fallback = u.size if periodic else max(u.size - 1, 1)
+    steps: list[float] = []
+    for n in [round(span / g) for g in ordered] + [fallback]:
+        if n >= 1 and span / n not in steps:
+            steps.append(span / n)
+    return steps
+
+
+def _fit_step(u: FloatArray, step: float, span: float, periodic: bool) -> _AxisFit:
+    n = round(span / step) + (0 if periodic else 1)
+    if periodic:
+        residue = np.mod(u, step)
+        key = np.round(residue, 4)
+        key = np.where(key >= round(step, 4), 0.0, key)
+        keys, counts = np.unique(key, return_counts=True)
+        first = float(residue[np.nonzero(key == keys[np.argmax(counts)])[0][0]])
+        if first > step - GRID_TOL_DEG:  # a hair below a multiple of the step: from ~0
+            first -= step
+    else:
+        first = 0.0
+    k = np.round((u - first) / step)
+    on = np.abs(u - first - k * step) <= GRID_TOL_DEG
+    if periodic:
+        index = np.where(on, np.mod(k, n), -1)
+    else:
+        index = np.where(on & (k >= 0) & (k < n), k, -1)
+    return _AxisFit(step, first, n, index.astype(np.int64))
+
+
+def _fit_axis(u: FloatArray, span: float, periodic: bool) -> _AxisFit:
+    """The constant-step grid that best explains the sorted distinct angles ``u``.
+
+    Candidate steps are the most common spacings (and ``span / count``), each
+    rounded to divide ``span``; a candidate scores one point per angle on its
+    grid and loses :data:`_MISSING_PENALTY` per grid angle nobody sampled (ties:
+    the coarser grid), so a deleted row reads as a missing point and a
+    mistyped value as an angle off the grid.
+    """
+    best: tuple[float, float] | None = None
+    fit: _AxisFit | None = None
+    for step in _step_candidates(u, span, periodic):
+        cand = _fit_step(u, step, span, periodic)
+        on = np.unique(cand.index[cand.index >= 0]).size
+        score = (on - _MISSING_PENALTY * (cand.n - on), step)
+        if best is None or score > best:
+            best, fit = score, cand
+    assert fit is not None
+    return fit
+
+
+def _axis_text(fit: _AxisFit, axis: str) -> str:
+    if axis == "azimuth":
+        return f"{fit.n} azimuths every {fit.step:g} deg from {fit.first:g}"
+    return f"{fit.n} polar angles every {fit.step:g} deg over [0, 180]"
+
+
+def pattern_from_samples(
+    name: str, azimuth_deg: FloatArray, polar_deg: FloatArray, directivity_dbi: FloatArray
+) -> Pattern:
+    """A :class:`Pattern` from one sample per grid point, in any order.
+
+    Azimuths must lie on a constant-step grid covering ``[0, 360)`` and polar
+    angles be one value (a slice) or a constant-step grid covering
+    ``[0, 180]``, each within :data:`GRID_TOL_DEG`; every grid point must be
+    present exactly once.
+
+    Raises
+    ------
+    GridError
+        At the first duplicate (the later sample), the first sample off the grid
+        (in sample order), or a missing grid point (reported at the sample
+        after which it belongs, in the samples' own azimuth- or polar-major
+        order), saying which angle and which grid.
+    """
+    az = np.asarray(azimuth_deg, dtype=np.float64)
+    po = np.asarray(polar_deg, dtype=np.float64)
+    values = np.asarray(directivity_dbi, dtype=np.float64)
+    # exact repeats first: the clearest message
+    seen: dict[tuple[float, float], int] = {}
+    for r, key in enumerate(zip(az.tolist(), po.tolist(), strict=True)):
+        if key in seen:
+            raise GridError(
+                r,
+                "azimuth",
+                f"duplicate grid point azimuth {key[0]:g}, polar {key[1]:g} deg",
+                seen[key],
+            )
+        seen[key] = r
+    az_u, az_inv = np.unique(az, return_inverse=True)
+    po_u, po_inv = np.unique(po, return_inverse=True)
+    a_fit = _fit_axis(az_u, 360.0, periodic=True)
+    slice_ = po_u.size == 1
+    p_fit = (
+        _AxisFit(0.0, float(po_u[0]), 1, np.zeros(1, np.int64))
+        if slice_
+        else _fit_axis(po_u, 180.0, periodic=False)
+    )
+    ai = a_fit.index[az_inv.reshape(-1)]
+    pi = p_fit.index[po_inv.reshape(-1)]
+    for idx, vals, fit, axis in ((ai, az, a_fit, "azimuth"), (pi, po, p_fit, "polar")):
+        off = np.nonzero(idx < 0)[0]
+        if off.size:
+            r = int(off[0])
+            raise GridError(
+                r,
+                axis,
+                f"{axis} {vals[r]:g} deg is not on a constant-step grid covering "
+                f"{'[0, 360)' if axis == 'azimuth' else '[0, 180]'} "
+                f"(closest fit: {_axis_text(fit, axis)})",
+            )
+    n_a, n_p = a_fit.n, p_fit.n
+    flat = ai * n_p + pi
+    first_row = np.full(n_a * n_p, -1, np.int64)
+    for r, f in enumerate(flat.tolist()):
+        if first_row[f] >= 0:
+            raise GridError(
+                r,
+                "azimuth",
+                f"duplicate grid point azimuth {az[r]:g}, polar {po[r]:g} deg: the same "
+                f"as azimuth {az[first_row[f]]:g}, polar {po[first_row[f]]:g} within "
+                f"{GRID_TOL_DEG:g} deg",
+                int(first_row[f]),
+            )
+        first_row[f] = r
+    grid_a = a_fit.first + np.arange(n_a) * a_fit.step
+    grid_p = p_fit.first + np.arange(n_p) * p_fit.step
+    if flat.size != n_a * n_p:
+        _raise_missing(flat, ai, pi, n_a, n_p, grid_a, grid_p, a_fit, p_fit, slice_)
+    grid = np.empty(n_a * n_p)
+    grid[flat] = values
+    grid = grid.reshape(n_a, n_p)
+    axis_a = np.empty(n_a)
+    axis_a[ai] = az
+    axis_p = np.empty(n_p)
+    axis_p[pi] = po
+    try:  # the file's own angles where they pass Pattern's checks
+        return Pattern(name, axis_a, axis_p, grid)
+    except ValueError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
+        grid_a = max(a_fit.first, 0.0) + np.arange(n_a) * a_fit.step
+        return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
+
+
+def _raise_missing(
+    flat: np.ndarray,
+    ai: np.ndarray,
+    pi: np.ndarray,
+    n_a: int,
+    n_p: int,
+    grid_a: FloatArray,
+    grid_p: FloatArray,
+    a_fit: _AxisFit,
+    p_fit: _AxisFit,
+    slice_: bool,
+) -> None:
+    polar_major = n_p > 1 and flat.size > 1
+    key_p = pi * n_a + ai
+    polar_major = polar_major and bool(np.all(np.diff(key_p) > 0))
+    polar_major = polar_major and not bool(np.all(np.diff(flat) > 0))
+    keys = key_p if polar_major else flat
+    have = np.zeros(n_a * n_p, bool)
+    have[keys] = True
+    missing = int(np.nonzero(~have)[0][0])
+    if polar_major:
+        m_a, m_p = missing % n_a, missing // n_a
+    else:
+        m_a, m_p = missing // n_p, missing % n_p
+    before = np.nonzero(keys < missing)[0]
+    if before.size:
+        r, where = int(before[np.argmax(keys[before])]), "after"
+    else:
+        r, where = int(np.argmin(keys)), "before"
+    # the angle that breaks the sequence: within a present azimuth (azimuth-major)
+    # the polar angle is missing, else the whole azimuth is
+    if slice_:
+        axis = "azimuth"
+    elif polar_major:
+        axis = "azimuth" if np.any(pi == m_p) else "polar"
+    else:
+        axis = "polar" if np.any(ai == m_a) else "azimuth"
+    polar = "slice" if slice_ else _axis_text(p_fit, "polar")
+    raise GridError(
+        r,
+        axis,
+        f"missing grid point azimuth {grid_a[m_a]:g}, polar {grid_p[m_p]:g} deg, "
+        f"expected {where} this row (grid: {_axis_text(a_fit, 'azimuth')} × {polar}; "
+        "every grid point must be present once)",
+    )
+
+
 # ---------------------------------------------------------------------- CSV io
 def read_pattern_csv(path: str | os.PathLike[str], name: str | None = None) -> Pattern:
     """Read a contract pattern CSV (``azimuth_deg, polar_deg, directivity_dbi``).
 
     Raises :class:`~radiopose.errors.InputError` naming file, line and column
-    for malformed values, duplicate or missing grid points, or an irregular grid.
+    for malformed values, duplicate or missing grid points, or an irregular grid
+    (see :func:`pattern_from_samples` for where each is reported).
     """
     table = read_table(path, PATTERN_COLUMNS)
     if len(table) == 0:
         raise InputError("no pattern samples", path=path, line=2)
-    az = table["azimuth_deg"]
-    po = table["polar_deg"]
-    az_u = np.unique(az)
-    po_u = np.unique(po)
-    a_idx = np.searchsorted(az_u, az)
-    p_idx = np.searchsorted(po_u, po)
-    flat = a_idx * po_u.size + p_idx
-    order = np.argsort(flat, kind="stable")
-    dup = np.nonzero(np.diff(flat[order]) == 0)[0]
-    if dup.size:
-        r = int(order[dup[0] + 1])
-        raise table.error(r, "azimuth_deg", f"duplicate grid point ({az[r]:g}, {po[r]:g}) deg")
-    if flat.size != az_u.size * po_u.size:
-        have = np.zeros(az_u.size * po_u.size, bool)
-        have[flat] = True
-        miss = int(np.nonzero(~have)[0][0])
-        raise InputError(
-            f"missing grid point azimuth {az_u[miss // po_u.size]:g}, "
-            f"polar {po_u[miss % po_u.size]:g} deg (every grid point must be present once)",
-            path=path,
-        )
-    grid = np.empty(az_u.size * po_u.size)
-    grid[flat] = table["directivity_dbi"]
     stem = os.path.splitext(os.path.basename(os.fspath(path)))[0]
     try:
-        return Pattern(name or stem, az_u, po_u, grid.reshape(az_u.size, po_u.size))
-    except ValueError as exc:
-        msg = str(exc).split(": ", 1)[-1]
-        raise InputError(msg, path=path) from None
+        return pattern_from_samples(
+            name or stem, table["azimuth_deg"], table["polar_deg"], table["directivity_dbi"]
+        )
+    except GridError as exc:
+        msg = exc.message
+        if exc.other_row is not None:
+            msg += f" (first at line {int(table.lines[exc.other_row])})"
+        raise table.error(exc.row, f"{exc.axis}_deg", msg) from None
 
 
 def write_pattern_csv(pattern: Pattern, path: str | os.PathLike[str]) -> None:

@@ -48,7 +48,7 @@ from radiopose.security.attacker import (
 from radiopose.simulate import ScenarioConfig, Simulation, link_rss_dbm, simulate
 from radiopose.simulate.trajectories import rotation_path, straight_path
 from radiopose.tracker import Tracker, TrackerConfig
-from radiopose.units import FloatArray, angle_diff_deg
+from radiopose.units import FloatArray, angle_diff_deg, wrap_deg
 
 EXPERIMENTS: tuple[str, ...] = ("match", "pattern", "path", "e2e")
 """Experiment names, in the issue's order (also accepted as ``1``–``4``)."""
@@ -193,7 +193,7 @@ def snap_to_grid(
     ix = np.clip(np.rint((positions_m[:, 0] - x[0]) / step_x), 0, x.size - 1).astype(np.int64)
     iy = np.clip(np.rint((positions_m[:, 1] - y[0]) / step_y), 0, y.size - 1).astype(np.int64)
     n_az = int(np.sum(np.all(space.orientations_deg[:, 1:] == 0.0, axis=1)))
-    ia = np.rint(np.mod(azimuth_deg, 360.0) / (360.0 / n_az)).astype(np.int64) % n_az
+    ia = np.rint(wrap_deg(azimuth_deg) / (360.0 / n_az)).astype(np.int64) % n_az
     return (ix * y.size + iy) * space.n_orientations + ia
 
 
