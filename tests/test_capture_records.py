@@ -563,6 +563,9 @@ def test_csv_capture_form(tmp_path: Path) -> None:
         (f"rx1,1,{_H},aa:bb:cc:dd:ee,-50", r"cap.csv:2, column 'transmitter'"),
         (f"rx1,x,{_H},aa:bb:cc:dd:ee:ff,-50", r"cap.csv:2, column 'timestamp_s'"),
         (f"rx1,1,{_H},aa:bb:cc:dd:ee:ff,nan", r"cap.csv:2, column 'rss_dbm'"),
+        # beyond int64 nanoseconds (year 2262): an error, not a wrapped time
+        (f"rx1,1e12,{_H},aa:bb:cc:dd:ee:ff,-50", r"cap.csv:2, column 'timestamp_s'.*range"),
+        (f"rx1,1e300,{_H},aa:bb:cc:dd:ee:ff,-50", r"cap.csv:2, column 'timestamp_s'.*range"),
     ],
 )
 def test_csv_capture_errors(tmp_path: Path, row: str, message: str) -> None:

@@ -98,6 +98,22 @@ def test_rule_unique_missing_duplicate_spread_and_far_repeat() -> None:
     assert counts.ambiguous_frames == 6
     assert repeated.repeated == 1
     assert (repeated.shared, repeated.shared_matched) == (4, 2)
+    assert (repeated.shared_ambiguous, repeated.shared_apart) == (2, 0)
+
+
+def test_hash_accounting_separates_ambiguous_from_apart() -> None:
+    rows = [
+        ("a", 1.0, "m", -50),
+        ("b", 1.001, "m", -50),  # matched
+        ("a", 2.0, "d", -50),
+        ("a", 2.0005, "d", -50),
+        ("b", 2.001, "d", -50),  # duplicate
+        ("a", 3.0, "f", -50),
+        ("b", 900.0, "f", -50),  # same bytes, far apart
+        ("a", 4.0, "s", -50),  # one receiver only: not shared
+    ]
+    _, _, h = match_packets(_frames(rows), ["a", "b"], tolerance_s=0.005)
+    assert (h.shared, h.shared_matched, h.shared_ambiguous, h.shared_apart) == (3, 1, 1, 1)
 
 
 def test_rule_uses_the_clock_models() -> None:
@@ -485,8 +501,10 @@ def _packet_rows(path: Path) -> list[list[str]]:
         return list(csv.reader(fh))
 
 
+# seed 10 has packets no receiver heard (ids once had gaps there); 41 has none
+@pytest.mark.parametrize("seed", ["10", "41"])
 def test_cli_simulate_pcap_sync_round_trip(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], seed: str
 ) -> None:
     """simulate --pcap -> sync gives back the simulator's own packets.csv."""
     sim_dir = tmp_path / "sim"
@@ -496,7 +514,7 @@ def test_cli_simulate_pcap_sync_round_trip(
             "-o",
             str(sim_dir),
             "--seed",
-            "41",
+            seed,
             "--pcap",
             "--loss",
             "0.1",
@@ -520,6 +538,10 @@ def test_cli_simulate_pcap_sync_round_trip(
 
     want, got = _packet_rows(sim_dir / "packets.csv"), _packet_rows(synced)
     assert len(got) == len(want) > 4000
+    sent = len(_packet_rows(sim_dir / "truth.csv")) - 1
+    heard = len({r[0] for r in want[1:]})
+    assert (sent > heard) == (seed == "10")  # seed 10: some packet nobody heard
+    assert {r[0] for r in want[1:]} == {str(i) for i in range(heard)}  # no gaps
     # Every column equal except the time, which carries the receivers' timestamp
     # latency (half-normal, 20 us scale) through the clock correction.
     assert [r[:1] + r[2:] for r in got] == [r[:1] + r[2:] for r in want]

@@ -88,6 +88,9 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--pcap", "--duplicates", "2"], "duplicate_fraction"),
         (["--rotation-rate-dps", "100", "50"], "linear_rate_deg_s = (100.0, 50.0) needs"),
         (["--size-m", "10", "--step-m", "0.3"], "step_m = 0.3 does not divide size_m = 10.0"),
+        (["--step-m", "0.0001"], "more than 25,000,000 grid points"),
+        (["--azimuth-step-deg", "0.0001"], "3.6e+06 azimuths"),
+        (["--duplicates", "0.5"], "--duplicates applies only with --pcap"),
         (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),
     ],
 )
@@ -128,8 +131,16 @@ def test_simulate_refuses_unwritable_outputs_before_writing(tmp_path, capsys):
     out2.mkdir()
     (out2 / "captures").write_text("not a directory")
     code, _, err = run(["simulate", "-o", str(out2), "--pcap"], capsys)
-    assert code == 2 and "a parent is not a directory" in err
+    assert code == 2 and "captures: is a file, expected a directory" in err
     assert sorted(p.name for p in out2.iterdir()) == ["captures"]
+    # a bad entry deep inside an output directory: the run's site/ replaces it whole
+    out3 = tmp_path / "s3"
+    (out3 / "site").mkdir(parents=True)
+    (out3 / "site" / "patterns").write_text("a file where a directory goes")
+    code, _, err = run(["simulate", "-o", str(out3), "--duration-s", "0.1"], capsys)
+    assert code == 0, err
+    assert (out3 / "site" / "patterns").is_dir() and (out3 / "packets.csv").is_file()
+    assert not list(tmp_path.glob(".s*staging"))  # no staging directory left
 
 
 def test_demo_bad_setting_leaves_no_directory(tmp_path, capsys):
@@ -171,3 +182,12 @@ def test_unexpected_errors_are_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setenv("RADIOPOSE_TRACEBACK", "1")
     with pytest.raises(RuntimeError, match="kaboom"):
         main(["simulate", "-o", str(tmp_path / "s")])
+
+
+def test_demo_failure_leaves_no_partial_output(tmp_path, capsys):
+    out = tmp_path / "d"
+    (out / "mse_map.png").mkdir(parents=True)  # the demo's last figure cannot be written
+    code, _, err = run(["demo", "-o", str(out)], capsys)
+    assert code == 2 and "mse_map.png: is a directory" in err
+    assert [p.name for p in out.iterdir()] == ["mse_map.png"]
+    assert not list(tmp_path.glob(".d.*"))

@@ -120,3 +120,27 @@ def test_estimates_csv_round_trip(tmp_path):
     np.testing.assert_allclose(back.position_m, e.position_m, atol=1e-6)
     np.testing.assert_allclose(back.orientation_deg, e.orientation_deg, atol=1e-6)
     assert list(back.packet_id) == ["0", "3"] and list(back.method) == ["full", "full"]
+
+
+def test_duplicate_truth_and_estimate_rows_are_errors(tmp_path):
+    from radiopose.estimates import read_estimates_csv, write_estimates_csv
+    from radiopose.packets import read_truth_csv, write_truth_csv
+
+    tr = _truth()
+    write_truth_csv(tr, tmp_path / "t.csv")
+    lines = (tmp_path / "t.csv").read_text().splitlines(keepends=True)
+    (tmp_path / "t2.csv").write_text("".join([*lines, lines[2]]))  # row 2 again, as the last
+    with pytest.raises(
+        InputError,
+        match=rf"t2\.csv:{len(lines) + 1}, column 'timestamp_s': a second truth row.*"
+        "first on line 3",
+    ):
+        read_truth_csv(tmp_path / "t2.csv")
+    e = _est(tr, [0, 1, 2])
+    write_estimates_csv(e, tmp_path / "e.csv")
+    lines = (tmp_path / "e.csv").read_text().splitlines(keepends=True)
+    (tmp_path / "e2.csv").write_text("".join([*lines, lines[1]]))
+    with pytest.raises(
+        InputError, match=r"e2\.csv:5, column 'method': a second estimate.*first on line 2"
+    ):
+        read_estimates_csv(tmp_path / "e2.csv")

@@ -37,6 +37,9 @@ def test_reads_and_ignores_extra_columns(tmp_path):
     [
         ("name,azimuth_deg\na,1\n", "t.csv:1, column 'x_m': missing required column"),
         ("x_m,name,azimuth_deg\nabc,a,1\n", "t.csv:2, column 'x_m': not a number"),
+        ("x_m,name,azimuth_deg\n1_000,a,1\n", "t.csv:2, column 'x_m': not a number: '1_000'"),
+        ("x_m,name,azimuth_deg\n\u0661,a,1\n", "t.csv:2, column 'x_m': not a number"),
+        ("x_m,name,azimuth_deg\n1,a,0x1\n", "t.csv:2, column 'azimuth_deg': not a number"),
         ("x_m,name,azimuth_deg\nnan,a,1\n", "t.csv:2, column 'x_m': not a finite number"),
         ("x_m,name,azimuth_deg\ninf,a,1\n", "t.csv:2, column 'x_m': not a finite number"),
         ("x_m,name,azimuth_deg\n1,a,1\n1,b,360\n", "t.csv:3, column 'azimuth_deg': value 360"),
@@ -64,6 +67,9 @@ def test_missing_file_and_binary(tmp_path):
     p = tmp_path / "b.csv"
     p.write_bytes(b"x_m,name,azimuth_deg\n\xff\xfe\x00,a,1\n")
     with pytest.raises(InputError, match="not UTF-8"):
+        read_table(p, COLS)
+    p.write_bytes(b"x_m,name,azimuth_deg\n1,a,1\n2,b\xe9,2\n")  # Latin-1 on line 3
+    with pytest.raises(InputError, match=r"b\.csv:3, column 'name': not UTF-8"):
         read_table(p, COLS)
 
 

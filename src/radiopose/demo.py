@@ -34,29 +34,38 @@ def run_demo(
     t0 = time.perf_counter()
     out = Path(out_dir)
     sim = simulate(ScenarioConfig(noise_db=noise_db, duration_s=duration_s), seed=seed)
-    out.mkdir(parents=True, exist_ok=True)  # only once the settings proved valid
-    written = sim.write(out / "scenario")
-    echo(
-        f"simulated {len(sim.truth)} packets (seed {seed}, σ = {noise_db:g} dB) "
-        f"at {len(sim.site.receivers)} receivers"
-    )
+    from radiopose.tables import staged_directory
 
-    ax = plot_scene(sim.site, sim.truth.position_m[:, :2], sim.truth.orientation_deg[:, 0])
-    written.append(_save(ax.figure, out / "scene.png"))
-    plt.close(ax.figure)
+    # Everything is written to a staging directory beside OUT and moved into
+    # OUT only when the whole demo succeeded: a failure leaves no partial output.
+    with staged_directory(out) as stage:
 
-    ax = plot_survey_map(sim.site, sim.site.receivers[0].receiver_id)
-    written.append(_save(ax.figure, out / "survey_map_rx1.png"))
-    plt.close(ax.figure)
+        def say(line: str, stage: Path = stage) -> None:
+            echo(line.replace(str(stage), str(out)))
 
-    written.append(_pattern_figure(sim, out / "patterns.png"))
+        written = sim.write(stage / "scenario")
+        say(
+            f"simulated {len(sim.truth)} packets (seed {seed}, σ = {noise_db:g} dB) "
+            f"at {len(sim.site.receivers)} receivers"
+        )
 
-    from radiopose.evaluate.demo import run_demo_pipeline
+        ax = plot_scene(sim.site, sim.truth.position_m[:, :2], sim.truth.orientation_deg[:, 0])
+        written.append(_save(ax.figure, stage / "scene.png"))
+        plt.close(ax.figure)
 
-    echo("localising with all five methods (full, location, orientation, top, lms) ...")
-    for p in written:
-        echo(f"wrote {p}")
-    run_demo_pipeline(sim, out, echo=echo)  # prints its table and what it wrote
+        ax = plot_survey_map(sim.site, sim.site.receivers[0].receiver_id)
+        written.append(_save(ax.figure, stage / "survey_map_rx1.png"))
+        plt.close(ax.figure)
+
+        written.append(_pattern_figure(sim, stage / "patterns.png"))
+
+        from radiopose.evaluate.demo import run_demo_pipeline
+
+        say("localising with all five methods (full, location, orientation, top, lms) ...")
+        for p in written:
+            say(f"wrote {p}")
+        run_demo_pipeline(sim, stage, echo=say)  # prints its table and what it wrote
+    written = [out / p.relative_to(stage) for p in written]
     echo(f"demo finished in {time.perf_counter() - t0:.1f} s")
     return written
 

@@ -18,6 +18,8 @@ import errno
 import io
 import math
 import os
+import re
+import shutil
 import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
@@ -92,11 +94,37 @@ def _open_text(path: Path) -> io.TextIOWrapper:
         raise InputError(f"cannot read: {exc.strerror}", path=path) from None
 
 
+# Plain ASCII decimal numbers only: Python's float()/int() would also take
+# "1_000", full-width or other Unicode digits, which no CSV writer means.
+_FLOAT_SYNTAX = re.compile(r"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?|[+-]?(nan|inf|infinity)", re.I)
+_INT_SYNTAX = re.compile(r"[+-]?\d+")
+
+
+def _undecodable_at(path: Path) -> tuple[int | None, str | None]:
+    """Line (1-based) and header column of the first byte that is not UTF-8."""
+    try:
+        data = path.read_bytes()
+        data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        start = data.rfind(b"\n", 0, exc.start) + 1
+        field = data.count(b",", start, exc.start)
+        header = data.split(b"\n", 1)[0].decode("utf-8", "replace").lstrip("\ufeff").split(",")
+        column = header[field].strip() if line > 1 and field < len(header) else None
+        return line, column
+    except OSError:
+        pass
+    return None, None
+
+
 def _parse_number(text: str, col: Column, path: Path, line: int) -> float | int:
     s = text.strip()
     if s == "":
         raise InputError("empty value", path=path, line=line, column=col.name)
     try:
+        syntax = _INT_SYNTAX if col.kind == "int" else _FLOAT_SYNTAX
+        if not s.isascii() or syntax.fullmatch(s) is None:
+            raise ValueError(s)
         value: float | int = int(s) if col.kind == "int" else float(s)
     except ValueError:
         kind = "an integer" if col.kind == "int" else "a number"
@@ -176,7 +204,10 @@ def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table
                         values[col.name].append(_parse_number(raw, col, p, line))
                 lines.append(line)
         except UnicodeDecodeError as exc:
-            raise InputError(f"not UTF-8 text ({exc.reason})", path=p) from None
+            line, column = _undecodable_at(p)
+            raise InputError(
+                f"not UTF-8 text ({exc.reason})", path=p, line=line, column=column
+            ) from None
         except csv.Error as exc:
             raise InputError(f"malformed CSV: {exc}", path=p, line=reader.line_num) from None
     arrays: dict[str, NDArray] = {}
@@ -232,6 +263,25 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.
         raise
 
 
+def first_row_of(table: Table, key: Sequence[str], message: str) -> None:
+    """Raise at the first data row whose ``key`` columns repeat an earlier row.
+
+    ``message`` is formatted with the key values; the error names the row's
+    line, the first key column, and the line of the earlier row.
+    """
+    seen: dict[tuple, int] = {}
+    cols = [table[name] for name in key]
+    for row, values in enumerate(zip(*cols, strict=True)):
+        k = tuple(str(v).lower() if isinstance(v, str) else v for v in values)
+        if k in seen:
+            raise table.error(
+                row,
+                key[-1] if len(key) > 1 else key[0],
+                message.format(*values) + f" (first on line {int(table.lines[seen[k]])})",
+            )
+        seen[k] = row
+
+
 def check_output_paths(
     files: Sequence[str | os.PathLike[str]] = (), dirs: Sequence[str | os.PathLike[str]] = ()
 ) -> None:
@@ -256,6 +306,46 @@ def check_output_paths(
                             errno.ENOTDIR, "cannot create: a parent is not a directory", str(p)
                         )
                     break
+
+
+@contextlib.contextmanager
+def staged_directory(target: str | os.PathLike[str]) -> Iterator[Path]:
+    """Write a run's outputs into a staging directory, then move them into ``target``.
+
+    Yields an empty directory beside ``target``. When the block succeeds, each
+    entry written there replaces the entry of the same name in ``target``
+    (a directory replaces the previous run's directory as a whole); entries of
+    ``target`` not written by the run are left alone. When the block fails,
+    nothing of the run reaches ``target``. A file where a directory is written
+    (or the reverse) is refused before anything is moved.
+    """
+    target = Path(target)
+    check_output_paths(dirs=[target])
+    target.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".staging", dir=target.parent))
+    try:
+        yield stage
+        entries = sorted(stage.iterdir())
+        for src in entries:
+            dst = target / src.name
+            if dst.exists() and dst.is_dir() != src.is_dir():
+                if dst.is_dir():
+                    raise IsADirectoryError(
+                        errno.EISDIR, "is a directory, expected a file", str(dst)
+                    )
+                raise NotADirectoryError(errno.ENOTDIR, "is a file, expected a directory", str(dst))
+        target.mkdir(exist_ok=True)
+        for src in entries:
+            dst = target / src.name
+            old = None
+            if src.is_dir() and dst.is_dir():
+                old = Path(tempfile.mkdtemp(prefix=f".{src.name}.", suffix=".old", dir=target))
+                os.replace(dst, old / src.name)
+            os.replace(src, dst)
+            if old is not None:
+                shutil.rmtree(old, ignore_errors=True)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def write_table(

@@ -676,7 +676,8 @@ def _reason(item: tuple[str, int]) -> int:
 
 CSV_CAPTURE_COLUMNS = (
     Column("receiver_id", "str"),
-    Column("timestamp_s", low=0.0),
+    # int64 nanoseconds reach 2**63 ns = 9,223,372,036.85 s (year 2262)
+    Column("timestamp_s", low=0.0, high=9_223_372_036.0),
     Column("frame_sha256", "str"),
     Column("transmitter", "str"),
     Column("rss_dbm"),

@@ -7,7 +7,8 @@ over hours moves the receivers apart by far more than any sensible matching
 tolerance. Synchronisation therefore has two steps.
 
 1. **Clock estimation** (:func:`estimate_clocks`). Against a reference
-   receiver (default: the first), each receiver's clock follows::
+   receiver (default: the first that kept any frame), each receiver's clock
+   follows::
 
        t_rx = t_ref + offset + drift·(t_ref - epoch)
 
@@ -77,7 +78,7 @@ class SyncConfig:
         Matching tolerance after clock correction, seconds (also the inlier
         threshold of clock estimation).
     reference
-        Reference receiver id; ``None`` = the first receiver.
+        Reference receiver id; ``None`` = the first receiver that kept any frame.
     max_drift_ppm
         Largest clock drift considered, ppm.
     min_pairs

@@ -69,7 +69,8 @@ def sync(
     reference: Annotated[
         str | None,
         typer.Option(
-            help="Reference receiver whose clock the others are mapped to (default: first)."
+            help="Reference receiver whose clock the others are mapped to (default: the "
+            "first capture's receiver that kept any frame)."
         ),
     ] = None,
     max_drift_ppm: Annotated[

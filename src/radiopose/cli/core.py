@@ -120,6 +120,16 @@ def simulate(
         motion=motion,
     )
     capture_cfg = None
+    if not pcap:
+        given = {
+            "--clock-offset-ms": clock_offset_ms != 1000.0,
+            "--clock-drift-ppm": clock_drift_ppm != 20.0,
+            "--jitter-us": jitter_us != 20.0,
+            "--duplicates": duplicates != 0.0,
+        }
+        for name, set_ in given.items():
+            if set_:
+                raise InputError(f"{name} applies only with --pcap")
     if pcap:
         from radiopose.capture.writer import CaptureConfig
 
@@ -135,30 +145,31 @@ def simulate(
             raise InputError(f"--pcap settings: {exc}") from None
     sim = run(cfg, seed=seed)
     if capture_cfg is not None:
-        from radiopose.tables import check_output_paths
-
-        check_output_paths([out / "captures" / "clocks.csv"], [out / "captures"])
         from radiopose.capture.writer import whole_dbm
 
         sim = replace(sim, packets=whole_dbm(sim.packets))
-    for p in sim.write(out):
-        print(p)
-    if capture_cfg is not None:
-        from radiopose.capture.writer import CLOCKS_FILE, TRUTH_FILE, simulate_captures
+    from radiopose.tables import staged_directory
 
-        caps = simulate_captures(
-            sim.packets,
-            [r.receiver_id for r in sim.site.receivers],
-            out / "captures",
-            seed=seed,
-            config=capture_cfg,
-        )
-        for p in [*caps.paths.values(), out / "captures" / CLOCKS_FILE]:
-            print(p)
-        if duplicates > 0:
-            print(out / "captures" / TRUTH_FILE)
-        else:
-            (out / "captures" / TRUTH_FILE).unlink()  # equal to packets.csv
+    written: list[Path] = []
+    with staged_directory(out) as stage:  # all files or none
+        written += sim.write(stage)
+        if capture_cfg is not None:
+            from radiopose.capture.writer import CLOCKS_FILE, TRUTH_FILE, simulate_captures
+
+            caps = simulate_captures(
+                sim.packets,
+                [r.receiver_id for r in sim.site.receivers],
+                stage / "captures",
+                seed=seed,
+                config=capture_cfg,
+            )
+            written += [*caps.paths.values(), stage / "captures" / CLOCKS_FILE]
+            if duplicates > 0:
+                written.append(stage / "captures" / TRUTH_FILE)
+            else:
+                (stage / "captures" / TRUTH_FILE).unlink()  # equal to packets.csv
+    for p in written:
+        print(out / p.relative_to(stage))
     n_pk = len(sim.truth)
     print(f"{n_pk} packets, {len(sim.packets)} receptions at {receivers} receivers", flush=True)
 

@@ -30,7 +30,7 @@ def _database(db: str):  # type: ignore[no-untyped-def]
     except ModuleNotFoundError as exc:
         raise InputError(
             f"the live server needs {exc.name}, which is missing: reinstall radiopose "
-            "(pip install radiopose)"
+            "from its clone (pip install -e .)"
         ) from None
     return Database(_url(db))
 

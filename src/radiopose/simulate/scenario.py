@@ -32,6 +32,9 @@ from radiopose.patterns.synthetic import smartphone_like
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
 from radiopose.simulate.trajectories import MotionConfig, rotation_path, straight_path
 from radiopose.site import (
+    MAX_CANDIDATES,
+    MAX_GRID_POINTS,
+    MAX_ORIENTATIONS,
     AreaGrid,
     Device,
     OrientationGrid,
@@ -140,6 +143,22 @@ class ScenarioConfig:
                 f"size_m = {self.size_m!r} leaves no room to walk: the device keeps "
                 f"{self.motion.margin_m:g} m from every edge, so size_m must exceed "
                 f"{2 * self.motion.margin_m:g} m"
+            )
+        # The same limits as a site read from disk (radiopose.site), checked
+        # from the numbers alone before anything is allocated.
+        n_axis = self.size_m / self.step_m + 1
+        n_az = 360.0 / self.azimuth_step_deg
+        n_survey = (self.size_m / self.survey_step_m + 1) ** 2
+        if n_axis**2 > MAX_GRID_POINTS or n_survey > MAX_GRID_POINTS:
+            raise InputError(
+                f"size_m = {self.size_m!r} with step_m = {self.step_m!r} (survey_step_m = "
+                f"{self.survey_step_m!r}) gives more than {MAX_GRID_POINTS:,} grid points"
+            )
+        if n_az > MAX_ORIENTATIONS or n_axis**2 * n_az > MAX_CANDIDATES:
+            raise InputError(
+                f"azimuth_step_deg = {self.azimuth_step_deg!r} gives {n_az:.3g} azimuths, "
+                f"{n_axis**2 * n_az:.3g} candidate poses (limits {MAX_ORIENTATIONS:,} and "
+                f"{MAX_CANDIDATES:,})"
             )
         for name in ("step_m", "survey_step_m"):
             if not grid_steps(self.size_m, getattr(self, name))[1]:
@@ -271,8 +290,12 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     heard = rng.random(rss.shape) >= cfg.loss_fraction
     pk_idx, rx_idx = np.nonzero(heard)
     ids = np.array([r.receiver_id for r in receivers], dtype=object)
+    # Packet ids number the packets someone heard, 0, 1, 2, ... in time order,
+    # as a deployment sees them (and as `radiopose sync` numbers them): a packet
+    # no receiver heard leaves no row and no gap. truth.csv keeps every packet.
+    number = np.cumsum(heard.any(axis=1)) - 1
     packets = Packets(
-        packet_id=np.array([str(i) for i in pk_idx], dtype=object),
+        packet_id=np.array([str(i) for i in number[pk_idx]], dtype=object),
         timestamp_s=t[pk_idx],
         transmitter=np.full(pk_idx.size, DEFAULT_TRANSMITTER, dtype=object),
         receiver_id=ids[rx_idx],
