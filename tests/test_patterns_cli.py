@@ -292,3 +292,48 @@ def test_plot_functions_take_and_return_axes():
         plot_polar(phone, ax=hm)
     plt.close("all")
     assert pattern_png(sphere).startswith(PNG_MAGIC)
+
+
+@pytest.mark.parametrize(
+    ("args", "option", "what"),
+    [
+        (["--polar-step-deg", "1e-7"], "--polar-step-deg", "polar step 1e-07 deg is finer"),
+        (["--step-deg", "1e-9"], "--step-deg", "azimuth step 1e-09 deg is finer"),
+        (["--smooth-deg", "-1"], "--smooth-deg", "smoothing half-width"),
+    ],
+)
+def test_enrol_grid_limit_names_the_option(measurements_csv, tmp_path, capsys, args, option, what):
+    out = tmp_path / "p.csv"
+    code, _, err = _run(["enrol", str(measurements_csv), "-o", str(out), *args], capsys)
+    assert code == 2
+    _assert_one_line_failure(code, err, f"radiopose: column '{option}': {what}")
+    assert not out.exists()
+
+
+def test_enrol_inferred_polar_step_names_the_row(tmp_path, capsys):
+    src = tmp_path / "m.csv"
+    src.write_text(
+        "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,-40\n90,90,-41\n180,90.001,-42\n"
+    )
+    out = tmp_path / "p.csv"
+    code, _, err = _run(["enrol", str(src), "-o", str(out)], capsys)
+    assert code == 2
+    _assert_one_line_failure(
+        code,
+        err,
+        f"{src}:4, column 'motor_elevation_deg': elevations 90 and 90.001 deg imply a polar "
+        "step of 0.001 deg, finer than the 0.1 deg limit",
+    )
+    assert not out.exists()
+
+
+def test_pattern_import_mitll_step_limit_names_the_option(shared_data, tmp_path, capsys):
+    src = shared_data / "phone-patterns-mitll" / "iPhone-11-2"
+    out = tmp_path / "p.csv"
+    code, _, err = _run(
+        ["pattern", "import", str(src), "-o", str(out), "--format", "mitll", "--step-deg", "1e-9"],
+        capsys,
+    )
+    assert code == 2
+    _assert_one_line_failure(code, err, "column '--step-deg': azimuth step 1e-09 deg is finer")
+    assert not out.exists()

@@ -12,6 +12,7 @@ from radiopose.patterns.enrol import (
     Measurements,
     average_per_direction,
     enrol,
+    enrol_csv,
     fill_periodic,
     motor_to_pattern_deg,
     pattern_to_motor_deg,
@@ -233,3 +234,40 @@ def test_enrolment_does_not_mutate_inputs():
     np.testing.assert_array_equal(m.rss_dbm, before)
     assert not m.rss_dbm.flags.writeable
     assert db_to_linear(0.0) == 1.0
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "column", "match"),
+    [
+        ({"azimuth_step_deg": 1e-9}, "azimuth_step_deg", "azimuth step 1e-09 deg is finer than"),
+        ({"azimuth_step_deg": 0.09}, "azimuth_step_deg", "finer than the 0.1 deg limit"),
+        ({"polar_step_deg": 1e-7}, "polar_step_deg", "polar step 1e-07 deg is finer than"),
+        ({"polar_step_deg": 5e-324}, "polar_step_deg", "finer than the 0.1 deg limit"),
+    ],
+)
+def test_grid_finer_than_the_limit_is_rejected_before_allocating(kwargs, column, match):
+    with pytest.raises(InputError, match=match) as err:
+        EnrolConfig(**kwargs)
+    assert err.value.column == column and err.value.path is None
+    EnrolConfig(azimuth_step_deg=0.1, polar_step_deg=0.1)  # the limit itself is allowed
+
+
+def test_inferred_polar_step_finer_than_the_limit_names_the_row(tmp_path):
+    path = tmp_path / "m.csv"
+    path.write_text(
+        "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,-40\n90,90,-41\n180,90.001,-42\n"
+    )
+    with pytest.raises(InputError) as err:
+        enrol_csv(path)
+    assert (err.value.path, err.value.line, err.value.column) == (
+        str(path),
+        4,
+        "motor_elevation_deg",
+    )
+    assert (
+        "elevations 90 and 90.001 deg imply a polar step of 0.001 deg, finer than the 0.1 deg "
+        "limit" in str(err.value)
+    )
+    # an explicit polar step overrides the inferred one
+    p = enrol_csv(path, EnrolConfig(polar_step_deg=10.0))
+    assert p.polar_deg.size == 19

@@ -134,6 +134,26 @@ def test_msi_real_file(shared_data):
             "HORIZONTAL",
             r"second HORIZONTAL section \(the first is at line 4\)",
         ),
+        # a mistyped angle that starts with a letter is a bad number, not a section end
+        (
+            lambda t: t.replace("\n3 20.00\n", "\nx3 0.03\n"),
+            8,
+            "HORIZONTAL angle",
+            "not a number: 'x3'",
+        ),
+        (
+            lambda t: t.replace("\n3 20.00\n", "\nabc 0.03\n"),
+            8,
+            "HORIZONTAL angle",
+            "not a number: 'abc'",
+        ),
+        # a known header keyword inside a block still ends it (a deleted line)
+        (
+            lambda t: t.replace("\n3 20.00\n", "\nTILT 2\n"),
+            8,
+            "HORIZONTAL",
+            "this line ends it after 3",
+        ),
         # one negative attenuation among positive ones: ambiguous, rejected at its line
         (
             lambda t: t.replace("\n5 20.00\n", "\n5 -20.00\n"),
@@ -272,6 +292,26 @@ def _line_of(text: str, fragment: str, nth: int = 0) -> int:
         ),
         (
             {"Phi_Sampling": [30, 30, 360]},
+            "Phi_Sampling",
+            r"out of range \[-180, 360\)",
+            '"Phi_Sampling"',
+        ),
+        # a sampling finer than the 0.1 deg grid limit, checked before allocating
+        (
+            {"Theta_Sampling": [-90, 1e-9, 90]},
+            "Theta_Sampling",
+            "step 1e-09 deg is finer than the 0.1 deg limit",
+            '"Theta_Sampling"',
+        ),
+        (
+            {"Phi_Sampling": [0, 0.01, 359.99]},
+            "Phi_Sampling",
+            "step 0.01 deg is finer than the 0.1 deg limit",
+            '"Phi_Sampling"',
+        ),
+        # ends far out of range: rejected from the numbers, no overflow
+        (
+            {"Phi_Sampling": [-1e308, 0.5, 1e308]},
             "Phi_Sampling",
             r"out of range \[-180, 360\)",
             '"Phi_Sampling"',

@@ -236,6 +236,27 @@ def test_irregular_grid_and_empty_file(tmp_path):
             "azimuth_deg",
             "azimuth 31 deg is not on a constant-step grid covering",
         ),
+        # one stray polar angle among a slice's rows: reported at the stray row
+        (
+            H + "0,90,1\n90,90,1\n180,80,1\n270,90,1\n",
+            4,
+            "polar_deg",
+            r"polar 80 deg in a slice at polar 90 deg \(3 of 4 rows\)",
+        ),
+        # a grid finer than the 0.1 deg limit: at the first row of the too-close pair
+        (
+            H + "".join(f"{k * 0.05:.2f},90,1\n" for k in range(7200)),
+            3,
+            "azimuth_deg",
+            r"azimuths 0 and 0.05 deg imply a grid step of 0.05 deg \(7200 azimuths\), "
+            r"finer than the 0.1 deg limit",
+        ),
+        (
+            H + "".join(f"{a},{k * 0.05:.2f},1\n" for k in range(3601) for a in (0, 180)),
+            4,
+            "polar_deg",
+            r"polar angles 0 and 0.05 deg imply a grid step of 0.05 deg",
+        ),
         # equal within the grid tolerance (1e-5 deg): a duplicate, naming the first line
         (
             H + "0,90,1\n120,90,1\n0.000001,90,1\n240,90,1\n",
@@ -354,3 +375,10 @@ def test_repeated_directions_are_allowed_in_enrolment_csv(tmp_path):
     text = "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,-50\n0,90,-52\n360,90,-51\n"
     m = read_measurements_csv(_write(tmp_path, text))
     assert len(m) == 3
+
+
+def test_finest_allowed_pattern_grid_loads(tmp_path):
+    """0.1 deg steps (3600 azimuths) are within the limit."""
+    path = _write(tmp_path, H + "".join(f"{k / 10:.1f},90,1\n" for k in range(3600)))
+    p = read_pattern_csv(path)
+    assert p.azimuth_deg.size == 3600 and p.is_slice

@@ -101,6 +101,14 @@ TOML_CASES = [
     ("roll_deg = [0.0]", "roll_deg = [400.0]", 14, "orientations.roll_deg",
      "out of range [-360, 360]"),
     ("pitch_deg = [0.0]", "pitch_deg = []", 13, "orientations.pitch_deg", "non-empty list"),
+    # a bare number is not a list (docs/site.md): rejected, not read as [0.0]
+    ("pitch_deg = [0.0]", "pitch_deg = 0.0", 13, "orientations.pitch_deg",
+     "non-empty list of numbers, got a single number (write [0.0])"),
+    ("roll_deg = [0.0]", "roll_deg = 90", 14, "orientations.roll_deg",
+     "got a single number"),
+    # the same roll modulo 360, within float noise of +-180
+    ("roll_deg = [0.0]", "roll_deg = [179.99999999999, -180.0]", 14, "orientations.roll_deg",
+     "equal modulo 360 to item 0"),
     ("pitch_deg = [0.0]", 'pitch_deg = [0.0, "a"]', 13, "orientations.pitch_deg", "item 1"),
 ]  # fmt: skip
 

@@ -489,11 +489,18 @@ class Section:
         low: float | None = None,
         high: float | None = None,
         nonempty: bool = True,
+        scalar: bool = True,
     ) -> tuple[float, ...]:
+        """A list of finite numbers in ``[low, high]``; ``scalar=False`` rejects a bare number."""
         v = self._get(name, default)
         if v is default and name not in self.data:
             return v
         if isinstance(v, int | float) and not isinstance(v, bool):
+            if not scalar:
+                raise self.error(
+                    name,
+                    f"expected a non-empty list of numbers, got a single number (write [{v!r}])",
+                )
             v = [v]
         if not isinstance(v, list) or (nonempty and not v):
             raise self.error(name, "expected a non-empty list of numbers")

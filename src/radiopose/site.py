@@ -56,7 +56,7 @@ from radiopose.survey import (
     spans_two_dimensions,
 )
 from radiopose.tables import Column, Table, atomic_writer, read_table, write_table
-from radiopose.units import FloatArray
+from radiopose.units import FloatArray, wrap_signed_deg
 
 COORD_LIMIT_M = 1e6
 """Bound on every coordinate (site.toml area, receivers.csv, survey.csv), metres."""
@@ -336,16 +336,16 @@ def _axis_steps(a: Section, axis: str, lo: float, hi: float, step: float) -> int
     return n
 
 
-def _distinct(o: Section, name: str, values: tuple[float, ...], period: float | None) -> None:
-    """Reject repeated angles (modulo ``period`` if given: roll 180 = roll -180)."""
+def _distinct(o: Section, name: str, values: tuple[float, ...], periodic: bool) -> None:
+    """Reject repeated angles (modulo 360 if ``periodic``: roll 180 = roll -180)."""
     seen: dict[float, int] = {}
     for i, v in enumerate(values):
-        key = v if period is None else (v + period / 2) % period - period / 2
+        key = float(wrap_signed_deg(v)) if periodic else v
         key = round(key, 9) + 0.0  # -0.0 == 0.0; float noise below 1e-9 deg
-        if period is not None and key == round(period / 2, 9):
+        if periodic and key == 180.0:  # 179.9999999999 rounds up: the same roll as -180
             key = -key
         if key in seen:
-            same = "the same as" if period is None else f"equal modulo {period:g} to"
+            same = "equal modulo 360 to" if periodic else "the same as"
             raise o.error(
                 name, f"item {i} = {v:g} is {same} item {seen[key]}; values must be distinct"
             )
@@ -381,10 +381,10 @@ def _read_site_toml(path: Path) -> _SiteToml:
         )
     if abs(round(n_az) * az_step - 360.0) > 1e-6:
         raise o.error("azimuth_step_deg", f"{az_step:g} does not divide 360")
-    pitch = o.numbers("pitch_deg", (0.0,), low=-90.0, high=90.0)
-    _distinct(o, "pitch_deg", pitch, None)
-    roll = o.numbers("roll_deg", (0.0,), low=-360.0, high=360.0)
-    _distinct(o, "roll_deg", roll, 360.0)
+    pitch = o.numbers("pitch_deg", (0.0,), low=-90.0, high=90.0, scalar=False)
+    _distinct(o, "pitch_deg", pitch, periodic=False)
+    roll = o.numbers("roll_deg", (0.0,), low=-360.0, high=360.0, scalar=False)
+    _distinct(o, "roll_deg", roll, periodic=True)
     orient = OrientationGrid(az_step, pitch, roll)
     if len(orient) > MAX_ORIENTATIONS:
         raise o.table_error(

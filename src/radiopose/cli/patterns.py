@@ -149,6 +149,24 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
         raise
 
 
+def _enrol_config(**options: float | None) -> EnrolConfig:
+    """An :class:`EnrolConfig` whose errors name the command-line option, not the attribute."""
+    try:
+        return EnrolConfig(**options)  # type: ignore[arg-type]
+    except InputError as exc:
+        option = _CONFIG_OPTIONS.get(exc.column or "")
+        if option is None or exc.path is not None:
+            raise
+        raise InputError(exc.reason, column=option) from None
+
+
+_CONFIG_OPTIONS = {
+    "smooth_deg": "--smooth-deg",
+    "azimuth_step_deg": "--step-deg",
+    "polar_step_deg": "--polar-step-deg",
+}
+
+
 def _summary(pattern: Pattern, output: Path) -> None:
     lo, hi = pattern.range_dbi
     shape = "slice" if pattern.is_slice else f"{pattern.polar_deg.size} polar rows"
@@ -175,13 +193,15 @@ def enrol_command(
         ),
     ] = 5.0,
     step_deg: Annotated[
-        float, typer.Option("--step-deg", help="Output azimuth grid step, degrees (divides 360).")
+        float,
+        typer.Option("--step-deg", help="Output azimuth grid step, degrees (divides 360, >= 0.1)."),
     ] = 1.0,
     polar_step_deg: Annotated[
         float | None,
         typer.Option(
             "--polar-step-deg",
-            help="Output polar step for a full sphere, degrees (default: measured spacing).",
+            help="Output polar step for a full sphere, degrees (divides 180, >= 0.1; "
+            "default: measured spacing).",
             show_default=False,
         ),
     ] = None,
@@ -189,7 +209,7 @@ def enrol_command(
     name: _NameOption = None,
 ) -> None:
     """Enrol a radiation pattern from positioner RSS measurements."""
-    config = EnrolConfig(
+    config = _enrol_config(
         smooth_deg=smooth_deg, azimuth_step_deg=step_deg, polar_step_deg=polar_step_deg
     )
     pattern = enrol_csv(measurements, config, name=name or output.stem)
@@ -245,7 +265,7 @@ def import_command(
     elif fmt is ImportFormat.basta:
         pattern = read_basta_json(source, normalise=normalise, name=pname)
     else:
-        config = EnrolConfig(smooth_deg=smooth_deg, azimuth_step_deg=step_deg)
+        config = _enrol_config(smooth_deg=smooth_deg, azimuth_step_deg=step_deg)
         pattern = read_mitll(source, config, mac=mac, name=pname)
     _write_outputs(pattern, output, plot)
     _summary(pattern, output)

@@ -50,8 +50,16 @@ from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
 from radiopose.errors import InputError
-from radiopose.patterns.pattern import Pattern, mean_intensity
-from radiopose.tables import Column, read_table, write_table
+from radiopose.patterns.pattern import (
+    MAX_AZIMUTHS,
+    MAX_POLAR_ANGLES,
+    MIN_GRID_STEP_DEG,
+    Pattern,
+    grid_steps,
+    mean_intensity,
+    too_fine,
+)
+from radiopose.tables import Column, Table, read_table, write_table
 from radiopose.units import (
     FloatArray,
     dbm_to_mw,
@@ -73,6 +81,11 @@ _ANGLE_DECIMALS = 6  # directions equal to 1e-6 deg are the same direction
 @dataclass(frozen=True)
 class EnrolConfig:
     """Settings of :func:`enrol`.
+
+    Invalid settings raise :class:`~radiopose.errors.InputError` whose
+    ``column`` is the attribute name (the CLI names its option instead).
+    Steps finer than :data:`~radiopose.patterns.pattern.MIN_GRID_STEP_DEG`
+    (0.1°) are rejected: at most 3600 azimuths × 1801 polar angles.
 
     Attributes
     ----------
@@ -105,10 +118,12 @@ class EnrolConfig:
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.smooth_deg) and 0.0 <= self.smooth_deg < 180.0):
-            raise InputError(f"smoothing half-width {self.smooth_deg} deg not in [0, 180)")
-        _grid_count(self.azimuth_step_deg, 360.0, "azimuth step")
+            raise InputError(
+                f"smoothing half-width {self.smooth_deg} deg not in [0, 180)", column="smooth_deg"
+            )
+        _grid_count(self.azimuth_step_deg, 360.0, "azimuth step", "azimuth_step_deg")
         if self.polar_step_deg is not None:
-            _grid_count(self.polar_step_deg, 180.0, "polar step")
+            _grid_count(self.polar_step_deg, 180.0, "polar step", "polar_step_deg")
         if self.interpolation not in ("spline", "linear"):
             raise InputError(f"unknown interpolation {self.interpolation!r} (spline|linear)")
         if self.interpolation_domain not in ("db", "linear"):
@@ -163,9 +178,17 @@ def read_measurements_csv(path: str | os.PathLike[str]) -> Measurements:
         Missing column, unparsable/NaN/inf/out-of-range value (naming file,
         line and column), or no data rows.
     """
+    return _measurements(_read_measurement_table(path))
+
+
+def _read_measurement_table(path: str | os.PathLike[str]) -> Table:
     table = read_table(path, MEASUREMENT_COLUMNS)
     if len(table) == 0:
         raise InputError("no measurement rows", path=path, line=2)
+    return table
+
+
+def _measurements(table: Table) -> Measurements:
     return Measurements(table["motor_azimuth_deg"], table["motor_elevation_deg"], table["rss_dbm"])
 
 
@@ -182,10 +205,30 @@ def write_measurements_csv(measurements: Measurements, path: str | os.PathLike[s
 
 
 # ---------------------------------------------------------------------- kernels
-def _grid_count(step_deg: float, span_deg: float, what: str) -> int:
-    n = round(span_deg / step_deg) if np.isfinite(step_deg) and step_deg > 0 else 0
-    if n < 1 or abs(n * step_deg - span_deg) > 1e-6:
-        raise InputError(f"{what} {step_deg} deg does not divide {span_deg:g}")
+class PolarStepError(InputError):
+    """Measured elevations closer than the grid limit (raised by :func:`enrol`).
+
+    ``elevation_deg`` is the larger of the two closest measured elevations
+    (pattern polar angles); :func:`enrol_csv` reports it at its first row.
+    """
+
+    def __init__(self, message: str, elevation_deg: float) -> None:
+        super().__init__(message, column="motor_elevation_deg")
+        self.elevation_deg = elevation_deg
+
+
+def _grid_count(step_deg: float, span_deg: float, what: str, field: str) -> int:
+    """Grid steps in ``span_deg``, checked from the numbers before any grid exists."""
+    if np.isfinite(step_deg) and step_deg > 0 and too_fine(step_deg):
+        most = MAX_AZIMUTHS if span_deg == 360.0 else MAX_POLAR_ANGLES - 1
+        raise InputError(
+            f"{what} {step_deg:g} deg is finer than the {MIN_GRID_STEP_DEG:g} deg limit "
+            f"(at most {most} steps over {span_deg:g} deg)",
+            column=field,
+        )
+    n = grid_steps(step_deg, span_deg)
+    if n is None:
+        raise InputError(f"{what} {step_deg:g} deg does not divide {span_deg:g}", column=field)
     return n
 
 
@@ -325,10 +368,20 @@ def smooth_rows(
 
 def _polar_grid(theta_deg: FloatArray, config: EnrolConfig) -> FloatArray:
     if config.polar_step_deg is not None:
-        n = _grid_count(config.polar_step_deg, 180.0, "polar step")
+        n = _grid_count(config.polar_step_deg, 180.0, "polar step", "polar_step_deg")
     else:
-        gaps = np.diff(np.unique(theta_deg))
-        n = int(np.ceil(180.0 / gaps.min() - 1e-6))
+        gaps = np.diff(theta_deg)  # distinct, sorted
+        j = int(np.argmin(gaps))
+        gap = float(gaps[j])
+        if too_fine(gap):
+            lo, hi = float(theta_deg[j]), float(theta_deg[j + 1])
+            raise PolarStepError(
+                f"elevations {lo:g} and {hi:g} deg imply a polar step of {gap:g} deg, finer "
+                f"than the {MIN_GRID_STEP_DEG:g} deg limit (give a polar step, or fix the "
+                "elevation)",
+                hi,
+            )
+        n = min(int(np.ceil(180.0 / gap - 1e-6)), MAX_POLAR_ANGLES - 1)
     return np.arange(n + 1) * (180.0 / n)
 
 
@@ -359,7 +412,8 @@ def enrol(
     Raises
     ------
     InputError
-        No measurements.
+        No measurements; :class:`PolarStepError` if no polar step is set and
+        two measured elevations are closer than 0.1° (the grid limit).
     """
     cfg = config or EnrolConfig()
     if len(measurements) == 0:
@@ -369,7 +423,7 @@ def enrol(
     )
     d_phi, d_theta, d_mw = average_per_direction(phi, theta, measurements.rss_dbm)
 
-    n_az = _grid_count(cfg.azimuth_step_deg, 360.0, "azimuth step")
+    n_az = _grid_count(cfg.azimuth_step_deg, 360.0, "azimuth step", "azimuth_step_deg")
     step = 360.0 / n_az
     az_grid = np.arange(n_az) * step
     thetas = np.unique(d_theta)
@@ -420,9 +474,21 @@ def enrol(
 def enrol_csv(
     path: str | os.PathLike[str], config: EnrolConfig | None = None, *, name: str | None = None
 ) -> Pattern:
-    """Read an enrolment CSV and enrol it (pattern named after the file stem by default)."""
+    """Read an enrolment CSV and enrol it (pattern named after the file stem by default).
+
+    Elevations too close for the polar grid limit are reported at the first
+    row of the larger one (file, line, column ``motor_elevation_deg``).
+    """
     stem = os.path.splitext(os.path.basename(os.fspath(path)))[0]
-    return enrol(read_measurements_csv(path), config, name=name or stem)
+    table = _read_measurement_table(path)
+    try:
+        return enrol(_measurements(table), config, name=name or stem)
+    except PolarStepError as exc:
+        el = np.round(np.asarray(table["motor_elevation_deg"], dtype=np.float64), _ANGLE_DECIMALS)
+        rows = np.nonzero(el == exc.elevation_deg)[0]
+        if rows.size == 0:
+            raise
+        raise table.error(int(rows[0]), "motor_elevation_deg", exc.reason) from None
 
 
 def simulate_positioner_measurements(
@@ -481,6 +547,7 @@ __all__ = [
     "MEASUREMENT_COLUMNS",
     "EnrolConfig",
     "Measurements",
+    "PolarStepError",
     "average_per_direction",
     "enrol",
     "enrol_csv",

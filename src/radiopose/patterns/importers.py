@@ -36,7 +36,13 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.patterns.enrol import EnrolConfig, Measurements, enrol
-from radiopose.patterns.pattern import GridError, Pattern, pattern_from_samples
+from radiopose.patterns.pattern import (
+    MIN_GRID_STEP_DEG,
+    GridError,
+    Pattern,
+    pattern_from_samples,
+    too_fine,
+)
 from radiopose.units import (
     FloatArray,
     db_to_linear,
@@ -109,6 +115,41 @@ def _is_number(text: str) -> bool:
     return True
 
 
+_MSI_KEYWORDS = frozenset(
+    [
+        "NAME",
+        "MAKE",
+        "FREQUENCY",
+        "H_WIDTH",
+        "V_WIDTH",
+        "FRONT_TO_BACK",
+        "GAIN",
+        "TILT",
+        "ELECTRICAL_TILT",
+        "MECHANICAL_TILT",
+        "POLARIZATION",
+        "COMMENT",
+        "HORIZONTAL",
+        "VERTICAL",
+    ]
+)
+_MSI_WORD = re.compile(r"[A-Za-z_][A-Za-z_-]*\Z")
+
+
+def _is_msi_keyword(fields: list[str]) -> bool:
+    """A header keyword line (inside a block: the block ended early, a line was deleted).
+
+    A known keyword, or a bare word (letters, ``_``, ``-``) not followed by a
+    lone number: ``x3 0.03`` or ``abc 0.03`` is a data line with a bad angle.
+    """
+    word = fields[0]
+    if word.upper() in _MSI_KEYWORDS:
+        return True
+    if _is_number(word) or not _MSI_WORD.match(word):
+        return False
+    return not (len(fields) == 2 and _is_number(fields[1]))
+
+
 def _parse_msi(
     path: Path,
 ) -> tuple[dict[str, str], float, FloatArray, FloatArray, FloatArray, FloatArray]:
@@ -155,7 +196,7 @@ def _parse_msi(
             for k in range(n):
                 fields = lines[i + k].split()
                 ln = i + k + 1
-                if fields and not _is_number(fields[0]) and fields[0][:1].isalpha():
+                if fields and _is_msi_keyword(fields):
                     raise InputError(
                         f"the {key_u} section at line {lineno} announces {n} points "
                         f"but this line ends it after {k}",
@@ -446,7 +487,12 @@ def _basta_key(data: dict[str, Any], key: str, path: Path, where: _JsonText) -> 
     return data[key]
 
 
-def _sampling(values: Any, key: str, path: Path, line: int) -> FloatArray:
+def _sampling(
+    values: Any, key: str, path: Path, line: int, low: float, high: float, system: str
+) -> FloatArray:
+    """``[start, step, stop]`` as its angles, checked from the numbers before allocating:
+    a step of at least :data:`MIN_GRID_STEP_DEG`, start and stop within
+    ``[low, high]`` (``high`` open for phi)."""
     numbers = isinstance(values, list) and all(
         isinstance(v, (int, float)) and not isinstance(v, bool) for v in values
     )
@@ -462,9 +508,27 @@ def _sampling(values: Any, key: str, path: Path, line: int) -> FloatArray:
         raise InputError(
             "expected finite [start, step > 0, stop]", path=path, line=line, column=key
         )
-    n = round((stop - start) / step)
-    if n < 0 or abs(start + n * step - stop) > 1e-6:
+    if too_fine(step):
+        raise InputError(
+            f"step {step:g} deg is finer than the {MIN_GRID_STEP_DEG:g} deg limit",
+            path=path,
+            line=line,
+            column=key,
+        )
+    k = (stop - start) / step  # inf for huge ends: the range check below rejects them
+    n = round(k) if math.isfinite(k) else 0
+    if math.isfinite(k) and (n < 0 or abs(start + n * step - stop) > 1e-6):
         raise InputError("stop is not start + k·step", path=path, line=line, column=key)
+    phi = key == "Phi_Sampling"
+    # within range and step >= 0.1: at most 5401 angles
+    if start < low or (stop >= high if phi else stop > high):
+        rng = f"[{low:g}, {high:g}{')' if phi else ']'}"
+        raise InputError(
+            f"covers {start:g}…{stop:g}, out of range {rng} for {system}",
+            path=path,
+            line=line,
+            column=key,
+        )
     return start + np.arange(n + 1) * step
 
 
@@ -668,25 +732,19 @@ def read_basta_json(
             "Theta_Sampling",
             p,
             where.key_line("Theta_Sampling"),
+            t_lo,
+            t_hi,
+            system,
         )
         ph = _sampling(
             _basta_key(data, "Phi_Sampling", p, where),
             "Phi_Sampling",
             p,
             where.key_line("Phi_Sampling"),
+            p_lo,
+            p_hi,
+            system,
         )
-        for key, vals, lo, hi, rng in (
-            ("Theta_Sampling", th, t_lo, t_hi, f"[{t_lo:g}, {t_hi:g}]"),
-            ("Phi_Sampling", ph, p_lo, p_hi, f"[{p_lo:g}, {p_hi:g})"),
-        ):
-            high = vals[-1] >= hi if key == "Phi_Sampling" else vals[-1] > hi
-            if vals[0] < lo or high:
-                raise InputError(
-                    f"covers {vals[0]:g}…{vals[-1]:g}, out of range {rng} for {system}",
-                    path=p,
-                    line=where.key_line(key),
-                    column=key,
-                )
         if th.size * ph.size != table.shape[0]:
             n_rows = table.shape[0]
             at = th.size * ph.size if n_rows > th.size * ph.size else n_rows - 1

@@ -28,6 +28,43 @@ from radiopose.units import FloatArray, db_to_linear, linear_to_db, wrap_deg
 
 _STEP_TOL = 1e-6
 
+MIN_GRID_STEP_DEG = 0.1
+"""Finest azimuth or polar step of any pattern grid radiopose builds or reads, degrees.
+
+At most ``MAX_AZIMUTHS`` × ``MAX_POLAR_ANGLES`` = 3600 × 1801 grid points
+(about 50 MB as float64): enrolment and importer grids are checked against it
+from the numbers *before* anything is allocated (``docs/patterns.md``).
+"""
+
+MAX_AZIMUTHS = 3600
+"""Most grid azimuths (``360 / MIN_GRID_STEP_DEG``)."""
+
+MAX_POLAR_ANGLES = 1801
+"""Most grid polar angles (``180 / MIN_GRID_STEP_DEG + 1``)."""
+
+
+def grid_steps(step_deg: float, span_deg: float) -> int | None:
+    """Steps of ``step_deg`` in ``span_deg`` if it divides it (``None`` if not), unchecked size.
+
+    Computed from the numbers only (nothing is allocated), so a huge count is
+    returned as is for the caller to reject against :data:`MIN_GRID_STEP_DEG`.
+    """
+    if not (np.isfinite(step_deg) and step_deg > 0):
+        return None
+    k = span_deg / step_deg
+    if not np.isfinite(k) or k > 1e15:
+        return None
+    n = round(k)
+    if n < 1 or abs(n * step_deg - span_deg) > 1e-6:
+        return None
+    return n
+
+
+def too_fine(step_deg: float) -> bool:
+    """True if ``step_deg`` is finer than :data:`MIN_GRID_STEP_DEG` (beyond float noise)."""
+    return step_deg < MIN_GRID_STEP_DEG - 1e-9
+
+
 PATTERN_COLUMNS = (
     Column("azimuth_deg", low=0.0, high=360.0, high_open=True),
     Column("polar_deg", low=0.0, high=180.0),
@@ -262,7 +299,7 @@ def _step_candidates(u: FloatArray, span: float, periodic: bool) -> list[float]:
     ordered = keys[np.argsort(-counts, kind="stable")][:_MAX_STEP_CANDIDATES]
     fallback = u.size if periodic else max(u.size - 1, 1)
     steps: list[float] = []
-    for n in [round(span / g) for g in ordered] + [fallback]:
+    for n in [round(span / max(g, 1e-4)) for g in ordered] + [fallback]:
         if n >= 1 and span / n not in steps:
             steps.append(span / n)
     return steps
@@ -350,15 +387,21 @@ def pattern_from_samples(
         seen[key] = r
     az_u, az_inv = np.unique(az, return_inverse=True)
     po_u, po_inv = np.unique(po, return_inverse=True)
-    a_fit = _fit_axis(az_u, 360.0, periodic=True)
+    az_inv, po_inv = az_inv.reshape(-1), po_inv.reshape(-1)
     slice_ = po_u.size == 1
+    if not slice_:
+        _check_mixed_slice(po, po_u, po_inv)
+    a_fit = _fit_axis(az_u, 360.0, periodic=True)
+    _check_fit_size(a_fit, az_u, az_inv, "azimuth")
     p_fit = (
         _AxisFit(0.0, float(po_u[0]), 1, np.zeros(1, np.int64))
         if slice_
         else _fit_axis(po_u, 180.0, periodic=False)
     )
-    ai = a_fit.index[az_inv.reshape(-1)]
-    pi = p_fit.index[po_inv.reshape(-1)]
+    if not slice_:
+        _check_fit_size(p_fit, po_u, po_inv, "polar")
+    ai = a_fit.index[az_inv]
+    pi = p_fit.index[po_inv]
     for idx, vals, fit, axis in ((ai, az, a_fit, "azimuth"), (pi, po, p_fit, "polar")):
         off = np.nonzero(idx < 0)[0]
         if off.size:
@@ -400,6 +443,52 @@ def pattern_from_samples(
     except ValueError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
         grid_a = max(a_fit.first, 0.0) + np.arange(n_a) * a_fit.step
         return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
+
+
+def _check_mixed_slice(po: FloatArray, po_u: FloatArray, po_inv: np.ndarray) -> None:
+    """More than half the samples at one polar angle: a slice with stray polar angles.
+
+    A complete sphere has the same number of samples at every polar angle (at
+    most half of them at one, with two rows), so this never rejects a valid
+    grid; it reports the first stray sample rather than a grid fit around it.
+    """
+    counts = np.bincount(po_inv, minlength=po_u.size)
+    k = int(np.argmax(counts))
+    if 2 * int(counts[k]) <= po.size:
+        return
+    r = int(np.nonzero(po_inv != k)[0][0])
+    raise GridError(
+        r,
+        "polar",
+        f"polar {po[r]:g} deg in a slice at polar {po_u[k]:g} deg ({int(counts[k])} of "
+        f"{po.size} rows): a slice has one polar angle, a sphere covers [0, 180] at a "
+        "constant step",
+    )
+
+
+def _check_fit_size(fit: _AxisFit, u: FloatArray, inv: np.ndarray, axis: str) -> None:
+    """Reject a fitted grid finer than :data:`MIN_GRID_STEP_DEG` before it is allocated.
+
+    Reported at the first sample of the larger angle of the lowest too-close pair.
+    """
+    if not too_fine(fit.step):
+        return
+    gaps = np.diff(u)
+    gaps = np.where(gaps > GRID_TOL_DEG, gaps, np.inf)
+    idx, pair = 0, f"{u[0]:g} deg"
+    gap = fit.step
+    if gaps.size and np.isfinite(gaps.min()):
+        fine = np.nonzero(gaps < MIN_GRID_STEP_DEG - 1e-9)[0]
+        j = int(fine[0]) if fine.size else int(np.argmin(gaps))
+        idx, gap, pair = j + 1, float(gaps[j]), f"{u[j]:g} and {u[j + 1]:g} deg"
+    r = int(np.nonzero(inv == idx)[0][0])
+    plural = "azimuths" if axis == "azimuth" else "polar angles"
+    raise GridError(
+        r,
+        axis,
+        f"{plural} {pair} imply a grid step of {gap:g} deg ({fit.n} {plural}), "
+        f"finer than the {MIN_GRID_STEP_DEG:g} deg limit",
+    )
 
 
 def _raise_missing(
