@@ -86,7 +86,7 @@ def simulate(
         typer.Option(
             "--duplicates",
             help="--pcap: fraction of frames a receiver records twice, 0–1 (sync drops "
-            "those packets as ambiguous; DIR/captures/pcap_truth.csv lists what remains).",
+            "them as ambiguous; see captures/pcap_truth.csv).",
         ),
     ] = 0.0,
 ) -> None:
