@@ -727,23 +727,9 @@ def read_basta_json(
                     column=key,
                 )
     else:
-        th = _sampling(
-            _basta_key(data, "Theta_Sampling", p, where),
-            "Theta_Sampling",
-            p,
-            where.key_line("Theta_Sampling"),
-            t_lo,
-            t_hi,
-            system,
-        )
-        ph = _sampling(
-            _basta_key(data, "Phi_Sampling", p, where),
-            "Phi_Sampling",
-            p,
-            where.key_line("Phi_Sampling"),
-            p_lo,
-            p_hi,
-            system,
+        th, ph = (
+            _sampling(_basta_key(data, key, p, where), key, p, where.key_line(key), lo, hi, system)
+            for key, lo, hi in (("Theta_Sampling", t_lo, t_hi), ("Phi_Sampling", p_lo, p_hi))
         )
         if th.size * ph.size != table.shape[0]:
             n_rows = table.shape[0]
