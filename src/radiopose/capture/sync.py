@@ -99,7 +99,7 @@ class SyncConfig:
     reference: str | None = None
     max_drift_ppm: float = 500.0
     min_pairs: int = 2
-    min_drift_span_s: float = 60.0
+    min_drift_span_s: float = 5.0
     max_candidates: int = 150
     max_lag_s: float = 30.0
 

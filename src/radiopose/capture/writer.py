@@ -16,7 +16,8 @@ Receiver clock model (the same one :mod:`radiopose.capture.sync` estimates)::
 
 with ``t`` the packet time and ``t_first`` the earliest packet time. The
 ground truth of what ``radiopose sync`` should recover from the files is
-written beside them (``pcap_truth.csv``, packets.csv columns) and read back
+written beside them (``pcap_truth.csv``, packets.csv columns, packets
+renumbered 0, 1, 2, ... in time order as sync numbers them) and read back
 with :func:`read_pcap_truth`: the input rows minus lost frames, minus rows
 whose rounded RSS the reader rejects as implausible, minus every packet one of
 whose receivers recorded it twice (a duplicate within the matching tolerance
@@ -379,8 +380,15 @@ def write_receiver_pcaps(
             ],
             dtype=bool,
         )
+    # Number the surviving packets 0, 1, 2, ... in time order, as
+    # `radiopose sync` numbers the packets it recovers.
+    kept_t = t[keep]
+    kept_keys = list(zip(cols["transmitter"][keep], cols["packet_id"][keep], strict=True))
+    number: dict[tuple[str, str], int] = {}
+    for i in np.argsort(kept_t, kind="stable"):
+        number.setdefault(kept_keys[i], len(number))
     truth = Packets(
-        packet_id=cols["packet_id"][keep],
+        packet_id=np.asarray([str(number[k]) for k in kept_keys], dtype=object),
         timestamp_s=t[keep] + epoch_s,
         transmitter=cols["transmitter"][keep],
         receiver_id=cols["receiver_id"][keep],
