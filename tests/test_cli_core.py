@@ -89,6 +89,8 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--rotation-rate-dps", "100", "50"], "linear_rate_deg_s = (100.0, 50.0) needs"),
         (["--size-m", "10", "--step-m", "0.3"], "step_m = 0.3 does not divide size_m = 10.0"),
         (["--step-m", "0.0001"], "more than 25,000,000 grid points"),
+        (["--seed", "-1"], "--seed must be a non-negative integer"),
+        (["--size-m", "1e308"], "size_m = 1e+308 is out of range"),
         (["--azimuth-step-deg", "0.0001"], "3.6e+06 azimuths"),
         (["--duplicates", "0.5"], "--duplicates applies only with --pcap"),
         (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),

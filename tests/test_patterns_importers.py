@@ -154,6 +154,19 @@ def test_msi_real_file(shared_data):
             "HORIZONTAL",
             "this line ends it after 3",
         ),
+        # absurd values and extra fields: rejected at their line, not read
+        (
+            lambda t: t.replace("\n3 20.00\n", "\n3 1e308\n"),
+            8,
+            "HORIZONTAL attenuation",
+            r"1e308 is out of range \[-1000, 1000\]",
+        ),
+        (
+            lambda t: t.replace("\n3 20.00\n", "\n3 20.00 9\n"),
+            8,
+            "HORIZONTAL",
+            "got 3 fields",
+        ),
         # one negative attenuation among positive ones: ambiguous, rejected at its line
         (
             lambda t: t.replace("\n5 20.00\n", "\n5 -20.00\n"),
@@ -392,6 +405,15 @@ def test_basta_broken_json_and_non_numbers(tmp_path):
     with pytest.raises(
         InputError, match="Data_Set row 9 is 2 values, Data_Set_Row_Structure names 1"
     ):
+        read_basta_json(path)
+
+
+def test_basta_absurd_value_is_rejected_at_its_line(tmp_path, shared_data):
+    src = json.loads((shared_data / "antenna-files" / BASTA_NAME).read_text())
+    src["Data_Set"][5][0] = 1e308
+    path = tmp_path / "b.json"
+    path.write_text(json.dumps(src))
+    with pytest.raises(InputError, match=r"Data_Set row 5: out of range \[-1000, 1000\]"):
         read_basta_json(path)
 
 

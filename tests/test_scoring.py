@@ -144,3 +144,44 @@ def test_duplicate_truth_and_estimate_rows_are_errors(tmp_path):
         InputError, match=r"e2\.csv:5, column 'method': a second estimate.*first on line 2"
     ):
         read_estimates_csv(tmp_path / "e2.csv")
+
+
+@pytest.mark.parametrize("which", ["truth", "estimates", "packets"])
+def test_times_beyond_int64_ns_are_line_errors(tmp_path, which):
+    from radiopose.estimates import read_estimates_csv, write_estimates_csv
+    from radiopose.packets import (
+        Packets,
+        read_packets_csv,
+        read_truth_csv,
+        write_packets_csv,
+        write_truth_csv,
+    )
+
+    tr = _truth()
+    path = tmp_path / f"{which}.csv"
+    if which == "truth":
+        write_truth_csv(tr, path)
+        read = read_truth_csv
+    elif which == "estimates":
+        write_estimates_csv(_est(tr, [0, 1]), path)
+        read = read_estimates_csv
+    else:
+        n = 2
+        write_packets_csv(
+            Packets(
+                np.array(["0", "1"], dtype=object),
+                np.array([0.0, 0.1]),
+                np.array(["aa:bb:cc:dd:ee:ff"] * n, dtype=object),
+                np.array(["rx1"] * n, dtype=object),
+                np.array([-50.0, -51.0]),
+            ),
+            path,
+        )
+        read = read_packets_csv
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    row = lines[2].split(",")
+    row[header.index("timestamp_s")] = "1e308"
+    path.write_text("\n".join([*lines[:2], ",".join(row), *lines[3:]]) + "\n")
+    with pytest.raises(InputError, match=rf"{which}\.csv:3, column 'timestamp_s': value 1e308"):
+        read(path)

@@ -17,13 +17,13 @@ import numpy as np
 
 from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
 from radiopose.tables import Column, first_row_of, read_table, write_table
-from radiopose.units import FloatArray
+from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 POSITION_ONLY_METHODS = frozenset({"lms"})
 """Methods that estimate position only (their orientation columns are 0)."""
 
 ESTIMATE_COLUMNS = (
-    Column("timestamp_s"),
+    Column("timestamp_s", low=-MAX_ABS_TIME_S, high=MAX_ABS_TIME_S),
     Column("transmitter", "str"),
     Column("packet_id", "str"),
     *POSE_COLUMNS,

@@ -17,11 +17,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiopose.tables import Column, Table, first_row_of, read_table, write_table
-from radiopose.units import FloatArray
+from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 PACKET_COLUMNS = (
     Column("packet_id", "str"),
-    Column("timestamp_s"),
+    Column("timestamp_s", low=-MAX_ABS_TIME_S, high=MAX_ABS_TIME_S),
     Column("transmitter", "str"),
     Column("receiver_id", "str"),
     Column("rss_dbm", low=-200.0, high=50.0),
@@ -36,7 +36,7 @@ POSE_COLUMNS = (
 )
 """The pose columns shared by ``truth.csv`` and ``estimates.csv``: metres, degrees."""
 TRUTH_COLUMNS = (
-    Column("timestamp_s"),
+    Column("timestamp_s", low=-MAX_ABS_TIME_S, high=MAX_ABS_TIME_S),
     Column("transmitter", "str"),
     *POSE_COLUMNS,
 )

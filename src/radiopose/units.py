@@ -66,9 +66,20 @@ def linear_to_db(ratio: ArrayLike) -> FloatArray:
         return 10.0 * np.log10(np.asarray(ratio, dtype=np.float64))
 
 
+# Largest |time| int64 nanoseconds hold: 2**63 ns = 9,223,372,036.85 s (years 1677-2262).
+MAX_ABS_TIME_S = 9_223_372_036.0
+
+
 def seconds_to_ns(t_s: ArrayLike) -> NDArray[np.int64]:
-    """Seconds -> integer nanoseconds (rounded to nearest)."""
-    return np.rint(np.asarray(t_s, dtype=np.float64) * 1e9).astype(np.int64)
+    """Seconds -> integer nanoseconds (rounded to nearest).
+
+    Raises :class:`ValueError` for a time beyond :data:`MAX_ABS_TIME_S` or not
+    finite (the file loaders reject those first, naming the line).
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    if t.size and not (np.all(np.isfinite(t)) and float(np.max(np.abs(t))) <= MAX_ABS_TIME_S):
+        raise ValueError(f"time outside +-{MAX_ABS_TIME_S:g} s cannot be held in int64 ns")
+    return np.rint(t * 1e9).astype(np.int64)
 
 
 def ns_to_seconds(t_ns: ArrayLike) -> FloatArray:

@@ -74,7 +74,7 @@ from radiopose.capture.radiotap import (
 )
 from radiopose.errors import InputError
 from radiopose.tables import Column, read_table
-from radiopose.units import seconds_to_ns
+from radiopose.units import MAX_ABS_TIME_S, seconds_to_ns
 
 __all__ = [
     "CSV_CAPTURE_COLUMNS",
@@ -676,8 +676,7 @@ def _reason(item: tuple[str, int]) -> int:
 
 CSV_CAPTURE_COLUMNS = (
     Column("receiver_id", "str"),
-    # int64 nanoseconds reach 2**63 ns = 9,223,372,036.85 s (year 2262)
-    Column("timestamp_s", low=0.0, high=9_223_372_036.0),
+    Column("timestamp_s", low=0.0, high=MAX_ABS_TIME_S),  # int64 ns: up to year 2262
     Column("frame_sha256", "str"),
     Column("transmitter", "str"),
     Column("rss_dbm"),

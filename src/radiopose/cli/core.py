@@ -97,6 +97,8 @@ def simulate(
     from radiopose.simulate import MotionConfig, ScenarioConfig
     from radiopose.simulate import simulate as run
 
+    if not 0 <= seed < 2**63:
+        raise InputError(f"--seed must be a non-negative integer below 2**63, got {seed}")
     if rotation not in ROTATIONS:
         raise InputError(f"--rotation must be one of {', '.join(ROTATIONS)}, got {rotation!r}")
     if not 0 < speed_mps[0] <= speed_mps[1]:

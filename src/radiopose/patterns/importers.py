@@ -75,7 +75,14 @@ def _read_text(path: Path) -> str:
         raise InputError(f"cannot read: {exc.strerror}", path=path) from None
 
 
-def _finite(text: str, path: Path, line: int | None, column: str) -> float:
+# Largest |value| of a gain, attenuation or directivity in any imported file, dB:
+# real antennas span well under 100 dB; anything near 1e308 is a corrupt file.
+MAX_ABS_DB = 1000.0
+
+
+def _finite(
+    text: str, path: Path, line: int | None, column: str, limit: float | None = None
+) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -84,6 +91,13 @@ def _finite(text: str, path: Path, line: int | None, column: str) -> float:
         ) from None
     if not math.isfinite(value):
         raise InputError(f"not a finite number: {text!r}", path=path, line=line, column=column)
+    if limit is not None and abs(value) > limit:
+        raise InputError(
+            f"{text[:40]} is out of range [-{limit:g}, {limit:g}]",
+            path=path,
+            line=line,
+            column=column,
+        )
     return value
 
 
@@ -96,7 +110,7 @@ def _parse_gain_dbi(text: str, path: Path, line: int) -> float:
     parts = text.split()
     if not parts:
         raise InputError("empty GAIN", path=path, line=line, column="GAIN")
-    value = _finite(parts[0], path, line, "GAIN")
+    value = _finite(parts[0], path, line, "GAIN", MAX_ABS_DB)
     unit = parts[1].lower() if len(parts) > 1 else "dbd"
     if unit == "dbi":
         return value
@@ -204,9 +218,12 @@ def _parse_msi(
                         line=ln,
                         column=key_u,
                     )
-                if len(fields) < 2:
+                if len(fields) != 2:
                     raise InputError(
-                        "expected 'angle attenuation_dB'", path=path, line=ln, column=key_u
+                        f"expected 'angle attenuation_dB', got {len(fields)} fields",
+                        path=path,
+                        line=ln,
+                        column=key_u,
                     )
                 a = _finite(fields[0], path, ln, f"{key_u} angle")
                 if not 0.0 <= a < 360.0:
@@ -217,7 +234,7 @@ def _parse_msi(
                         column=f"{key_u} angle",
                     )
                 angles.append(a)
-                value = _finite(fields[1], path, ln, f"{key_u} attenuation")
+                value = _finite(fields[1], path, ln, f"{key_u} attenuation", MAX_ABS_DB)
                 written.append((value, ln, key_u))
                 atten.append(value)
             _check_cut(np.array(angles), path, i + 1, key_u)
@@ -579,6 +596,9 @@ def _basta_rows(rows: Any, structure: list[str], path: Path, where: _JsonText) -
                 except OverflowError:
                     finite = False
                 what = "not a finite number"
+                if finite and abs(float(v)) > MAX_ABS_DB:
+                    finite = False
+                    what = f"out of range [-{MAX_ABS_DB:g}, {MAX_ABS_DB:g}]"
             else:
                 what = "not a number"
             if not finite:
@@ -827,7 +847,7 @@ def _read_mitll_file(path: Path) -> tuple[float, int, dict[str, dict[int, list[f
                 raise InputError(
                     f"Bluetooth row has {len(row)} fields, expected 7", path=path, line=line
                 )
-            rss = _finite(row[3].strip(), path, line, "RSSI dBm")
+            rss = _finite(row[3].strip(), path, line, "RSSI dBm", MAX_ABS_DB)
             if not -200.0 <= rss <= 60.0:
                 raise InputError(
                     f"RSSI {row[3].strip()} dBm out of range [-200, 60]",

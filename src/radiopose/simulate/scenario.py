@@ -116,7 +116,7 @@ class ScenarioConfig:
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
         checks = [
-            ("size_m", self.size_m > 0),
+            ("size_m", 0 < self.size_m <= 1e6),
             ("step_m", 0 < self.step_m <= self.size_m),
             ("survey_step_m", 0 < self.survey_step_m <= self.size_m),
             ("n_receivers", 1 <= self.n_receivers <= 16),
@@ -213,6 +213,8 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     """Simulate a scenario (see the module docstring)."""
     cfg = config or ScenarioConfig()
     cfg.validate()
+    if not 0 <= seed < 2**63:
+        raise InputError(f"seed must be a non-negative integer below 2**63, got {seed}")
     rng = np.random.default_rng(seed)
 
     # Receivers with their own patterns.
