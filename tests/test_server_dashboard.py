@@ -85,9 +85,14 @@ def test_dashboard_shows_receivers_and_a_moving_arrow(
     try:
         page.wait_for_function("Number(document.body.dataset.moves || 0) >= 1", timeout=30_000)
         first = page.evaluate("[...window.radiopose.tracks.values()][0].trail.slice(-1)[0]")
+        # The arrow moves: a later estimate with another pose arrives. (Two
+        # consecutive packets can share a pose on this coarse grid, so wait for
+        # a different pose, not merely a different packet.)
         page.wait_for_function(
             f"(() => {{ const t = [...window.radiopose.tracks.values()][0].trail.slice(-1)[0];"
-            f" return t.packet_id !== '{first['packet_id']}'; }})()",
+            f" return t.packet_id !== '{first['packet_id']}' && (t.x_m !== {first['x_m']!r}"
+            f" || t.y_m !== {first['y_m']!r} || t.azimuth_deg !== {first['azimuth_deg']!r});"
+            " })()",
             timeout=30_000,
         )
         last = page.evaluate("[...window.radiopose.tracks.values()][0].trail.slice(-1)[0]")
