@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
-from radiopose.tables import Column, first_row_of, read_table, write_table
+from radiopose.tables import Column, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 POSITION_ONLY_METHODS = frozenset({"lms"})
@@ -108,7 +108,7 @@ class Estimates:
 def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
     """Read and validate ``estimates.csv``."""
     t = read_table(path, ESTIMATE_COLUMNS)
-    first_row_of(
+    reject_repeated_rows(
         t, ("transmitter", "packet_id", "method"), "a second estimate of {} packet {} by {}"
     )
     return Estimates(

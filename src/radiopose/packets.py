@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from radiopose.tables import Column, Table, first_row_of, read_table, write_table
+from radiopose.tables import Column, Table, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 PACKET_COLUMNS = (
@@ -159,7 +159,9 @@ def write_packets_csv(packets: Packets, path: str | os.PathLike[str]) -> None:
 def read_truth_csv(path: str | os.PathLike[str]) -> Truth:
     """Read and validate ``truth.csv``."""
     t = read_table(path, TRUTH_COLUMNS)
-    first_row_of(t, ("transmitter", "timestamp_s"), "a second truth row for transmitter {} at {} s")
+    reject_repeated_rows(
+        t, ("transmitter", "timestamp_s"), "a second truth row for transmitter {} at {} s"
+    )
     return Truth(t["timestamp_s"], t["transmitter"], *read_pose_columns(t))
 
 

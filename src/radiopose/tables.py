@@ -237,14 +237,8 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.
     Parent directories are created.
     """
     target = Path(path)
-    if target.is_dir():
-        raise IsADirectoryError(errno.EISDIR, "is a directory, expected a file path", str(target))
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        raise NotADirectoryError(
-            errno.ENOTDIR, "cannot create the file: a parent is not a directory", str(target)
-        ) from None
+    check_output_paths(files=[target])
+    target.parent.mkdir(parents=True, exist_ok=True)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     except OSError as exc:  # name the file asked for, not the temporary one
@@ -263,7 +257,7 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.
         raise
 
 
-def first_row_of(table: Table, key: Sequence[str], message: str) -> None:
+def reject_repeated_rows(table: Table, key: Sequence[str], message: str) -> None:
     """Raise at the first data row whose ``key`` columns repeat an earlier row.
 
     ``message`` is formatted with the key values; the error names the row's
@@ -326,14 +320,10 @@ def staged_directory(target: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield stage
         entries = sorted(stage.iterdir())
-        for src in entries:
-            dst = target / src.name
-            if dst.exists() and dst.is_dir() != src.is_dir():
-                if dst.is_dir():
-                    raise IsADirectoryError(
-                        errno.EISDIR, "is a directory, expected a file", str(dst)
-                    )
-                raise NotADirectoryError(errno.ENOTDIR, "is a file, expected a directory", str(dst))
+        check_output_paths(
+            files=[target / e.name for e in entries if not e.is_dir()],
+            dirs=[target / e.name for e in entries if e.is_dir()],
+        )
         target.mkdir(exist_ok=True)
         for src in entries:
             dst = target / src.name

@@ -256,11 +256,6 @@ class SyncReport:
     counts: MatchCounts
     hashes: HashCounts = field(default_factory=HashCounts)
 
-    @property
-    def repeated_hashes(self) -> int:
-        """Hashes that formed more than one chain."""
-        return self.hashes.repeated
-
     def lines(self) -> list[str]:
         """A human-readable summary, one item per line."""
         out = ["frames per receiver:"]
@@ -295,7 +290,7 @@ class SyncReport:
             f"ambiguous: {k.ambiguous_duplicate} duplicated at a receiver, "
             f"{k.ambiguous_spread} spread over more than the tolerance "
             f"({k.ambiguous_frames} frames dropped); "
-            f"hashes recurring far apart: {self.repeated_hashes}"
+            f"hashes recurring far apart: {self.hashes.repeated}"
         )
         h = self.hashes
         out.append(

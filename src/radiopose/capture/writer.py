@@ -250,6 +250,7 @@ def write_receiver_pcaps(
     fcs: bool | Mapping[str, bool] = False,
     antenna_signals: bool | Mapping[str, bool] = False,
     nanosecond: bool = True,
+    receiver_ids: Sequence[str] = (),
 ) -> PcapSimulation:
     """Write one radiotap pcap per receiver from synchronised packet rows.
 
@@ -285,6 +286,9 @@ def write_receiver_pcaps(
         Also write two per-antenna signals (extended bitmaps): bool or per receiver.
     nanosecond
         Write nanosecond-resolution pcap (else microseconds).
+    receiver_ids
+        Receivers to write a capture for even if no row names them (a valid,
+        empty pcap); first, in this order, then any others of the rows.
 
     Returns
     -------
@@ -320,7 +324,7 @@ def write_receiver_pcaps(
     lo, hi = PLAUSIBLE_RSS_DBM
     plausible = (rss_int >= lo) & (rss_int <= hi)
 
-    rx_ids = list(dict.fromkeys(cols["receiver_id"].tolist()))
+    rx_ids = list(dict.fromkeys([*receiver_ids, *cols["receiver_id"].tolist()]))
     t_rx = np.empty(n)
     for rid in rx_ids:
         m = cols["receiver_id"] == rid
@@ -508,18 +512,10 @@ def simulate_captures(
         drift_ppm={r: c[1] for r, c in clocks.items()},
         jitter_s=cfg.jitter_s,
         duplicate_fraction=cfg.duplicate_fraction,
+        receiver_ids=ids,  # a receiver that heard nothing still gets a (valid, empty) capture
     )
-    out = Path(out_dir)
-    paths = dict(sim.paths)
-    for rid in ids:  # a receiver that heard nothing still has a (valid, empty) capture
-        if rid not in paths:
-            paths[rid] = out / f"{rid}.pcap"
-            with open(paths[rid], "wb") as fh:
-                dpkt.pcap.Writer(
-                    fh, snaplen=65535, linktype=LINKTYPE_IEEE802_11_RADIOTAP, nano=True
-                )
     write_table(
-        out / CLOCKS_FILE,
+        Path(out_dir) / CLOCKS_FILE,
         {
             "receiver_id": ids,
             "offset_s": [clocks[r][0] for r in ids],
@@ -527,4 +523,4 @@ def simulate_captures(
         },
         decimals={"offset_s": 9, "drift_ppm": 6},
     )
-    return PcapSimulation({r: paths[r] for r in ids}, sim.truth, sim.frames_written, clocks)
+    return replace(sim, clocks=clocks)

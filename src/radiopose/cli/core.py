@@ -10,6 +10,14 @@ import typer
 from radiopose.cli import app
 
 ROTATIONS = ("linear", "periodic", "fast")
+# Defaults of the options that only apply with --pcap (one place: the signature
+# and the "given without --pcap" check both read them).
+_PCAP_DEFAULTS = {
+    "--clock-offset-ms": 1000.0,
+    "--clock-drift-ppm": 20.0,
+    "--jitter-us": 20.0,
+    "--duplicates": 0.0,
+}
 
 
 @app.command(short_help="Simulate a scenario: site/, packets.csv, truth.csv.")
@@ -67,20 +75,20 @@ def simulate(
             "--clock-offset-ms",
             help="--pcap: receiver clocks run U(0, this) milliseconds ahead of the first.",
         ),
-    ] = 1000.0,
+    ] = _PCAP_DEFAULTS["--clock-offset-ms"],
     clock_drift_ppm: Annotated[
         float,
         typer.Option(
             "--clock-drift-ppm", help="--pcap: receiver clock drift drawn from U(±this), ppm."
         ),
-    ] = 20.0,
+    ] = _PCAP_DEFAULTS["--clock-drift-ppm"],
     jitter_us: Annotated[
         float,
         typer.Option(
             "--jitter-us",
             help="--pcap: scale of the half-normal timestamp latency, microseconds.",
         ),
-    ] = 20.0,
+    ] = _PCAP_DEFAULTS["--jitter-us"],
     duplicates: Annotated[
         float,
         typer.Option(
@@ -88,7 +96,7 @@ def simulate(
             help="--pcap: fraction of frames a receiver records twice, 0–1 (sync drops "
             "them as ambiguous; see captures/pcap_truth.csv).",
         ),
-    ] = 0.0,
+    ] = _PCAP_DEFAULTS["--duplicates"],
 ) -> None:
     """Simulate a scenario: writes DIR/site/, DIR/packets.csv and DIR/truth.csv."""
     from dataclasses import replace
@@ -123,16 +131,11 @@ def simulate(
     )
     capture_cfg = None
     if not pcap:
-        given = {
-            "--clock-offset-ms": clock_offset_ms != 1000.0,
-            "--clock-drift-ppm": clock_drift_ppm != 20.0,
-            "--jitter-us": jitter_us != 20.0,
-            "--duplicates": duplicates != 0.0,
-        }
-        for name, set_ in given.items():
-            if set_:
+        values = (clock_offset_ms, clock_drift_ppm, jitter_us, duplicates)
+        for (name, default), value in zip(_PCAP_DEFAULTS.items(), values, strict=True):
+            if value != default:
                 raise InputError(f"{name} applies only with --pcap")
-    if pcap:
+    else:
         from radiopose.capture.writer import CaptureConfig
 
         capture_cfg = CaptureConfig(

@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -60,9 +60,9 @@ def grid_steps(step_deg: float, span_deg: float) -> int | None:
     return n
 
 
-def too_fine(step_deg: float) -> bool:
-    """True if ``step_deg`` is finer than :data:`MIN_GRID_STEP_DEG` (beyond float noise)."""
-    return step_deg < MIN_GRID_STEP_DEG - 1e-9
+def too_fine(step_deg: ArrayLike) -> Any:
+    """True where ``step_deg`` is finer than :data:`MIN_GRID_STEP_DEG` (beyond float noise)."""
+    return np.asarray(step_deg) < MIN_GRID_STEP_DEG - 1e-9
 
 
 PATTERN_COLUMNS = (
@@ -478,7 +478,7 @@ def _check_fit_size(fit: _AxisFit, u: FloatArray, inv: np.ndarray, axis: str) ->
     idx, pair = 0, f"{u[0]:g} deg"
     gap = fit.step
     if gaps.size and np.isfinite(gaps.min()):
-        fine = np.nonzero(gaps < MIN_GRID_STEP_DEG - 1e-9)[0]
+        fine = np.nonzero(too_fine(gaps))[0]
         j = int(fine[0]) if fine.size else int(np.argmin(gaps))
         idx, gap, pair = j + 1, float(gaps[j]), f"{u[j]:g} and {u[j + 1]:g} deg"
     r = int(np.nonzero(inv == idx)[0][0])
