@@ -9,6 +9,7 @@ error out rather than scoring a guess.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
-from radiopose.tables import Column, read_table, reject_repeated_rows, write_table
+from radiopose.tables import Column, read_header, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 POSITION_ONLY_METHODS = frozenset({"lms"})
@@ -45,6 +46,9 @@ class PoseEstimate:
         ``(3,)`` (azimuth, pitch, roll), degrees.
     method
         The method that produced it.
+    position_std_m, azimuth_std_deg
+        The estimate's position standard deviation (metres) and circular
+        standard deviation of azimuth (degrees); NaN where the method gives none.
     """
 
     timestamp_s: float
@@ -53,6 +57,8 @@ class PoseEstimate:
     position_m: tuple[float, float, float]
     orientation_deg: tuple[float, float, float]
     method: str
+    position_std_m: float = math.nan
+    azimuth_std_deg: float = math.nan
 
 
 @dataclass(frozen=True, eq=False)
@@ -68,6 +74,8 @@ class Estimates:
     method: np.ndarray
     lines: np.ndarray | None = None  # file line of each row, if read from a file
     path: str | None = None  # the file, if read from one
+    position_std_m: FloatArray | None = None  # optional trailing column, metres
+    azimuth_std_deg: FloatArray | None = None  # optional trailing column, degrees
 
     def __len__(self) -> int:
         return int(self.timestamp_s.shape[0])
@@ -81,7 +89,11 @@ class Estimates:
 
     @classmethod
     def from_poses(cls, poses: Sequence[PoseEstimate]) -> Estimates:
-        """Stack a sequence of estimates."""
+        """Stack a sequence of estimates (uncertainty columns only if every
+        estimate has them)."""
+        pos_sd = np.array([p.position_std_m for p in poses], dtype=np.float64)
+        az_sd = np.array([p.azimuth_std_deg for p in poses], dtype=np.float64)
+        with_sd = pos_sd.size > 0 and bool(np.all(np.isfinite(pos_sd) & np.isfinite(az_sd)))
         return cls(
             np.array([p.timestamp_s for p in poses], dtype=np.float64),
             np.array([p.transmitter for p in poses], dtype=object),
@@ -89,6 +101,8 @@ class Estimates:
             np.array([p.position_m for p in poses], dtype=np.float64).reshape(-1, 3),
             np.array([p.orientation_deg for p in poses], dtype=np.float64).reshape(-1, 3),
             np.array([p.method for p in poses], dtype=object),
+            position_std_m=pos_sd if with_sd else None,
+            azimuth_std_deg=az_sd if with_sd else None,
         )
 
     def select(self, mask: np.ndarray) -> Estimates:
@@ -102,12 +116,24 @@ class Estimates:
             self.method[mask],
             None if self.lines is None else self.lines[mask],
             self.path,
+            None if self.position_std_m is None else self.position_std_m[mask],
+            None if self.azimuth_std_deg is None else self.azimuth_std_deg[mask],
         )
 
 
+STD_COLUMNS = (
+    Column("position_std_m", low=0.0),
+    Column("azimuth_std_deg", low=0.0, high=360.0),
+)
+"""Optional trailing columns: the estimate's uncertainty (both or neither)."""
+
+
 def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
-    """Read and validate ``estimates.csv``."""
-    t = read_table(path, ESTIMATE_COLUMNS)
+    """Read and validate ``estimates.csv`` (with the optional uncertainty columns
+    when the header has both)."""
+    header = read_header(path)
+    with_sd = all(c.name in header for c in STD_COLUMNS)
+    t = read_table(path, ESTIMATE_COLUMNS + (STD_COLUMNS if with_sd else ()))
     reject_repeated_rows(
         t, ("transmitter", "packet_id", "method"), "a second estimate of {} packet {} by {}"
     )
@@ -119,6 +145,8 @@ def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
         t["method"],
         t.lines,
         t.path,
+        t["position_std_m"] if with_sd else None,
+        t["azimuth_std_deg"] if with_sd else None,
     )
 
 
@@ -132,6 +160,14 @@ def write_estimates_csv(estimates: Estimates, path: str | os.PathLike[str]) -> N
             "packet_id": estimates.packet_id,
             **pose_columns(estimates.position_m, estimates.orientation_deg),
             "method": estimates.method,
+            **(
+                {}
+                if estimates.position_std_m is None or estimates.azimuth_std_deg is None
+                else {
+                    "position_std_m": estimates.position_std_m,
+                    "azimuth_std_deg": estimates.azimuth_std_deg,
+                }
+            ),
         },
         decimals={"timestamp_s": 9},
     )

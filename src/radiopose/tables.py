@@ -140,6 +140,16 @@ def _parse_number(text: str, col: Column, path: Path, line: int) -> float | int:
     return value
 
 
+def read_header(path: str | os.PathLike[str]) -> list[str]:
+    """The header names of a CSV file (empty if it cannot be read: :func:`read_table`
+    then reports why), for tables with optional columns."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            return [h.strip() for h in next(csv.reader(fh), [])]
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []
+
+
 def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table:
     """Read and validate a contract CSV table.
 

@@ -46,6 +46,7 @@ from radiopose.clustering import (
 )
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates, PoseEstimate
+from radiopose.filtering import FilterConfig, FilterModel, FilterState, ParticleFilter
 from radiopose.likelihood import (
     CandidateSpace,
     HeardRss,
@@ -59,9 +60,11 @@ from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.site import Site
 from radiopose.units import FloatArray
 
-MethodName = Literal["full", "location", "orientation", "top", "lms"]
-METHODS: tuple[str, ...] = ("full", "location", "orientation", "top", "lms")
-"""The paper's five comparison methods."""
+PAPER_METHODS: tuple[str, ...] = ("full", "location", "orientation", "top", "lms")
+"""The paper's five comparison methods (the reproduction)."""
+METHODS: tuple[str, ...] = (*PAPER_METHODS, "filter")
+"""Every method: the paper's five and ``filter``, the Bayesian tracker
+(:mod:`radiopose.filtering`, docs/filter.md)."""
 
 SKIP_UNKNOWN_TRANSMITTER = "unknown transmitter"
 SKIP_TOO_FEW_RECEIVERS = "too few receivers"
@@ -72,6 +75,7 @@ SKIP_ROTATION_MODEL = "rejected by rotation model"
 SKIP_NO_POSITION_CLUSTER = "no position cluster"
 SKIP_MOVEMENT_MODEL = "rejected by movement model"
 SKIP_ACQUIRING = "acquiring (pooling packets)"
+SKIP_NO_TRACK = "no track yet (needs a packet heard by 3 receivers)"
 
 
 @dataclass(frozen=True)
@@ -136,6 +140,16 @@ class TrackerConfig:
         "Performance" remark; otherwise, and for ``top``, the whole grid
         (re-acquisition). Needs a scorer with ``score_window`` (the compiled one);
         others search the whole grid.
+    filter
+        Parameters of the ``filter`` method (:class:`radiopose.filtering.FilterConfig`);
+        its motion prior's support is ``max_speed_mps`` and twice the rotation
+        bound (:func:`filter_config`).
+    smoothing_lag_s
+        ``filter`` in batch :func:`locate`: the fixed-lag smoother's lag, seconds
+        (``None``: causal, as the live server runs it). The streaming
+        :class:`Tracker` is always causal.
+    seed
+        Seeds the ``filter``'s random numbers (with the transmitter id), so runs repeat.
     """
 
     k: int = 100
@@ -156,6 +170,9 @@ class TrackerConfig:
     kernel: str = "numba"
     search: Literal["full", "bounded"] = "full"
     acquisition_window_s: float = 0.1
+    filter: FilterConfig = field(default_factory=FilterConfig)
+    smoothing_lag_s: float | None = 1.0
+    seed: int = 0
 
     def __post_init__(self) -> None:
         checks = [
@@ -176,6 +193,11 @@ class TrackerConfig:
             ("min_receivers", self.min_receivers >= 1),
             ("search", self.search in ("full", "bounded")),
             ("acquisition_window_s", 0 <= self.acquisition_window_s < math.inf),
+            (
+                "smoothing_lag_s",
+                self.smoothing_lag_s is None or 0 <= self.smoothing_lag_s < math.inf,
+            ),
+            ("seed", 0 <= self.seed < 2**63),
         ]
         for name, ok in checks:
             if not ok:
@@ -509,6 +531,7 @@ class _Device:
     scorer: Scorer | None
     cell_m: float = 0.0  # half the candidate grid's cell diagonal (bounded search)
     n_azimuth: int = 1
+    particle_filter: ParticleFilter | None = None
 
     def __post_init__(self) -> None:
         self.cell_m = _grid_half_diagonal_m(self.space)
@@ -552,6 +575,7 @@ class Tracker:
         self._scorers = {k.lower(): v for k, v in (scorers or {}).items()}
         self._devices: dict[str, _Device] = {}
         self._lms: LmsLocator | None = None
+        self.lag_s: float | None = None  # the filter's smoothing lag (batch locate sets it)
 
     def _device(self, transmitter: str) -> _Device:
         key = transmitter.lower()
@@ -559,9 +583,13 @@ class Tracker:
         if dev is None:
             scorer = self._scorers.get(key)
             space = scorer.space if scorer is not None else candidate_space(self.site, transmitter)
-            if scorer is None and self.method in PATTERN_STEPS:
+            if scorer is None and self.method in (*PATTERN_STEPS, "filter"):
                 scorer = make_scorer(self.config.kernel, space)
             dev = _Device(space, scorer)
+            if self.method == "filter":
+                assert scorer is not None
+                model = FilterModel.build(self.site, space, scorer)
+                dev.particle_filter = ParticleFilter(model, filter_config(self.config), self.lag_s)
             self._devices[key] = dev
         return dev
 
@@ -582,8 +610,12 @@ class Tracker:
         key = packet.transmitter.lower()
         dev = self._device(packet.transmitter)
         heard = dev.space.heard(packet)
-        state = self.states.get(key, TrackState())
         t = float(packet.timestamp_s)
+        if self.method == "filter":
+            return self._filter_update(dev, key, heard, t, packet.packet_id)
+        state = self.states.get(key, TrackState())
+        if not isinstance(state, TrackState):
+            state = TrackState()
         if state.last_time_s is not None and t < state.last_time_s:
             return None, SKIP_OUT_OF_ORDER
         if heard.n_heard < self.config.min_receivers:
@@ -611,6 +643,26 @@ class Tracker:
             self.method,  # type: ignore[arg-type]
         )
         return est, None
+
+    def _filter_update(
+        self, dev: _Device, key: str, heard: HeardRss, t_s: float, packet_id: str
+    ) -> tuple[PoseEstimate | None, str | None]:
+        """One packet through the device's particle filter (causal estimate; with a
+        smoothing lag the smoothed estimates are collected by :func:`locate`)."""
+        pf = dev.particle_filter
+        assert pf is not None
+        state = self.states.get(key)
+        if not isinstance(state, FilterState):
+            state = pf.new_state(_filter_seed(self.config.seed, key))
+            self.states[key] = state  # type: ignore[assignment]
+        if state.last_time_s is not None and t_s < state.last_time_s:
+            return None, SKIP_OUT_OF_ORDER
+        if heard.n_heard == 0:
+            return None, SKIP_TOO_FEW_RECEIVERS
+        est = pf.step(state, t_s, heard, (key, packet_id))
+        if est is None:
+            return None, SKIP_NO_TRACK
+        return _filter_pose(t_s, dev.space.transmitter, packet_id, est), None
 
     def _score(self, dev: _Device, heard: HeardRss, t_s: float, state: TrackState) -> TopK:
         """Top-k of one packet: the whole grid, or the motion-bounded window."""
@@ -647,6 +699,34 @@ def _grid_half_diagonal_m(space: CandidateSpace) -> float:
     dx = float(np.min(np.diff(xs))) if xs.size > 1 else 0.0
     dy = float(np.min(np.diff(ys))) if ys.size > 1 else 0.0
     return 0.5 * float(np.hypot(dx, dy))
+
+
+def filter_config(config: TrackerConfig) -> FilterConfig:
+    """The ``filter``'s parameters with the motion prior's support from the
+    tracker's limits: ``max_speed_mps`` and twice the rotation bound
+    (``max_rotation_deg / rotation_period_s``, 360°/s by default) — a prior,
+    not a veto: rotation beyond the paper's bound is followed."""
+    rate_dps = config.max_rotation_deg / config.rotation_period_s
+    return replace(config.filter, max_speed_mps=config.max_speed_mps, max_rate_dps=2.0 * rate_dps)
+
+
+def _filter_seed(seed: int, transmitter_key: str) -> int:
+    import zlib
+
+    return (seed * 1_000_003 + zlib.crc32(transmitter_key.encode())) % 2**63
+
+
+def _filter_pose(t_s: float, transmitter: str, packet_id: str, est) -> PoseEstimate:  # type: ignore[no-untyped-def]
+    return PoseEstimate(
+        t_s,
+        transmitter,
+        packet_id,
+        est.position_m,
+        est.orientation_deg,
+        "filter",
+        est.position_std_m,
+        est.azimuth_std_deg,
+    )
 
 
 # ----------------------------------------------------------------------------- batch
@@ -750,6 +830,27 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
     return obs
 
 
+def _smoothed(
+    tracker: Tracker, obs: list[PacketObservation], causal: list[PoseEstimate | None]
+) -> list[PoseEstimate | None]:
+    """Replace the filter's causal estimates by its fixed-lag smoothed ones."""
+    best: dict[tuple[str, str], object] = {}
+    for key, dev in tracker._devices.items():
+        pf = dev.particle_filter
+        state = tracker.states.get(key)
+        if pf is None or not isinstance(state, FilterState):
+            continue
+        pf.flush(state)
+        best.update(pf.take_smoothed())  # type: ignore[arg-type]
+    out: list[PoseEstimate | None] = []
+    for o, c in zip(obs, causal, strict=True):
+        e = best.get((o.transmitter.lower(), o.packet_id))
+        if c is not None and e is not None:
+            c = _filter_pose(c.timestamp_s, c.transmitter, c.packet_id, e)
+        out.append(c)
+    return out
+
+
 def locate(
     site: Site,
     packets: Packets,
@@ -790,16 +891,20 @@ def locate(
     t0 = time.perf_counter()
     obs = _check_packets(site, packets)
     tracker = Tracker(site, method, config, scorers)
-    poses: list[PoseEstimate] = []
+    if method == "filter":
+        tracker.lag_s = tracker.config.smoothing_lag_s
+    found: list[PoseEstimate | None] = []
     skipped: Counter[str] = Counter()
     for i, o in enumerate(obs):
         est, reason = tracker.update(o)
-        if est is not None:
-            poses.append(est)
-        else:
+        found.append(est)
+        if est is None:
             skipped[reason or "unknown"] += 1
         if progress is not None:
             progress(i + 1, len(obs))
+    if method == "filter" and tracker.lag_s is not None:
+        found = _smoothed(tracker, obs, found)
+    poses = [p for p in found if p is not None]
     summary = RunSummary(
         method, len(obs), len(poses), tuple(skipped.most_common()), time.perf_counter() - t0
     )

@@ -1,0 +1,247 @@
+"""Compiled per-particle kernels of the Bayesian tracker (radians inside, metres, dB).
+
+Every function takes the particle matrix ``S`` of shape ``(n, N_COLUMNS)`` whose
+columns are named by the constants below. Angles in ``S`` are radians (the one
+place besides :mod:`radiopose.likelihood.exact` that wraps angles itself);
+positions metres; ``OFFSET_DB`` / ``OFFSET_VAR_DB2`` are the mean and variance
+of each particle's Gaussian belief about the device's transmit-power offset
+(Rao-Blackwellised: the offset is integrated out exactly, not sampled).
+
+The expected RSS of a particle at receiver ``r`` is the likelihood's model
+(:mod:`radiopose.likelihood.candidates`) evaluated off the grid::
+
+    RSS_r = M_r(x, y) + P_tx + D(φ_r, θ_r) + b
+
+with ``M_r`` bilinear on the survey map's grid, ``D`` bilinear on the pattern
+grid (periodic in azimuth, polar clamped), ``(φ_r, θ_r)`` the direction to the
+receiver in the body frame of ``R = Rz(azimuth)·Rx(pitch)·Ry(roll)`` and ``b``
+the power offset.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+X_M, Y_M, Z_M, VX_MPS, VY_MPS, AZIMUTH_RAD, RATE_RAD_S, PITCH_RAD, ROLL_RAD = range(9)
+OFFSET_DB, OFFSET_VAR_DB2 = 9, 10
+N_COLUMNS = 11
+N_NOISE = 5
+"""Standard normal draws per particle and step: x, y acceleration, angular
+acceleration, pitch and roll steps."""
+
+_TWO_PI = 2.0 * math.pi
+_RAD_TO_DEG = 180.0 / math.pi
+
+
+@numba.njit(cache=True, inline="always")
+def _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny):  # pragma: no cover - compiled
+    """``M_r(x, y)``, bilinear, clamped to the grid (NaN if a corner is NaN)."""
+    u = min(max((x - x0) / dx, 0.0), nx - 1.0) if nx > 1 else 0.0
+    v = min(max((y - y0) / dy, 0.0), ny - 1.0) if ny > 1 else 0.0
+    i0 = min(int(u), max(nx - 2, 0))
+    j0 = min(int(v), max(ny - 2, 0))
+    i1 = min(i0 + 1, nx - 1)
+    j1 = min(j0 + 1, ny - 1)
+    fu = u - i0
+    fv = v - j0
+    a = chan[r, i0, j0] * (1.0 - fv) + chan[r, i0, j1] * fv
+    b = chan[r, i1, j0] * (1.0 - fv) + chan[r, i1, j1] * fv
+    return a * (1.0 - fu) + b * fu
+
+
+@numba.njit(cache=True, inline="always")
+def _pattern_dbi(d, phi_deg, theta_deg, az0, az_step, polar_step):  # pragma: no cover
+    """Bilinear pattern lookup, as :meth:`radiopose.patterns.pattern.Pattern.lookup_dbi`."""
+    n_az = d.shape[0]
+    n_pol = d.shape[1]
+    u = ((phi_deg - az0) % 360.0) / az_step
+    w = 0.0 if n_pol == 1 else min(max(theta_deg, 0.0), 180.0) / polar_step
+    fi0 = math.floor(u)
+    fu = u - fi0
+    i0 = int(fi0) % n_az
+    i1 = (i0 + 1) % n_az
+    j0 = min(int(w), n_pol - 1)
+    fw = w - j0
+    j1 = min(j0 + 1, n_pol - 1)
+    top = d[i0, j0] * (1.0 - fu) + d[i1, j0] * fu
+    bot = d[i0, j1] * (1.0 - fu) + d[i1, j1] * fu
+    return top * (1.0 - fw) + bot * fw
+
+
+@numba.njit(cache=True)
+def predict(  # pragma: no cover - compiled
+    S, noise, dt_s, q_acc, q_rate, q_tilt, max_speed, max_rate, box, tilt_box
+):
+    """Propagate particles by ``dt_s`` in place.
+
+    Nearly-constant velocity and turn rate: white acceleration of density
+    ``q_acc`` (m/s²·√s) and angular acceleration ``q_rate`` (rad/s²·√s);
+    pitch and roll a random walk of ``q_tilt`` rad/√s within ``tilt_box``
+    (``[pitch_lo, pitch_hi, roll_lo, roll_hi]``; equal bounds freeze the axis).
+    Speed and turn rate are clipped at ``max_speed`` / ``max_rate`` (the
+    prior's support); positions are reflected at ``box`` (``[x_lo, x_hi,
+    y_lo, y_hi]``).
+    """
+    n = S.shape[0]
+    sq = math.sqrt(dt_s)
+    for i in range(n):
+        vx0 = S[i, VX_MPS]
+        vy0 = S[i, VY_MPS]
+        w0 = S[i, RATE_RAD_S]
+        # v(t+dt) = v(t) + a dt with a ~ N(0, q²/dt): Var(dv) = q² dt
+        vx = vx0 + q_acc * sq * noise[i, 0]
+        vy = vy0 + q_acc * sq * noise[i, 1]
+        sp = math.sqrt(vx * vx + vy * vy)
+        if sp > max_speed:
+            vx *= max_speed / sp
+            vy *= max_speed / sp
+        w = min(max(w0 + q_rate * sq * noise[i, 2], -max_rate), max_rate)
+        # x(t+dt) = x(t) + dt (v(t) + v(t+dt)) / 2
+        x = S[i, X_M] + 0.5 * (vx0 + vx) * dt_s
+        y = S[i, Y_M] + 0.5 * (vy0 + vy) * dt_s
+        if x < box[0]:
+            x, vx = 2.0 * box[0] - x, -vx
+        if x > box[1]:
+            x, vx = 2.0 * box[1] - x, -vx
+        if y < box[2]:
+            y, vy = 2.0 * box[2] - y, -vy
+        if y > box[3]:
+            y, vy = 2.0 * box[3] - y, -vy
+        S[i, X_M] = min(max(x, box[0]), box[1])
+        S[i, Y_M] = min(max(y, box[2]), box[3])
+        S[i, VX_MPS] = vx
+        S[i, VY_MPS] = vy
+        S[i, AZIMUTH_RAD] = (S[i, AZIMUTH_RAD] + 0.5 * (w0 + w) * dt_s) % _TWO_PI
+        S[i, RATE_RAD_S] = w
+        if tilt_box[1] > tilt_box[0]:
+            p = S[i, PITCH_RAD] + q_tilt * sq * noise[i, 3]
+            S[i, PITCH_RAD] = min(max(p, tilt_box[0]), tilt_box[1])
+        if tilt_box[3] > tilt_box[2]:
+            r = S[i, ROLL_RAD] + q_tilt * sq * noise[i, 4]
+            S[i, ROLL_RAD] = min(max(r, tilt_box[2]), tilt_box[3])
+
+
+@numba.njit(cache=True, parallel=True)
+def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no cover - compiled
+    """Expected RSS ``(n, h)`` dBm of every particle at the heard receivers,
+    without the power offset. ``grid`` = ``[x0, dx, nx, y0, dy, ny]``;
+    ``pat`` = ``[az0, az_step, polar_step]`` (degrees)."""
+    n = S.shape[0]
+    h = heard.shape[0]
+    out = np.empty((n, h))
+    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
+    for i in numba.prange(n):
+        ca = math.cos(S[i, AZIMUTH_RAD])
+        sa = math.sin(S[i, AZIMUTH_RAD])
+        cp = math.cos(S[i, PITCH_RAD])
+        sp = math.sin(S[i, PITCH_RAD])
+        cr = math.cos(S[i, ROLL_RAD])
+        sr = math.sin(S[i, ROLL_RAD])
+        # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
+        r00 = ca * cr - sa * sp * sr
+        r01 = -sa * cp
+        r02 = ca * sr + sa * sp * cr
+        r10 = sa * cr + ca * sp * sr
+        r11 = ca * cp
+        r12 = sa * sr - ca * sp * cr
+        r20 = -cp * sr
+        r21 = sp
+        r22 = cp * cr
+        for q in range(h):
+            r = heard[q]
+            ddx = rx[r, 0] - S[i, X_M]
+            ddy = rx[r, 1] - S[i, Y_M]
+            ddz = rx[r, 2] - S[i, Z_M]
+            vx = ddx * r00 + ddy * r10 + ddz * r20
+            vy = ddx * r01 + ddy * r11 + ddz * r21
+            vz = ddx * r02 + ddy * r12 + ddz * r22
+            nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if nrm > 0.0:
+                phi = math.atan2(vy, vx) * _RAD_TO_DEG
+                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+            else:
+                phi = 0.0
+                theta = 90.0
+            m = _map_db(chan, r, S[i, X_M], S[i, Y_M], x0, dx, nx, y0, dy, ny)
+            out[i, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
+    return out
+
+
+@numba.njit(cache=True)
+def measurement_update(S, pred, rss, sigma_db, huber_c, logw):  # pragma: no cover - compiled
+    """Add each particle's log-likelihood of one packet to ``logw`` and update its
+    power-offset belief in place (Rao-Blackwellised scalar Kalman filter).
+
+    With residuals ``e_q = rss_q − pred_q − b̄`` and offset belief
+    ``b ~ N(b̄, P)``, the marginal of ``e`` is ``N(0, Σ + P·11ᵀ)`` with
+    ``Σ = diag(σ²/w_q)``; Huber weights ``w_q = min(1, c σ / |e_q − ē|)``
+    (``ē`` the offset correction before weighting) make a receiver that is far
+    off for one packet count linearly instead of quadratically::
+
+        log L = −½ [Σ w e²/σ² − P (Σ w e/σ²)² / a] − ½ log a,   a = 1 + P Σ w/σ²
+        b̄ ← b̄ + P (Σ w e/σ²) / a,   P ← P / a
+
+    A particle whose expected RSS is NaN (outside the survey) gets ``−inf``.
+    """
+    n = S.shape[0]
+    h = rss.shape[0]
+    s2 = sigma_db * sigma_db
+    e = np.empty(h)
+    for i in range(n):
+        b = S[i, OFFSET_DB]
+        p = S[i, OFFSET_VAR_DB2]
+        sum_e = 0.0
+        for q in range(h):
+            e[q] = rss[q] - pred[i, q] - b
+            sum_e += e[q]
+        if math.isnan(sum_e):
+            logw[i] = -np.inf
+            continue
+        ebar = p * sum_e / s2 / (1.0 + p * h / s2)
+        sw = 0.0
+        swe = 0.0
+        swee = 0.0
+        for q in range(h):
+            u = abs(e[q] - ebar) / sigma_db
+            w = 1.0 if u <= huber_c else huber_c / u
+            sw += w
+            swe += w * e[q]
+            swee += w * e[q] * e[q]
+        a = 1.0 + p * sw / s2
+        logw[i] += -0.5 * (swee / s2 - p * (swe / s2) ** 2 / a) - 0.5 * math.log(a)
+        S[i, OFFSET_DB] = b + p * swe / s2 / a
+        S[i, OFFSET_VAR_DB2] = p / a
+
+
+@numba.njit(cache=True)
+def fixed_offset_loglik(pred, rss, offset_db, sigma_db, huber_c, out):  # pragma: no cover
+    """Add the Huber log-likelihood of one packet at each row's fixed offset to ``out``."""
+    n = pred.shape[0]
+    h = rss.shape[0]
+    half_c2 = 0.5 * huber_c * huber_c
+    for i in range(n):
+        acc = 0.0
+        for q in range(h):
+            u = abs(rss[q] - pred[i, q] - offset_db[i]) / sigma_db
+            acc += 0.5 * u * u if u <= huber_c else huber_c * u - half_c2
+        out[i] -= acc if not math.isnan(acc) else np.inf
+
+
+@numba.njit(cache=True)
+def systematic_resample(weights, u0):  # pragma: no cover - compiled
+    """Systematic resampling: ``n`` ancestor indices for normalised ``weights``,
+    one uniform draw ``u0`` in ``[0, 1)``."""
+    n = weights.shape[0]
+    idx = np.empty(n, np.int64)
+    c = weights[0]
+    j = 0
+    for i in range(n):
+        u = (u0 + i) / n
+        while u > c and j < n - 1:
+            j += 1
+            c += weights[j]
+        idx[i] = j
+    return idx

@@ -1,0 +1,599 @@
+"""A particle filter over pose, velocity, turn rate and transmit-power offset.
+
+Beyond the paper: instead of hard per-packet decisions (top-k, clustering,
+motion gates that veto), the device's state is a probability distribution,
+carried by ``n_particles`` weighted samples and updated by every packet.
+
+State of one particle (:mod:`radiopose.filtering.kernels` names the columns):
+position ``(x, y, z)`` metres (``z`` fixed at the site's candidate height),
+velocity ``(vx, vy)`` m/s, azimuth and turn rate, pitch and roll (a random walk
+within the site's candidate range; frozen where the site has one value), and a
+Gaussian belief ``N(b̄, P)`` about the device's transmit-power offset ``b`` in
+dB from ``devices.csv``'s ``tx_power_dbm`` (integrated out exactly per particle:
+Rao-Blackwellised).
+
+One packet (:meth:`ParticleFilter.step`):
+
+1. **Predict**: nearly-constant velocity and turn rate (white acceleration,
+   :func:`~radiopose.filtering.kernels.predict`); speed and turn rate are
+   limited only by the prior's support (``TrackerConfig``'s 10 m/s; twice its
+   360°/s, so rotation beyond the paper's bound is tracked, not vetoed).
+2. **Weight** by the packet's likelihood: the expected RSS off the grid
+   (survey map and pattern bilinear), Gaussian in dB with an estimated σ and
+   Huber-robust per receiver, the power offset marginalised
+   (:func:`~radiopose.filtering.kernels.measurement_update`). Any number of
+   receivers informs the filter; a packet heard by one still counts.
+3. **Re-enter hypotheses** every ``reentry_interval_s``: the compiled kernel
+   (:mod:`radiopose.likelihood`) scores the whole candidate grid against the
+   mean RSS of the last ``proposal_window_s`` (the exact joint MSE of a static
+   pose over the window), at the current offset belief and the prior's; a few
+   particles are replaced by draws from that top-k, each weighted by its
+   likelihood over the evidence window against the filter's own evidence over
+   the same packets, times a jump prior ``jump_probability``. A wrong lock is
+   thereby left as soon as the data over one window favour another mode by
+   more than ``log(m / jump_probability)``.
+4. **σ** is estimated online from the posterior-median squared residual
+   (EWMA, started from ``sigma_prior_db``); no σ is told.
+5. **Resample** (systematic) when the effective sample size falls below half.
+
+Estimates are the weighted mean position and circular mean azimuth, with the
+cloud's spread as ``position_std_m`` (root of the trace of the horizontal
+covariance) and ``azimuth_std_deg`` (circular standard deviation). Offline,
+a **fixed-lag smoother** reads each packet's estimate from the ancestors, at
+that packet, of the particles ``lag_s`` later (the particles' genealogy;
+hypotheses that re-entered carry their pose back over the past as static).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from radiopose.errors import InputError
+from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer
+from radiopose.site import Site
+from radiopose.units import FloatArray
+
+_LINEAGE_COLUMNS = [K.X_M, K.Y_M, K.Z_M, K.AZIMUTH_RAD, K.PITCH_RAD, K.ROLL_RAD]
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the particle filter (units in the names; defaults measured in
+    ``docs/filter.md``).
+
+    Attributes
+    ----------
+    n_particles
+        Particles per device.
+    accel_noise_mps2
+        White-acceleration density of the motion model, m/s² per √Hz.
+    angular_accel_noise_dps2
+        White angular-acceleration density, °/s² per √Hz.
+    tilt_noise_dps
+        Random-walk density of pitch and roll, °/√s (only where the site's
+        candidate orientations have several pitch or roll values).
+    max_speed_mps, max_rate_dps
+        Support of the motion prior: speed and turn rate are clipped there.
+    initial_speed_mps, initial_rate_dps
+        Standard deviation of each velocity component and of the turn rate of
+        a new particle.
+    reentry_interval_s
+        How often hypotheses from the full-grid likelihood re-enter.
+    reentry_fraction
+        Fraction of the particles replaced at each re-entry.
+    proposal_window_s
+        Packets pooled (mean RSS per receiver) for the re-entry proposal, and
+        over which a proposal's evidence is compared with the filter's.
+    jump_probability
+        Prior probability that the filter's mode is wrong at one re-entry.
+    k
+        Candidates taken from the kernel per proposal offset.
+    sigma_prior_db, sigma_floor_db
+        Starting value and lower bound of the online σ estimate, dB.
+    sigma_memory_packets
+        Packets over which the σ estimate averages once settled.
+    huber_c
+        Huber threshold, in σ: a receiver further off counts linearly.
+    offset_prior_sd_db
+        Prior standard deviation of the transmit-power offset around
+        ``devices.csv``'s ``tx_power_dbm``, dB.
+    initial_offsets_db
+        Offsets at which the first packet's candidates are searched, dB.
+    reacquire_gap_s
+        Past this silence a device is acquired afresh (its offset and σ
+        estimates are kept).
+    min_acquisition_receivers
+        Receivers a packet needs to start (or restart) a track.
+    """
+
+    n_particles: int = 2000
+    accel_noise_mps2: float = 1.0
+    angular_accel_noise_dps2: float = 90.0
+    tilt_noise_dps: float = 10.0
+    max_speed_mps: float = 10.0
+    max_rate_dps: float = 720.0
+    initial_speed_mps: float = 1.0
+    initial_rate_dps: float = 90.0
+    reentry_interval_s: float = 0.1
+    reentry_fraction: float = 0.05
+    proposal_window_s: float = 0.1
+    jump_probability: float = 0.01
+    k: int = 100
+    sigma_prior_db: float = 2.0
+    sigma_floor_db: float = 0.25
+    sigma_memory_packets: int = 200
+    huber_c: float = 2.5
+    offset_prior_sd_db: float = 6.0
+    initial_offsets_db: tuple[float, ...] = (-9.0, -4.5, 0.0, 4.5, 9.0)
+    reacquire_gap_s: float = 1.0
+    min_acquisition_receivers: int = 3
+
+    def __post_init__(self) -> None:
+        positive = (
+            "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
+            "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
+            "huber_c", "offset_prior_sd_db", "reacquire_gap_s",
+        )  # fmt: skip
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise InputError(f"filter setting {name} = {v!r} must be a positive number")
+        for name in ("tilt_noise_dps", "initial_speed_mps", "initial_rate_dps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"filter setting {name} = {v!r} must be >= 0")
+        if not 10 <= self.n_particles <= 1_000_000:
+            raise InputError(f"filter setting n_particles = {self.n_particles!r} is out of range")
+        if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
+            raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
+        if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
+            raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+
+
+@dataclass(frozen=True)
+class FilterEstimate:
+    """One packet's estimate.
+
+    Attributes
+    ----------
+    position_m
+        ``(x, y, z)`` metres.
+    orientation_deg
+        ``(azimuth, pitch, roll)`` degrees, azimuth and roll in ``[0, 360)``.
+    position_std_m
+        Root of the trace of the horizontal position covariance, metres.
+    azimuth_std_deg
+        Circular standard deviation of azimuth, degrees.
+    offset_db
+        Posterior mean of the transmit-power offset, dB (``nan`` if smoothed).
+    sigma_db
+        The current σ estimate, dB.
+    """
+
+    position_m: tuple[float, float, float]
+    orientation_deg: tuple[float, float, float]
+    position_std_m: float
+    azimuth_std_deg: float
+    offset_db: float = math.nan
+    sigma_db: float = math.nan
+
+
+@dataclass(frozen=True, eq=False)
+class FilterModel:
+    """The packet-independent arrays of one device at one site (built once).
+
+    ``channel_db`` is the survey map ``(n_rx, nx, ny)`` on the candidate grid
+    ``grid = [x0, dx, nx, y0, dy, ny]``; ``pattern_dbi`` the device pattern with
+    ``pattern_axes = [az0, az_step, polar_step]`` degrees.
+    """
+
+    space: CandidateSpace
+    scorer: Scorer
+    channel_db: FloatArray
+    grid: FloatArray
+    receivers_m: FloatArray
+    pattern_dbi: FloatArray
+    pattern_axes: FloatArray
+    tx_power_dbm: float
+    box_m: FloatArray
+    tilt_box_rad: FloatArray
+    cell_m: tuple[float, float, float]
+
+    @classmethod
+    def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
+        sm = site.survey_map
+        x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)
+        dx = float(x[1] - x[0]) if x.size > 1 else 1.0
+        dy = float(y[1] - y[0]) if y.size > 1 else 1.0
+        pat = space.pattern
+        o = space.orientations_deg
+        az = np.unique(o[:, 0])
+        return cls(
+            space=space,
+            scorer=scorer,
+            channel_db=np.ascontiguousarray(sm.m_db, dtype=np.float64),
+            grid=np.array([x[0], dx, x.size, y[0], dy, y.size], dtype=np.float64),
+            receivers_m=np.ascontiguousarray(space.receiver_positions_m, dtype=np.float64),
+            pattern_dbi=np.ascontiguousarray(pat.directivity_dbi, dtype=np.float64),
+            pattern_axes=np.array(
+                [
+                    float(pat.azimuth_deg[0]),
+                    float(pat.azimuth_step_deg),
+                    1.0 if pat.is_slice else float(pat.polar_step_deg),
+                ]
+            ),
+            tx_power_dbm=float(space.tx_power_dbm),
+            box_m=np.array([x[0], x[-1], y[0], y[-1]], dtype=np.float64),
+            tilt_box_rad=np.deg2rad(
+                np.array([o[:, 1].min(), o[:, 1].max(), o[:, 2].min(), o[:, 2].max()])
+            ),
+            cell_m=(dx, dy, 360.0 / az.size if az.size else 360.0),
+        )
+
+    def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
+        """Expected RSS ``(n, h)`` dBm without the offset."""
+        return K.expected_rss_dbm(
+            S,
+            np.ascontiguousarray(heard_index, dtype=np.int64),
+            self.receivers_m,
+            self.channel_db,
+            self.grid,
+            self.tx_power_dbm,
+            self.pattern_dbi,
+            self.pattern_axes,
+        )
+
+
+@dataclass(eq=False)
+class FilterState:
+    """The mutable belief about one device (picklable, for live checkpoints).
+
+    ``particles`` ``(n, N_COLUMNS)`` and ``log_weights`` ``(n,)``; ``sigma2_db2``
+    the σ² estimate; ``window`` the recent packets ``(t_s, heard, log_evidence)``
+    of the evidence window; the lineage (``history``, ``ancestors``,
+    ``pending``) serves the fixed-lag smoother.
+    """
+
+    rng: np.random.Generator
+    particles: FloatArray | None = None
+    log_weights: FloatArray | None = None
+    last_time_s: float | None = None
+    reentry_time_s: float = -math.inf
+    sigma2_db2: float = 4.0
+    sigma_count: int = 0
+    offset_prior_db: float = 0.0
+    window: deque = field(default_factory=deque)
+    history: list = field(default_factory=list)
+    ancestors: list = field(default_factory=list)
+    pending: list = field(default_factory=list)
+
+
+class ParticleFilter:
+    """The filter for one device: :meth:`step` per packet, :meth:`flush` at the end.
+
+    Parameters
+    ----------
+    model
+        The device's arrays (:meth:`FilterModel.build`).
+    config
+        Filter parameters.
+    lag_s
+        Smoothing lag: ``None`` for a causal filter (each step returns its
+        packet's estimate); a number for the fixed-lag smoother, whose
+        estimates come out of :meth:`take_smoothed` once ``lag_s`` of later
+        packets have been seen (and all of them after :meth:`flush`).
+    """
+
+    def __init__(self, model: FilterModel, config: FilterConfig, lag_s: float | None = None):
+        self.model = model
+        self.config = config
+        self.lag_s = lag_s
+        self._smoothed: list[tuple[object, FilterEstimate]] = []
+
+    def new_state(self, seed: int = 0) -> FilterState:
+        return FilterState(
+            rng=np.random.default_rng(seed), sigma2_db2=self.config.sigma_prior_db**2
+        )
+
+    # ------------------------------------------------------------------ proposals
+    def _draw(
+        self, st: FilterState, heard: HeardRss, m: int, offsets_db: list[float], n_packets: int
+    ) -> tuple[FloatArray, FloatArray, float] | None:
+        """``m`` particles drawn from the kernel's top-k of ``heard`` searched at each
+        offset, with each candidate's best offset (shrunk to the prior); returns
+        ``(particles, offsets, precision)`` or ``None`` if nothing is scorable."""
+        cfg, mod = self.config, self.model
+        cand_parts = []
+        for off in offsets_db:
+            top = mod.scorer.score_heard(HeardRss(heard.receiver_index, heard.rss_dbm - off), cfg.k)
+            cand_parts.append(top.candidate_idx)
+        cand = np.unique(np.concatenate(cand_parts))
+        if cand.size == 0:
+            return None
+        space = mod.space
+        pos = space.candidate_positions_m(cand)
+        ori = np.deg2rad(space.candidate_orientations_deg(cand))
+        T = np.zeros((cand.size, K.N_COLUMNS))
+        T[:, K.X_M : K.Z_M + 1] = pos
+        T[:, K.AZIMUTH_RAD] = ori[:, 0]
+        T[:, K.PITCH_RAD] = ori[:, 1]
+        T[:, K.ROLL_RAD] = ori[:, 2]
+        e = heard.rss_dbm[None, :] - mod.expected(T, heard.receiver_index)
+        # best offset per candidate over n_packets·h residuals, with the prior
+        prec = n_packets * heard.n_heard / st.sigma2_db2
+        p0 = 1.0 / cfg.offset_prior_sd_db**2
+        best = (prec * e.mean(axis=1) + p0 * st.offset_prior_db) / (prec + p0)
+        cost = 0.5 * n_packets * np.sum((e - best[:, None]) ** 2, axis=1) / st.sigma2_db2
+        cost += 0.5 * p0 * (best - st.offset_prior_db) ** 2
+        ok = np.isfinite(cost)
+        if not ok.any():
+            return None
+        p = np.where(ok, np.exp(-(cost - cost[ok].min())), 0.0)
+        pick = st.rng.choice(cand.size, size=m, p=p / p.sum())
+        S = T[pick]
+        dx, dy, daz = mod.cell_m
+        S[:, K.X_M] += st.rng.uniform(-0.5, 0.5, m) * dx
+        S[:, K.Y_M] += st.rng.uniform(-0.5, 0.5, m) * dy
+        S[:, K.AZIMUTH_RAD] = (
+            S[:, K.AZIMUTH_RAD] + np.deg2rad(st.rng.uniform(-0.5, 0.5, m) * daz)
+        ) % (2 * np.pi)
+        return S, best[pick], prec
+
+    def _initialise(self, st: FilterState, heard: HeardRss) -> bool:
+        cfg = self.config
+        n = cfg.n_particles
+        offsets = [st.offset_prior_db + o for o in cfg.initial_offsets_db]
+        drawn = self._draw(st, heard, n, offsets, 1)
+        if drawn is None:
+            return False
+        S, off, prec = drawn
+        S[:, K.VX_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, n)
+        S[:, K.VY_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, n)
+        S[:, K.RATE_RAD_S] = np.deg2rad(st.rng.normal(0.0, cfg.initial_rate_dps, n))
+        S[:, K.OFFSET_DB] = off
+        S[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
+        st.particles = S
+        st.log_weights = np.zeros(n)
+        st.window.clear()
+        st.history, st.ancestors = [], []
+        return True
+
+    def _reenter(self, st: FilterState, t_s: float, w: FloatArray) -> None:
+        """Replace a few particles by full-grid hypotheses weighted by their evidence."""
+        cfg, mod = self.config, self.model
+        S = st.particles
+        assert S is not None and st.log_weights is not None
+        n = S.shape[0]
+        n_rx = mod.receivers_m.shape[0]
+        acc = np.zeros(n_rx)
+        cnt = np.zeros(n_rx)
+        for _, hd, _ in st.window:
+            np.add.at(acc, hd.receiver_index, hd.rss_dbm)
+            np.add.at(cnt, hd.receiver_index, 1.0)
+        heard_rx = np.flatnonzero(cnt > 0)
+        if heard_rx.size < cfg.min_acquisition_receivers:
+            return
+        mean = HeardRss(heard_rx.astype(np.int64), acc[heard_rx] / cnt[heard_rx])
+        b = float(np.sum(w * S[:, K.OFFSET_DB]))
+        var_b = float(np.sum(w * (S[:, K.OFFSET_VAR_DB2] + (S[:, K.OFFSET_DB] - b) ** 2)))
+        sd_b = math.sqrt(var_b)
+        offsets = [b] if sd_b < 1.5 else [b - sd_b, b, b + sd_b]
+        if abs(b - st.offset_prior_db) > 1.0:
+            offsets.append(st.offset_prior_db)
+        m = max(1, round(cfg.reentry_fraction * n))
+        drawn = self._draw(st, mean, m, offsets, len(st.window))
+        if drawn is None:
+            return
+        new, off, prec = drawn
+        donors = st.rng.choice(n, size=m, p=w)
+        new[:, K.VX_MPS] = S[donors, K.VX_MPS]
+        new[:, K.VY_MPS] = S[donors, K.VY_MPS]
+        new[:, K.RATE_RAD_S] = S[donors, K.RATE_RAD_S]
+        new[:, K.OFFSET_DB] = off
+        new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
+        # evidence of each hypothesis over the window (moved back along its velocity)
+        ll = np.zeros(m)
+        sigma = math.sqrt(st.sigma2_db2)
+        back = np.empty_like(new)
+        for tau, hd, _ in st.window:
+            back[:] = new
+            lag = t_s - tau
+            back[:, K.X_M] -= new[:, K.VX_MPS] * lag
+            back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
+            back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
+            pred = mod.expected(back, hd.receiver_index)
+            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, cfg.huber_c, ll)
+        evidence = sum(lz for _, _, lz in st.window)
+        prior = (
+            -0.5
+            * ((off - st.offset_prior_db) ** 2 - (b - st.offset_prior_db) ** 2)
+            / cfg.offset_prior_sd_db**2
+        )
+        slots = st.rng.choice(n, size=m, replace=False)
+        lse = float(np.logaddexp.reduce(st.log_weights))
+        S[slots] = new
+        st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
+        if self.lag_s is not None:
+            self._inject_lineage(st, t_s, new, slots, donors)
+
+    def _inject_lineage(
+        self, st: FilterState, t_s: float, new: FloatArray, slots: np.ndarray, donors: np.ndarray
+    ) -> None:
+        """Give re-entered particles a past for the smoother: within the evidence
+        window their pose moved back along their velocity and turn rate; before
+        it, the past of the particle whose motion they copied."""
+        m = new.shape[0]
+        times = [p[0] for p in st.pending]
+        for j in range(len(st.history)):
+            lag = t_s - times[j]
+            if lag > self.config.proposal_window_s:
+                st.ancestors[j][slots] = st.ancestors[j][donors]
+                continue
+            rows = new[:, _LINEAGE_COLUMNS].copy()
+            rows[:, 0] -= new[:, K.VX_MPS] * lag
+            rows[:, 1] -= new[:, K.VY_MPS] * lag
+            rows[:, 3] -= new[:, K.RATE_RAD_S] * lag
+            base = st.history[j].shape[0]
+            st.history[j] = np.vstack([st.history[j], rows])
+            st.ancestors[j][slots] = base + np.arange(m)
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
+    ) -> FilterEstimate | None:
+        """Process one packet at ``t_s``; return the causal estimate, or ``None``
+        while no track could be started (too few receivers, nothing scorable).
+
+        ``key`` identifies the packet for the smoother (:meth:`take_smoothed`).
+        """
+        cfg, mod = self.config, self.model
+        new_track = st.particles is None or (
+            st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
+        )
+        if new_track:
+            if st.particles is not None:
+                w = _normalised(st.log_weights)
+                st.offset_prior_db = float(np.sum(w * st.particles[:, K.OFFSET_DB]))
+                self._flush_into(st, w)
+                st.particles = None
+            if heard.n_heard < cfg.min_acquisition_receivers or not self._initialise(st, heard):
+                st.last_time_s = t_s
+                return None
+            st.reentry_time_s = t_s
+        else:
+            assert st.particles is not None and st.last_time_s is not None
+            dt = max(t_s - st.last_time_s, 0.0)
+            if dt > 0:
+                noise = st.rng.standard_normal((st.particles.shape[0], K.N_NOISE))
+                K.predict(
+                    st.particles, noise, dt, cfg.accel_noise_mps2,
+                    math.radians(cfg.angular_accel_noise_dps2), math.radians(cfg.tilt_noise_dps),
+                    cfg.max_speed_mps, math.radians(cfg.max_rate_dps), mod.box_m, mod.tilt_box_rad,
+                )  # fmt: skip
+        st.last_time_s = t_s
+        S, logw = st.particles, st.log_weights
+        assert S is not None and logw is not None
+        pred = mod.expected(S, heard.receiver_index)
+        sigma = math.sqrt(st.sigma2_db2)
+        lse0 = float(np.logaddexp.reduce(logw))
+        K.measurement_update(S, pred, heard.rss_dbm, sigma, cfg.huber_c, logw)
+        lse1 = float(np.logaddexp.reduce(logw))
+        if not math.isfinite(lse1):  # every particle impossible: start again
+            self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
+            st.particles = None
+            return self.step(st, t_s, heard, key)
+        st.window.append((t_s, heard, lse1 - lse0))
+        while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
+            st.window.popleft()
+        w = _normalised(logw)
+        self._update_sigma(st, S, pred, heard, w)
+        if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
+            self._reenter(st, t_s, w)
+            st.reentry_time_s = t_s
+            w = _normalised(logw)
+        est = self._estimate(st, S, w)
+        if self.lag_s is not None:
+            st.history.append(S[:, _LINEAGE_COLUMNS].copy())
+            st.ancestors.append(np.arange(S.shape[0]))
+            st.pending.append((t_s, key, est))
+            self._emit(st, w, t_s - self.lag_s)
+        if 1.0 / float(np.sum(w * w)) < 0.5 * S.shape[0]:
+            idx = K.systematic_resample(w, float(st.rng.uniform()))
+            st.particles = S[idx]
+            st.log_weights = np.zeros(S.shape[0])
+            st.ancestors = [a[idx] for a in st.ancestors]
+        return est
+
+    def _update_sigma(
+        self, st: FilterState, S: FloatArray, pred: FloatArray, heard: HeardRss, w: FloatArray
+    ) -> None:
+        """EWMA of the posterior-median mean squared residual (clipped at 2c σ)."""
+        cfg = self.config
+        lim2 = (2.0 * cfg.huber_c) ** 2 * st.sigma2_db2
+        r2 = np.minimum((heard.rss_dbm[None, :] - pred - S[:, K.OFFSET_DB, None]) ** 2, lim2)
+        r2 = np.nan_to_num(r2.mean(axis=1), nan=lim2)
+        order = np.argsort(r2)
+        median = float(r2[order[min(np.searchsorted(np.cumsum(w[order]), 0.5), r2.size - 1)]])
+        h = heard.n_heard
+        st.sigma_count += h
+        a = max(h / (st.sigma_count + 20.0), h / (cfg.sigma_memory_packets * 4.0))
+        st.sigma2_db2 = max((1.0 - a) * st.sigma2_db2 + a * median, cfg.sigma_floor_db**2)
+
+    def _estimate(self, st: FilterState, S: FloatArray, w: FloatArray) -> FilterEstimate:
+        return _summary(
+            S[:, _LINEAGE_COLUMNS],
+            w,
+            float(np.sum(w * S[:, K.OFFSET_DB])),
+            math.sqrt(st.sigma2_db2),
+        )
+
+    # ------------------------------------------------------------------ smoothing
+    def _emit(self, st: FilterState, w: FloatArray, upto_s: float | None) -> None:
+        assert len(st.pending) == len(st.history) == len(st.ancestors)
+        while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
+            rows = st.history.pop(0)[st.ancestors.pop(0)]
+            _, key, causal = st.pending.pop(0)
+            smooth = _summary(rows, w, causal.offset_db, causal.sigma_db)
+            # the genealogy collapses (few distinct ancestors), so its spread
+            # understates the uncertainty: report the filter's own at that packet
+            self._smoothed.append(
+                (
+                    key,
+                    replace(
+                        smooth,
+                        position_std_m=causal.position_std_m,
+                        azimuth_std_deg=causal.azimuth_std_deg,
+                    ),
+                )
+            )
+
+    def _flush_into(self, st: FilterState, w: FloatArray) -> None:
+        if self.lag_s is not None:
+            self._emit(st, w, None)
+        st.history, st.ancestors = [], []
+
+    def flush(self, st: FilterState) -> None:
+        """Emit every pending smoothed estimate (end of the data)."""
+        if st.particles is not None and st.log_weights is not None:
+            self._flush_into(st, _normalised(st.log_weights))
+
+    def take_smoothed(self) -> list[tuple[object, FilterEstimate]]:
+        """The smoothed estimates emitted since the last call, as ``(key, estimate)``."""
+        out, self._smoothed = self._smoothed, []
+        return out
+
+
+def _normalised(logw: FloatArray | None) -> FloatArray:
+    assert logw is not None
+    w = np.exp(logw - np.max(logw))
+    return w / np.sum(w)
+
+
+def _summary(rows: FloatArray, w: FloatArray, offset_db: float, sigma_db: float) -> FilterEstimate:
+    """Weighted mean pose and spread of lineage rows ``(n, 6)``: x, y, z, azimuth,
+    pitch, roll (radians)."""
+    x = float(np.sum(w * rows[:, 0]))
+    y = float(np.sum(w * rows[:, 1]))
+    z = float(np.sum(w * rows[:, 2]))
+    c = float(np.sum(w * np.cos(rows[:, 3])))
+    s = float(np.sum(w * np.sin(rows[:, 3])))
+    r = min(math.hypot(c, s), 1.0)
+    az_std = math.degrees(math.sqrt(-2.0 * math.log(r))) if r > 1e-12 else 180.0
+    pitch = math.degrees(float(np.sum(w * rows[:, 4])))
+    cr = float(np.sum(w * np.cos(rows[:, 5])))
+    sr = float(np.sum(w * np.sin(rows[:, 5])))
+    roll = math.degrees(math.atan2(sr, cr)) % 360.0 if (cr or sr) else 0.0
+    var = float(np.sum(w * ((rows[:, 0] - x) ** 2 + (rows[:, 1] - y) ** 2)))
+    return FilterEstimate(
+        (x, y, z),
+        (math.degrees(math.atan2(s, c)) % 360.0, pitch, roll),
+        math.sqrt(max(var, 0.0)),
+        az_std,
+        offset_db,
+        sigma_db,
+    )
