@@ -11,6 +11,7 @@ from radiopose.cli import main
 from radiopose.errors import InputError
 from radiopose.evaluate.experiments import SHIPPED, load_experiment, parse_experiment
 from radiopose.evaluate.runner import plan, run_seed
+from radiopose.tracker import PAPER_METHODS
 
 BASE = """
 name = "tiny"
@@ -43,7 +44,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 def test_shipped_experiments_load(quick):
     exps = {n: load_experiment(n, quick=quick) for n in SHIPPED}
     assert all(
-        e.methods == ("full", "location", "orientation", "top", "lms") for e in exps.values()
+        e.methods == (*PAPER_METHODS, "filter") for e in exps.values()
     )
     noise = exps["noise"]
     assert [dict(c.params)["noise_db"] for c in noise.conditions] == [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]

@@ -148,3 +148,38 @@ def test_paper_comparison_and_report(tmp_path):
     ]
     page = (tmp_path / "report.html").read_text(encoding="utf-8")
     assert page.count("data:image/png;base64,") == 2 and 'src="figures/' not in page
+
+
+def test_paper_comparison_sets_filter_beside_full(tmp_path):
+    """The Bayesian tracker's numbers stand beside ``full``'s in the paper table."""
+    df = _results()
+    flt = df[df["method"] == "full"].copy()
+    flt["method"] = "filter"
+    flt["position_mean_m"] = flt["position_mean_m"] / 2  # half of full's: 95 % / 70 % below lms
+    flt["orientation_mean_deg"] = 1.0
+    both = pd.concat([df, flt], ignore_index=True)
+    cmp = paper_comparison(both, np.random.default_rng(0)).set_index("noise_db")
+    assert cmp.loc[0.5, "orientation_deg_filter"] == pytest.approx(1.0)
+    assert cmp.loc[0.5, "reduction_pct_filter"] == pytest.approx(100 * (1 - 0.05))
+    assert cmp.loc[3.0, "reduction_pct_filter"] == pytest.approx(100 * (1 - 0.3))
+    assert cmp.loc[3.0, "coverage_filter"] == 1.0
+    # full's numbers are what they were without filter runs
+    alone = paper_comparison(df, np.random.default_rng(0)).set_index("noise_db")
+    assert cmp.loc[3.0, "reduction_pct"] == pytest.approx(alone.loc[3.0, "reduction_pct"])
+    assert np.isnan(alone.loc[3.0, "coverage_filter"])
+    exp = parse_experiment(
+        {
+            "name": "noise",
+            "seed": 1,
+            "runs": 4,
+            "methods": ["full", "top", "lms", "filter"],
+            "sweep": {"scenario": {"noise_db": [0.5, 3.0]}},
+            "figure": [{"kind": "error", "x": "noise_db", "quantity": "orientation"}],
+        },
+        "noise.toml",
+    )
+    info = RunInfo("radiopose evaluate noise -o out", "0.1.0", True, 8, ())
+    write_report(both, [exp], tmp_path, info)
+    md = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert "orientation, filter (°)" in md and "coverage of filter (%)" in md
+    assert "beyond the paper: `filter`" in md and "95.0 [" in md

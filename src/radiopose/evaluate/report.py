@@ -219,6 +219,34 @@ def _ci(value: float, low: float, high: float, digits: int) -> str:
     return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
+COMPARED: tuple[str, ...] = ("full", "filter")
+"""Methods set beside the paper's numbers: the paper's pipeline and the Bayesian tracker."""
+
+
+def _method_point(
+    at: pd.DataFrame, method: str, lms: pd.DataFrame, rng: np.random.Generator
+) -> dict[str, float]:
+    """One method's orientation (mean of run means, 95 % CI), its reduction of ``lms``'s
+    mean position error (paired bootstrap 95 % CI), coverage and mean position error."""
+    runs = at[at["method"] == method].set_index("seed")
+    o = mean_ci(runs["orientation_mean_deg"].to_numpy(float))
+    a, b = runs["position_mean_m"].align(lms["position_mean_m"], join="inner")
+    r = ratio_ci(a.to_numpy(float), b.to_numpy(float), rng)
+    return {
+        "orientation_deg": o.value,
+        "orientation_low_deg": max(o.low, 0.0),  # errors are >= 0
+        "orientation_high_deg": o.high,
+        "orientation_runs": o.n,
+        "reduction_pct": 100 * (1 - r.value),
+        "reduction_low_pct": 100 * (1 - r.high),
+        "reduction_high_pct": 100 * (1 - r.low),
+        "reduction_runs": r.n,
+        "coverage": float(runs["coverage"].mean()) if len(runs) else np.nan,
+        "position_m": float(a.mean()) if len(a) else np.nan,
+        "position_lms_m": float(b.mean()) if len(b) else np.nan,
+    }
+
+
 def paper_comparison(results: pd.DataFrame, rng: np.random.Generator) -> pd.DataFrame:
     """Ours beside the paper's, per σ of the ``noise`` experiment.
 
@@ -226,7 +254,9 @@ def paper_comparison(results: pd.DataFrame, rng: np.random.Generator) -> pd.Data
     per-run means, with 95 % CI), its mean position error reduction versus
     ``lms`` (ratio of means over runs paired by seed, bootstrap 95 % CI), the
     coverage of ``full`` and ``lms``, the runs used, and the paper's values
-    where it gives them (NaN elsewhere).
+    where it gives them (NaN elsewhere). The same numbers for ``filter`` (the
+    Bayesian tracker, beyond the paper) carry the suffix ``_filter``; they are
+    NaN where the results have no ``filter`` runs.
     """
     import pandas as pd
 
@@ -235,31 +265,21 @@ def paper_comparison(results: pd.DataFrame, rng: np.random.Generator) -> pd.Data
     rows = []
     for s in dict.fromkeys(df["noise_db"].tolist()):
         at = df[np.isclose(df["noise_db"].astype(float), float(s))]
-        full = at[at["method"] == "full"].set_index("seed")
         lms = at[at["method"] == "lms"].set_index("seed")
-        o = mean_ci(full["orientation_mean_deg"].to_numpy(float))
-        a, b = full["position_mean_m"].align(lms["position_mean_m"], join="inner")
-        r = ratio_ci(a.to_numpy(float), b.to_numpy(float), rng)
+        full = _method_point(at, "full", lms, rng)
         p = next((v for k, v in paper.items() if abs(k - float(s)) < 1e-9), None)
-        rows.append(
-            {
-                "noise_db": float(s),
-                "orientation_deg": o.value,
-                "orientation_low_deg": max(o.low, 0.0),  # errors are >= 0
-                "orientation_high_deg": o.high,
-                "orientation_runs": o.n,
-                "paper_orientation_deg": p.orientation_mean_deg if p else np.nan,
-                "reduction_pct": 100 * (1 - r.value),
-                "reduction_low_pct": 100 * (1 - r.high),
-                "reduction_high_pct": 100 * (1 - r.low),
-                "reduction_runs": r.n,
-                "paper_reduction_pct": p.position_reduction_pct if p else np.nan,
-                "coverage_full": float(full["coverage"].mean()) if len(full) else np.nan,
-                "coverage_lms": float(lms["coverage"].mean()) if len(lms) else np.nan,
-                "position_full_m": float(a.mean()) if len(a) else np.nan,
-                "position_lms_m": float(b.mean()) if len(b) else np.nan,
-            }
-        )
+        row = {
+            "noise_db": float(s),
+            **{k: v for k, v in full.items() if k not in ("coverage", "position_m")},
+            "paper_orientation_deg": p.orientation_mean_deg if p else np.nan,
+            "paper_reduction_pct": p.position_reduction_pct if p else np.nan,
+            "coverage_full": full["coverage"],
+            "coverage_lms": float(lms["coverage"].mean()) if len(lms) else np.nan,
+            "position_full_m": full["position_m"],
+        }
+        flt = _method_point(at, "filter", lms, rng)
+        row |= {f"{k}_filter": v for k, v in flt.items() if k != "position_lms_m"}
+        rows.append(row)
     return pd.DataFrame(rows)
 
 
@@ -309,6 +329,16 @@ def differences(cmp: pd.DataFrame) -> list[str]:
                 f"σ = {s:g} dB: `full` produced an estimate for "
                 f"{100 * r['coverage_full']:.1f} % of packets (`lms` "
                 f"{100 * r['coverage_lms']:.1f} %); errors are over those estimates only."
+            )
+        if math.isfinite(r.get("coverage_filter", math.nan)):
+            f = {k[: -len("_filter")]: v for k, v in r.items() if k.endswith("_filter")}
+            ori = _ci(f["orientation_deg"], f["orientation_low_deg"], f["orientation_high_deg"], 1)
+            red = _ci(f["reduction_pct"], f["reduction_low_pct"], f["reduction_high_pct"], 1)
+            out.append(
+                f"σ = {s:g} dB, beyond the paper: `filter` (the Bayesian tracker) has a mean "
+                f"orientation error of {ori}° and a mean position error "
+                f"({_f(f['position_m'], 2)} m) {red} % below `lms`'s, at "
+                f"{100 * f['coverage']:.1f} % coverage."
             )
     return out
 
@@ -529,6 +559,19 @@ def write_report(
                 _ci(r.reduction_pct, r.reduction_low_pct, r.reduction_high_pct, 1),
                 _f(r.paper_reduction_pct, 2),
                 _f(100 * r.coverage_full, 1),
+                _ci(
+                    r.orientation_deg_filter,
+                    r.orientation_low_deg_filter,
+                    r.orientation_high_deg_filter,
+                    1,
+                ),
+                _ci(
+                    r.reduction_pct_filter,
+                    r.reduction_low_pct_filter,
+                    r.reduction_high_pct_filter,
+                    1,
+                ),
+                _f(100 * r.coverage_filter, 1),
                 str(r.orientation_runs),
             ]
             for r in cmp.itertuples()
@@ -541,7 +584,9 @@ def write_report(
                 "orientation error of the full pipeline. Reduction: how much lower the full "
                 "pipeline's mean position error is than log-distance least squares (`lms`), "
                 "100 (1 − full / lms). Brackets: 95 % confidence intervals over runs. The "
-                "paper gives these numbers at σ = 0.5 and 3.0 dB only.",
+                "paper gives these numbers at σ = 0.5 and 3.0 dB only. The `filter` columns "
+                "are the Bayesian tracker (beyond the paper, docs/filter.md), offline with "
+                "its fixed-lag smoother, scored the same way.",
             ),
             (
                 "table",
@@ -552,6 +597,9 @@ def write_report(
                     "reduction vs lms, radiopose (%)",
                     "reduction vs lms, paper (%)",
                     "coverage of full (%)",
+                    "orientation, filter (°)",
+                    "reduction vs lms, filter (%)",
+                    "coverage of filter (%)",
                     "runs",
                 ],
                 rows,
