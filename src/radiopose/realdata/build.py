@@ -249,3 +249,25 @@ def import_tetam(
             extra = heldout_survey(ds, {tr.name}, settings.cell_m, settings.min_readings)
             write_site_dir(ds, d / "heldout-site", settings, extra)
     return ds.summary
+
+
+SHIPPED_FILTER_SETTINGS: tuple[tuple[str, float], ...] = (
+    ("huber_c", 1.0),
+    ("sigma_prior_db", 5.0),
+    ("sigma_floor_db", 5.0),
+    ("offset_prior_sd_db", 1.0),
+    ("accel_noise_mps2", 0.2),
+)
+"""The ``filter`` settings ``radiopose import tetam`` writes into ``site/tracker.toml``:
+the candidate that leave-one-track-out chose for most tracks (docs/real-data.md).
+The scored numbers never use this constant: each track's settings are chosen on
+the other tracks (:func:`radiopose.realdata.experiment.choose_filter_settings`)."""
+SHIPPED_SMOOTHING_LAG_S = 10.0
+"""The offline smoother's lag for this site (advertisements come every ~0.45 s)."""
+
+
+def shipped_import_settings() -> ImportSettings:
+    """The importer's settings with the site's tracker settings (``tracker.toml``)."""
+    return ImportSettings(
+        filter_settings=SHIPPED_FILTER_SETTINGS, smoothing_lag_s=SHIPPED_SMOOTHING_LAG_S
+    )
