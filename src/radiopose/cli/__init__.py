@@ -62,7 +62,16 @@ def _register() -> None:
     # Imported for their side effect of adding commands to ``app``.
     import importlib
 
-    for name in ("core", "patterns", "capture", "pipeline", "server", "evaluate", "security"):
+    for name in (
+        "core",
+        "patterns",
+        "capture",
+        "pipeline",
+        "server",
+        "evaluate",
+        "security",
+        "realdata",
+    ):
         try:
             importlib.import_module(f"radiopose.cli.{name}")
         except ModuleNotFoundError as exc:  # an area not written yet

@@ -200,8 +200,21 @@ def demo(
         ),
     ] = False,
     port: Annotated[int, typer.Option(help="--live: the server's port on 127.0.0.1.")] = 8000,
+    real: Annotated[
+        bool,
+        typer.Option(
+            "--real",
+            help="Real data instead: the shipped BLE tracking site (CC0) imported, every track "
+            "localised and drawn against its camera truth (docs/real-data.md).",
+        ),
+    ] = False,
 ) -> None:
     """Simulate the paper's standard scenario, localise it, and write figures and a table."""
+    if real:
+        from radiopose.realdata.demo import run_real_demo
+
+        run_real_demo(out, echo=print)
+        return
     if live:
         from radiopose.server.demo import run_live_demo
 

@@ -39,6 +39,8 @@ def locate(
     """Estimate position and orientation of every packet; write ESTIMATES.csv.
 
     The run summary (packets in, estimates out, skips with reasons) goes to stderr.
+    A site may carry its own noise and motion priors for ``filter`` in
+    SITE/tracker.toml (docs/real-data.md); they are used and named on stderr.
     """
     from radiopose.errors import InputError
     from radiopose.estimates import write_estimates_csv
@@ -47,6 +49,7 @@ def locate(
     from radiopose.site import load_site
     from radiopose.tracker import METHODS, TrackerConfig
     from radiopose.tracker import locate as run_locate
+    from radiopose.tracker_settings import load_site_tracker_settings
 
     if method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -55,6 +58,14 @@ def locate(
     the_site = load_site(site)
     pk = read_packets_csv(packets)
     config = TrackerConfig(kernel=kernel)
+    overrides, lag_s, settings_path = load_site_tracker_settings(site)
+    if settings_path is not None:
+        config = replace(
+            config,
+            filter=replace(config.filter, **overrides),
+            smoothing_lag_s=config.smoothing_lag_s if lag_s is None else lag_s,
+        )
+        print(f"tracker settings from {settings_path}", file=sys.stderr)
     if acquisition_window_ms is not None:
         config = replace(config, acquisition_window_s=acquisition_window_ms / 1000.0)
     show = not quiet and sys.stderr.isatty()

@@ -1,0 +1,98 @@
+"""Optional per-site tracker settings: ``SITE/tracker.toml``.
+
+A site may carry the noise and motion priors that suit it (a real site's RSS
+noise and a walking person's motion differ from the simulator's). The file is
+optional; ``radiopose locate`` reads it when present and says so. Format::
+
+    smoothing_lag_s = 10.0      # the filter's fixed lag in batch runs (optional)
+
+    [filter]                    # any field of radiopose.filtering.FilterConfig
+    huber_c = 1.0
+    sigma_prior_db = 5.0
+
+Every key is checked: an unknown key or a value out of range is a one-line
+error naming the file, line and key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+
+from radiopose.config import Section, load_toml
+from radiopose.errors import InputError
+from radiopose.filtering import FilterConfig
+
+FILE_NAME = "tracker.toml"
+
+
+def _filter_fields() -> dict[str, type]:
+    return {f.name: type(f.default) for f in dataclasses.fields(FilterConfig)}
+
+
+def read_tracker_toml(
+    path: str | os.PathLike[str],
+) -> tuple[dict[str, float | int], float | None]:
+    """``(filter overrides, smoothing_lag_s or None)`` from a ``tracker.toml``.
+
+    Raises
+    ------
+    InputError
+        Syntax errors, unknown keys, non-numbers, values FilterConfig rejects.
+    """
+    doc = load_toml(path)
+    root = Section(doc, path)
+    lag = root.number("smoothing_lag_s", None, low=0.0, high=3600.0)
+    sec = root.section("filter", required=False)
+    kinds = _filter_fields()
+    overrides: dict[str, float | int] = {}
+    for key in list(sec.data):
+        kind = kinds.get(key)
+        if kind is int:
+            overrides[key] = sec.integer(key, low=1, high=10_000_000)
+        elif kind is float:
+            overrides[key] = sec.number(key, low=-1e6, high=1e6)
+    sec.finish()
+    root.finish()
+    try:
+        dataclasses.replace(FilterConfig(), **overrides)
+    except InputError as exc:  # the dataclass names the field; add the file
+        raise InputError(exc.reason, path=path, column="filter") from None
+    return overrides, lag
+
+
+def load_site_tracker_settings(
+    site_dir: str | os.PathLike[str],
+) -> tuple[dict[str, float | int], float | None, Path | None]:
+    """The overrides of ``SITE/tracker.toml`` (empty, None, None if there is none)."""
+    p = Path(site_dir) / FILE_NAME
+    if not p.is_file():
+        return {}, None, None
+    overrides, lag = read_tracker_toml(p)
+    return overrides, lag, p
+
+
+def write_tracker_toml(
+    path: str | os.PathLike[str],
+    overrides: Mapping[str, float | int],
+    smoothing_lag_s: float | None = None,
+    comment: str = "",
+) -> None:
+    """Write a ``tracker.toml`` (values must be FilterConfig fields)."""
+    kinds = _filter_fields()
+    lines = [f"# {comment}"] if comment else []
+    if smoothing_lag_s is not None:
+        lines.append(f"smoothing_lag_s = {float(smoothing_lag_s)!r}")
+    lines.append("")
+    lines.append("[filter]")
+    for key, value in overrides.items():
+        if key not in kinds:
+            raise ValueError(f"{key!r} is not a FilterConfig field")
+        v = int(value) if kinds[key] is int else float(value)
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(f"{key} = {v!r} is not finite")
+        lines.append(f"{key} = {v!r}")
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
