@@ -17,10 +17,12 @@ from hypothesis import strategies as st
 from radiopose.capture.records import (
     PLAUSIBLE_RSS_DBM,
     SKIP_REASONS,
+    canonical_transmitter,
     read_capture,
     read_capture_csv,
     read_pcap,
     receiver_id_from_path,
+    transmitter_id_problem,
 )
 from radiopose.capture.writer import probe_request, radiotap_header, write_receiver_pcaps
 from radiopose.errors import InputError
@@ -560,7 +562,10 @@ def test_csv_capture_form(tmp_path: Path) -> None:
     ("row", "message"),
     [
         (f"rx1,1,{_H[:-1]},aa:bb:cc:dd:ee:ff,-50", r"cap.csv:2, column 'frame_sha256'"),
-        (f"rx1,1,{_H},aa:bb:cc:dd:ee,-50", r"cap.csv:2, column 'transmitter'"),
+        # a transmitter id has no whitespace or commas (contract); a name is fine
+        (f"rx1,1,{_H},my phone,-50", r"cap.csv:2, column 'transmitter'.*whitespace"),
+        (f'rx1,1,{_H},"a,b",-50', r"cap.csv:2, column 'transmitter'.*commas"),
+        (f'rx1,1,{_H},"",-50', r"cap.csv:2, column 'transmitter'"),
         (f"rx1,x,{_H},aa:bb:cc:dd:ee:ff,-50", r"cap.csv:2, column 'timestamp_s'"),
         (f"rx1,1,{_H},aa:bb:cc:dd:ee:ff,nan", r"cap.csv:2, column 'rss_dbm'"),
         # beyond int64 nanoseconds (year 2262): an error, not a wrapped time
@@ -617,3 +622,32 @@ def test_writer_files_are_real_80211_behind_radiotap(tmp_path: Path) -> None:
     assert list(f1.rss_dbm) == [-55.0, -56.0]
     assert f2.antenna_rss_dbm[0] == ((0, -63), (1, -66))
     assert int(f1.timestamp_ns[0]) == 1001_000_000_000
+
+
+def test_csv_capture_accepts_the_ids_of_devices_csv(tmp_path: Path) -> None:
+    """Contract: a transmitter id is any string without commas or whitespace; a MAC is
+    normalised (lower case, ':'), a name only lower-cased (matching is case-insensitive)."""
+    p = tmp_path / "cap.csv"
+    p.write_text(
+        "receiver_id,timestamp_s,frame_sha256,transmitter,rss_dbm\n"
+        f"rx1,1,{_H},phone,-50\nrx1,2,{_H},AA-BB-CC-DD-EE-FF,-51\nrx1,3,{_H},my-Tag_2,-52\n"
+    )
+    f = read_capture_csv(p).frames
+    assert list(f.transmitter) == ["phone", "aa:bb:cc:dd:ee:ff", "my-tag_2"]
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.text(min_size=0, max_size=80))
+def test_transmitter_id_rule(value: str) -> None:
+    problem = transmitter_id_problem(value)
+    ok = (
+        0 < len(value) <= 64
+        and "," not in value
+        and not any(c.isspace() for c in value)
+        and value.isprintable()
+    )
+    assert (problem is None) == ok
+    if ok:
+        c = canonical_transmitter(value)
+        assert canonical_transmitter(c) == c and c.lower() == c
+        assert transmitter_id_problem(c) is None

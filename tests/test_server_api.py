@@ -225,7 +225,12 @@ def test_admin_edits_are_validated_whole(server: Running, tiny) -> None:
         ),
         ("DELETE", "/api/v1/admin/patterns/rx1", None, "rx1"),
         ("PUT", "/api/v1/admin/survey", {"csv": "x_m,y_m\n1,2\n"}, "survey.csv"),
-        ("PUT", "/api/v1/admin/devices/zz", {"pattern": "device", "tx_power_dbm": 1}, "MAC"),
+        (
+            "PUT",
+            "/api/v1/admin/devices/a%2Cb",
+            {"pattern": "device", "tx_power_dbm": 1},
+            "transmitter id",
+        ),
     ]
     for method, path, body, words in bad:
         r = admin.request(method, path, json=body)
@@ -257,6 +262,18 @@ def test_admin_edits_are_validated_whole(server: Running, tiny) -> None:
     body = _batch(tiny, n=1, batch_id="new-device")
     body["frames"][0]["transmitter"] = "02:00:00:00:00:42"
     assert server.client(server.tokens["rx1"]).post("/api/v1/reports", json=body).status_code == 201
+    # contract: a transmitter id is any string without commas or whitespace (a simulated
+    # device's name): it can be enrolled and report, matched case-insensitively
+    r = admin.put("/api/v1/admin/devices/phone-2", json={"pattern": "device", "tx_power_dbm": 12.0})
+    assert r.status_code == 200
+    body = _batch(tiny, n=1, batch_id="named-device")
+    body["frames"][0]["transmitter"] = "Phone-2"
+    assert server.client(server.tokens["rx1"]).post("/api/v1/reports", json=body).status_code == 201
+    assert "phone-2" in server.client(server.tokens["viewer"]).get("/api/v1/transmitters").json()
+    body["frames"][0]["transmitter"] = "phone 2"
+    body["batch_id"] = "spaced"
+    r = server.client(server.tokens["rx1"]).post("/api/v1/reports", json=body)
+    assert r.status_code == 422 and "transmitter" in r.json()["detail"]
 
 
 _json = st.recursive(

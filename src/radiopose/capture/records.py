@@ -154,6 +154,28 @@ _CONTROL_WITHOUT_TA = frozenset((0, 1, 3, 6, 7, 12, 13))
 
 _HEX64 = re.compile(r"^[0-9a-fA-F]{64}$")
 _MAC = re.compile(r"^[0-9a-fA-F]{2}([:-][0-9a-fA-F]{2}){5}$")
+MAX_TRANSMITTER_ID_CHARS = 64
+
+
+def transmitter_id_problem(value: str) -> str | None:
+    """Why ``value`` is not a transmitter id, or ``None`` if it is one.
+
+    The contract: any string without commas or whitespace (a MAC address for
+    real devices, a name such as ``phone`` in simulations); here also printable
+    and 1–64 characters.
+    """
+    if not 0 < len(value) <= MAX_TRANSMITTER_ID_CHARS:
+        return f"a transmitter id has 1-{MAX_TRANSMITTER_ID_CHARS} characters, got {len(value)}"
+    if "," in value or any(c.isspace() for c in value) or not value.isprintable():
+        return f"not a transmitter id (no commas, whitespace or control characters): {value[:40]!r}"
+    return None
+
+
+def canonical_transmitter(value: str) -> str:
+    """The form transmitters are matched and stored in (case-insensitive ids): a MAC
+    address lower case with ``:`` separators (``AA-BB-…`` → ``aa:bb:…``), any other
+    id lower case."""
+    return value.lower().replace("-", ":") if _MAC.match(value) else value.lower()
 
 
 # --------------------------------------------------------------------------
@@ -688,14 +710,16 @@ def read_capture_csv(path: str | os.PathLike[str]) -> Capture:
 
     Columns ``receiver_id, timestamp_s, frame_sha256, transmitter, rss_dbm``;
     one file may hold several receivers. ``frame_sha256`` must be 64 hex
-    digits and ``transmitter`` a MAC address (both normalised to lowercase,
-    ``:``-separated). Rows with an implausible RSS are skipped and counted
-    like pcap frames. Timestamps are rounded to the nearest nanosecond.
+    digits and ``transmitter`` a transmitter id (the contract: no commas or
+    whitespace; a MAC address is normalised to lowercase, ``:``-separated, any
+    other id to lowercase, :func:`canonical_transmitter`). Rows with an
+    implausible RSS are skipped and counted like pcap frames. Timestamps are
+    rounded to the nearest nanosecond.
 
     Raises
     ------
     InputError
-        Any table error (file, line, column), a bad hash or MAC address.
+        Any table error (file, line, column), a bad hash or transmitter id.
     """
     t = read_table(path, CSV_CAPTURE_COLUMNS)
     n = len(t)
@@ -704,8 +728,9 @@ def read_capture_csv(path: str | os.PathLike[str]) -> Capture:
     for i in range(n):
         if not _HEX64.match(hashes[i]):
             raise t.error(i, "frame_sha256", f"not a SHA-256 hex digest: {hashes[i][:70]!r}")
-        if not _MAC.match(macs[i]):
-            raise t.error(i, "transmitter", f"not a MAC address: {macs[i][:40]!r}")
+        problem = transmitter_id_problem(macs[i])
+        if problem:
+            raise t.error(i, "transmitter", problem)
     rx = t["receiver_id"]
     rss = t["rss_dbm"]
     ok = (rss >= _LO_DBM) & (rss <= _HI_DBM)
@@ -713,7 +738,7 @@ def read_capture_csv(path: str | os.PathLike[str]) -> Capture:
         rx[ok],
         seconds_to_ns(t["timestamp_s"][ok]),
         np.asarray([h.lower() for h in hashes[ok]], dtype=object).reshape(-1),
-        np.asarray([m.lower().replace("-", ":") for m in macs[ok]], dtype=object).reshape(-1),
+        np.asarray([canonical_transmitter(m) for m in macs[ok]], dtype=object).reshape(-1),
         rss[ok].astype(np.float64),
     )
     stats = []

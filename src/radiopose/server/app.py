@@ -47,6 +47,7 @@ from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from radiopose.capture.records import canonical_transmitter, transmitter_id_problem
 from radiopose.errors import InputError
 from radiopose.server import sitestore
 from radiopose.server.auth import READ_ROLES, Principal, hash_token
@@ -302,7 +303,10 @@ def create_app(
             raise HTTPException(422, f"unknown receiver {batch.receiver_id!r}")
         rows = []
         for i, f in enumerate(batch.frames):
-            mac = f.transmitter.lower().replace("-", ":")
+            problem = transmitter_id_problem(f.transmitter)
+            if problem:
+                raise HTTPException(422, f"frames[{i}]: {problem}")
+            mac = canonical_transmitter(f.transmitter)
             if mac not in transmitters:
                 raise HTTPException(422, f"frames[{i}]: transmitter {mac} is not enrolled")
             rows.append(
@@ -425,8 +429,10 @@ def create_app(
     @app.put(f"{API}/admin/devices/{{transmitter}}", response_model=SiteOut)
     def put_device(transmitter: str, body: DeviceIn, who: Admin) -> SiteOut:
         """Enrol or update a device."""
-        _check_mac(transmitter)
-        tx = transmitter.lower().replace("-", ":")
+        problem = transmitter_id_problem(transmitter)
+        if problem:
+            raise HTTPException(422, problem)
+        tx = canonical_transmitter(transmitter)
 
         def change(p: dict[str, Any]) -> dict[str, Any]:
             dev = [d for d in p["devices"] if d["transmitter"].lower() != tx]
@@ -438,7 +444,7 @@ def create_app(
     @app.delete(f"{API}/admin/devices/{{transmitter}}", response_model=SiteOut)
     def delete_device(transmitter: str, who: Admin) -> SiteOut:
         """Remove an enrolled device."""
-        tx = transmitter.lower().replace("-", ":")
+        tx = canonical_transmitter(transmitter)
 
         def change(p: dict[str, Any]) -> dict[str, Any]:
             dev = [d for d in p["devices"] if d["transmitter"].lower() != tx]
@@ -507,16 +513,9 @@ def _check_id(value: str) -> None:
         )
 
 
-def _check_mac(value: str) -> None:
-    import re
-
-    if not re.fullmatch(r"[0-9a-fA-F]{2}([:-][0-9a-fA-F]{2}){5}", value):
-        raise HTTPException(422, f"{value[:40]!r} is not a MAC address")
-
-
 def _known(db: Database) -> tuple[set[str], set[str]]:
     receivers, transmitters = db.known_ids()
-    return set(receivers), {t.lower().replace("-", ":") for t in transmitters}
+    return set(receivers), {canonical_transmitter(t) for t in transmitters}
 
 
 def _drop_survey_rows(csv_text: str, receiver_id: str) -> str:

@@ -6,7 +6,8 @@ stores nothing:
 
 * at most :data:`MAX_FRAMES_PER_BATCH` frames and :data:`MAX_BODY_BYTES` bytes;
 * ``timestamp_s`` finite, ``0 <= t <= 1e11`` s (the receiver's own clock);
-* ``frame_sha256`` 64 hex digits, ``transmitter`` a MAC address;
+* ``frame_sha256`` 64 hex digits, ``transmitter`` a transmitter id (1–64
+  printable characters, no commas or whitespace: a MAC address or a name);
 * ``rss_dbm`` finite within :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`.
 
 Receiver and transmitter ids must also be known to the site; that is checked
@@ -19,7 +20,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from radiopose.capture.records import PLAUSIBLE_RSS_DBM
+from radiopose.capture.records import MAX_TRANSMITTER_ID_CHARS, PLAUSIBLE_RSS_DBM
 
 MAX_FRAMES_PER_BATCH = 5_000
 MAX_BODY_BYTES = 2_000_000
@@ -38,7 +39,9 @@ class FrameReport(BaseModel):
 
     timestamp_s: Annotated[float, Field(ge=0.0, le=MAX_TIMESTAMP_S, allow_inf_nan=False)]
     frame_sha256: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{64}$")]
-    transmitter: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{2}([:-][0-9a-fA-F]{2}){5}$")]
+    transmitter: Annotated[
+        str, Field(min_length=1, max_length=MAX_TRANSMITTER_ID_CHARS, pattern=r"^[^\s,]+$")
+    ]
     rss_dbm: Annotated[
         float,
         Field(ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),
