@@ -54,7 +54,7 @@ def mse_map_db2(
         heard = HeardRss(heard.receiver_index[sel], heard.rss_dbm[sel])
     n_pos, n_o = space.n_positions, space.n_orientations
     xs = np.unique(space.positions_m[:, 0])
-    if hasattr(table, "position_mse_db2"):  # the compiled scorer's shift tables
+    if table is not None and table.supports_position_mse:  # the compiled scorer's tables
         return np.asarray(table.position_mse_db2(heard), np.float64).reshape(xs.size, -1)
     if table is not None:
         acc = np.zeros(space.n_candidates, dtype=np.float32)

@@ -18,7 +18,9 @@ def locate(
     site: Annotated[Path, typer.Argument(help="Site directory (site.toml, receivers.csv, …).")],
     packets: Annotated[Path, typer.Argument(help="Synchronised packets.csv.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Estimates CSV to write.")],
-    method: Annotated[str, typer.Option(help="full, location, orientation, top or lms.")] = "full",
+    method: Annotated[
+        str, typer.Option(help="full, location, orientation, top, lms or filter.")
+    ] = "full",
     kernel: Annotated[
         str,
         typer.Option(

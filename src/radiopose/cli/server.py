@@ -53,7 +53,20 @@ def serve(
     ] = DEFAULT_DB,
     host: Annotated[str, typer.Option(help="Address to listen on.")] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="TCP port.")] = 8000,
-    method: Annotated[str, typer.Option(help="Tracker method.")] = "full",
+    method: Annotated[
+        str | None,
+        typer.Option(
+            help="Tracker method: full, location, orientation, top, lms or filter "
+            "(default: radiopose.tracker.DEFAULT_LIVE_METHOD, full)."
+        ),
+    ] = None,
+    live_lag_s: Annotated[
+        float,
+        typer.Option(
+            "--live-lag-s",
+            help="Fixed lag of the filter's smoother, s (0: causal; at most 0.25).",
+        ),
+    ] = 0.25,
     partition: Annotated[
         str, typer.Option(help="K/N: track the K-th of N transmitter partitions.")
     ] = "0/1",
@@ -77,11 +90,13 @@ def serve(
     """The central server: API, live localisation and dashboard (Ctrl-C stops)."""
     from radiopose.server.app import create_app, import_site_dir
     from radiopose.server.jsonlog import configure_logging
-    from radiopose.server.live import LiveConfig
+    from radiopose.server.live import MAX_LIVE_LAG_S, LiveConfig
     from radiopose.tracker import METHODS
 
-    if method not in METHODS:
+    if method is not None and method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not 0 <= live_lag_s <= MAX_LIVE_LAG_S:
+        raise InputError(f"--live-lag-s must lie in [0, {MAX_LIVE_LAG_S}], got {live_lag_s!r}")
     k, n = _partition(partition)
     if (ssl_certfile is None) != (ssl_keyfile is None):
         raise InputError("--ssl-certfile and --ssl-keyfile go together")
@@ -102,6 +117,7 @@ def serve(
     print(f"serving on {scheme}://{host}:{port}/ (API docs: /docs)", flush=True)
     live = LiveConfig(
         method=method,
+        live_lag_s=live_lag_s,
         partition=k,
         partitions=n,
         calibration_s=calibration_s,

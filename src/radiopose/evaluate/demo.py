@@ -16,13 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from radiopose.estimates import POSITION_ONLY_METHODS, Estimates, write_estimates_csv
+from radiopose.estimates import Estimates, write_estimates_csv
 from radiopose.evaluate.scoring import ErrorStats, error_stats, match_truth
 from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import MemoScorer, Scorer, TableScorer, candidate_space, make_scorer
 from radiopose.packets import group_packets
 from radiopose.simulate import Simulation
-from radiopose.tracker import METHODS, RunSummary, TrackerConfig, locate
+from radiopose.tracker import METHOD_NAMES, METHODS, RunSummary, TrackerConfig, locate
+from radiopose.tracker import needs_scorer as tracker_needs_scorer
 from radiopose.units import FloatArray
 
 
@@ -65,7 +66,7 @@ def build_scorer(sim: Simulation, kernel: str = "numpy") -> Scorer:
 
 def run_methods(
     sim: Simulation,
-    methods: Sequence[str] = METHODS,
+    methods: Sequence[str] = METHOD_NAMES,
     config: TrackerConfig | None = None,
     scorer: Scorer | None = None,
     progress: Callable[[str, int, int], None] | None = None,
@@ -77,7 +78,7 @@ def run_methods(
     sim
         The simulation (its site, packets and truth).
     methods
-        Methods to run (default all five).
+        Names of :data:`radiopose.tracker.METHODS` to run (default: all).
     config
         Pipeline parameters (paper defaults).
     scorer
@@ -88,7 +89,7 @@ def run_methods(
     """
     cfg = config or TrackerConfig()
     tx = sim.site.devices[0].transmitter
-    needs_scorer = any(m != "lms" for m in methods)
+    needs_scorer = any(tracker_needs_scorer(METHODS[m]) for m in methods)
     scorers = None
     if needs_scorer:
         inner = scorer if scorer is not None else build_scorer(sim, cfg.kernel)
@@ -101,7 +102,7 @@ def run_methods(
         est = res.estimates
         idx = match_truth(sim.truth, est)
         pos = np.linalg.norm(est.position_m - sim.truth.position_m[idx], axis=1)
-        if m in POSITION_ONLY_METHODS or len(est) == 0:
+        if not METHODS[m].estimates_orientation or len(est) == 0:
             ori = np.empty(0)
         else:
             ori = orientation_error_deg(est.orientation_deg, sim.truth.orientation_deg[idx])
@@ -203,8 +204,8 @@ def run_demo_pipeline(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scorer = build_scorer(sim, (config or TrackerConfig()).kernel)
-    runs = run_methods(sim, METHODS, config, scorer)
-    rows = [summarise([runs[m]], sim.config.noise_db) for m in METHODS]
+    runs = run_methods(sim, METHOD_NAMES, config, scorer)
+    rows = [summarise([runs[m]], sim.config.noise_db) for m in METHOD_NAMES]
     say(format_table(rows))
     written: list[Path] = []
     for m, r in runs.items():
@@ -214,7 +215,7 @@ def run_demo_pipeline(
 
     first = group_packets(sim.packets)[0]
     inner = getattr(scorer, "inner", scorer)
-    fast = isinstance(inner, TableScorer) or hasattr(inner, "position_mse_db2")
+    fast = isinstance(inner, TableScorer) or inner.supports_position_mse
     table = inner if fast else None
     fig = plots.mse_map_figure(
         scorer.space, first, truth_xy_m=sim.truth.position_m[0, :2], table=table

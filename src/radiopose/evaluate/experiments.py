@@ -58,7 +58,7 @@ from typing import Any, Literal
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
 from radiopose.simulate import MotionConfig, ScenarioConfig
-from radiopose.tracker import METHODS, TrackerConfig
+from radiopose.tracker import METHOD_NAMES, METHODS, TrackerConfig
 
 SHIPPED: tuple[str, ...] = ("noise", "receivers", "interval", "motion", "bounds")
 """The paper's experiments, in the order of the report."""
@@ -443,8 +443,11 @@ def _check_figures(
             raise InputError(
                 f"key '{key}.methods': with hue = {hue!r} name exactly one method", path=path
             )
-        if d["quantity"] == "orientation" and chosen and "lms" in chosen:
-            raise InputError(f"key '{key}.methods': lms has no orientation", path=path)
+        no_orientation = [m for m in chosen or () if not METHODS[m].estimates_orientation]
+        if d["quantity"] == "orientation" and no_orientation:
+            raise InputError(
+                f"key '{key}.methods': {no_orientation[0]} has no orientation", path=path
+            )
         if d["kind"] == "reduction":
             base = d.get("baseline") or ("lms" if d["quantity"] == "position" else "top")
             if base not in methods:
@@ -498,7 +501,7 @@ def parse_experiment(doc: dict[str, Any], path: str, quick: bool = False) -> Exp
     description = root.string("description", "")
     seed = root.integer("seed", required=True, low=0, high=2**63 - 1)
     runs = root.integer("runs", 10, low=1, high=100_000)
-    methods = _read_methods(root, "methods") if root.has("methods") else METHODS
+    methods = _read_methods(root, "methods") if root.has("methods") else METHOD_NAMES
     kernel = root.string("kernel", KERNEL_AUTO)
     _check_kernel(root, kernel)
 

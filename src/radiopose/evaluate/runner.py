@@ -46,7 +46,7 @@ import numpy as np
 from radiopose.errors import InputError, RadioposeError
 from radiopose.evaluate.experiments import KERNEL_AUTO, Experiment, format_value
 from radiopose.simulate import ScenarioConfig
-from radiopose.tracker import TrackerConfig
+from radiopose.tracker import METHODS, TrackerConfig, needs_scorer
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -215,10 +215,11 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     scorer = None
     kernel_name = ""
     scoring_s = 0.0
-    if any(m != "lms" for m in task.methods):
+    scored = {m: needs_scorer(METHODS[m]) for m in task.methods}
+    if any(scored.values()):
         tx = sim.site.devices[0].transmitter
         inner = fastest_scorer(task.kernel, candidate_space(sim.site, tx))
-        kernel_name = str(getattr(inner, "name", type(inner).__name__))
+        kernel_name = inner.name
         scorer = MemoScorer(inner)
         # Score every packet once up front, so that method run times exclude it.
         ts = time.perf_counter()
@@ -266,9 +267,9 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
                 "orientation_median_deg": _nan(ori.median),
                 "orientation_p95_deg": _nan(ori.p95),
                 "run_time_s": r.summary.elapsed_s,
-                "scoring_s": 0.0 if m == "lms" else scoring_s,
+                "scoring_s": scoring_s if scored[m] else 0.0,
                 "task_s": task_s,
-                "kernel": "" if m == "lms" else kernel_name,
+                "kernel": kernel_name if scored[m] else "",
                 "task_key": task.key,
             }
         )

@@ -24,6 +24,7 @@ import numpy as np
 from scipy import stats
 
 from radiopose.evaluate.experiments import FigureSpec
+from radiopose.tracker import METHODS
 from radiopose.units import FloatArray
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -117,7 +118,7 @@ def spec_methods(spec: FigureSpec, methods: list[str]) -> list[str]:
     """The methods a figure shows (position-only methods dropped for orientation)."""
     chosen = list(spec.methods) if spec.methods else list(methods)
     if spec.quantity == "orientation":
-        chosen = [m for m in chosen if m != "lms"]
+        chosen = [m for m in chosen if m not in METHODS or METHODS[m].estimates_orientation]
     if spec.kind == "reduction" and spec.hue == "method":
         chosen = [m for m in chosen if m != spec.baseline_method]
     return chosen

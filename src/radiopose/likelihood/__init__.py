@@ -29,6 +29,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Protocol
 
+import numpy as np
+
 from radiopose.likelihood.candidates import (
     CandidateSpace,
     HeardRss,
@@ -37,6 +39,7 @@ from radiopose.likelihood.candidates import (
     exact_mse_db2,
     expected_rss_dbm,
 )
+from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.memo import MemoScorer
 from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.likelihood.reference import ReferenceScorer
@@ -45,14 +48,36 @@ from radiopose.packets import PacketObservation
 
 
 class Scorer(Protocol):
-    """What the tracker needs from a scorer."""
+    """What the tracker needs from a scorer.
+
+    Every scorer offers ``score_heard``/``score_topk``. The optional features
+    are declared, not probed (:mod:`~radiopose.likelihood.capabilities`):
+    ``supports_window`` says whether :meth:`score_window` works (the compiled
+    scorer; the tracker's bounded search needs it), ``supports_position_mse``
+    whether :meth:`position_mse_db2` does (MSE maps). A scorer without them
+    inherits :class:`~radiopose.likelihood.capabilities.ScorerBase`: both
+    ``False``, the methods raise ``NotImplementedError``.
+    """
 
     name: str
     space: CandidateSpace
+    supports_window: bool
+    supports_position_mse: bool
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK: ...
 
     def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK: ...
+
+    def score_window(
+        self,
+        heard: HeardRss,
+        k: int,
+        positions: np.ndarray,
+        azimuth_lo_deg: float,
+        azimuth_span_deg: float,
+    ) -> TopK: ...
+
+    def position_mse_db2(self, heard: HeardRss) -> np.ndarray: ...
 
 
 def _compiled(space: CandidateSpace) -> Scorer:
@@ -89,6 +114,7 @@ __all__ = [
     "MemoScorer",
     "ReferenceScorer",
     "Scorer",
+    "ScorerBase",
     "TableScorer",
     "TopK",
     "candidate_mse_db2",

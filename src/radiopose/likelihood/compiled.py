@@ -64,6 +64,7 @@ from numpy.typing import NDArray
 
 from radiopose.geometry import direction_to_pattern_angles_deg
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
+from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
@@ -555,7 +556,7 @@ def _window_tables(rv: NDArray, m: int, block: int, length: int, n_az: int) -> t
     )
 
 
-class ShiftScorer:
+class ShiftScorer(ScorerBase):
     """Compiled circular-shift scorer (see module docstring).
 
     Parameters
@@ -581,6 +582,8 @@ class ShiftScorer:
     """
 
     name = "numba"
+    supports_window = True
+    supports_position_mse = True
 
     def __init__(
         self,

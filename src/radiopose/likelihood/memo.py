@@ -18,20 +18,25 @@ class MemoScorer:
     Parameters
     ----------
     inner
-        Any scorer (``score_heard``/``score_topk``); its ``score_window``, if
-        any, is exposed unchanged.
+        Any scorer (:class:`~radiopose.likelihood.Scorer`); its declared
+        features (``supports_window``, ``supports_position_mse``) and their
+        methods are passed through unchanged; a feature it lacks is absent.
     """
 
     def __init__(self, inner: object) -> None:
         self.inner = inner
-        self.name = f"memo({getattr(inner, 'name', '?')})"
+        self.name = f"memo({inner.name})"  # type: ignore[attr-defined]
         self.space: CandidateSpace = inner.space  # type: ignore[attr-defined]
+        self.supports_window: bool = bool(inner.supports_window)  # type: ignore[attr-defined]
+        self.supports_position_mse: bool = bool(inner.supports_position_mse)  # type: ignore[attr-defined]
         self._cache: dict[tuple, TopK] = {}
-        window = getattr(inner, "score_window", None)
-        if window is not None:
-            # Bounded search (``TrackerConfig(search="bounded")``): the window depends
-            # on each method's own track, so it is passed through, not remembered.
-            self.score_window = window
+        # The optional features are the inner scorer's own methods, present only
+        # where declared (a bounded search's window depends on each method's
+        # own track, so it is passed through, not remembered).
+        if self.supports_window:
+            self.score_window = inner.score_window  # type: ignore[attr-defined]
+        if self.supports_position_mse:
+            self.position_mse_db2 = inner.position_mse_db2  # type: ignore[attr-defined]
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
         key = (tuple(heard.receiver_index.tolist()), heard.rss_dbm.tobytes(), k)

@@ -45,6 +45,7 @@ from radiopose.likelihood.candidates import (
     directivity_dbi,
     exact_mse_db2,
 )
+from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
 
@@ -106,7 +107,7 @@ def build_table(space: CandidateSpace, chunk_terms: int = 4_000_000) -> tuple[np
     return table, centre, valid, gmax
 
 
-class TableScorer:
+class TableScorer(ScorerBase):
     """Vectorised numpy scorer (see module docstring).
 
     Parameters

@@ -14,11 +14,12 @@ from __future__ import annotations
 import numpy as np
 
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
+from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.topk import TopK, merge_topk, select_topk
 from radiopose.packets import PacketObservation
 
 
-class ReferenceScorer:
+class ReferenceScorer(ScorerBase):
     """Exhaustive float64 scorer (see module docstring).
 
     Parameters

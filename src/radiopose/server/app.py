@@ -330,14 +330,16 @@ def create_app(
         return sorted(_known(db)[1])
 
     # ------------------------------------------------------------------ estimates
-    @app.get(f"{API}/estimates", response_model=list[Estimate])
+    @app.get(f"{API}/estimates", response_model=list[Estimate], response_model_exclude_none=True)
     def estimates(
         who: Viewer,
         transmitter: Annotated[str | None, Query(max_length=64)] = None,
         since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
         limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
     ) -> list[dict[str, Any]]:
-        """Estimates (columns of ``estimates.csv``) in time order."""
+        """Estimates (columns of ``estimates.csv``) in time order; the optional
+        uncertainty columns (``position_std_m``, ``azimuth_std_deg``) where the
+        method gives them."""
         return db.estimates(transmitter, since_s, limit=limit)
 
     @app.get(f"{API}/stream")
@@ -538,7 +540,8 @@ def _drop_survey_rows(csv_text: str, receiver_id: str) -> str:
 
 
 def _public(row: dict[str, Any]) -> dict[str, Any]:
-    return {k: row[k] for k in Estimate.model_fields}
+    """An estimate's JSON object: the contract columns, and the optional ones when set."""
+    return {k: row[k] for k in Estimate.model_fields if row.get(k) is not None}
 
 
 def _sse(event: str, data: Any) -> str:

@@ -46,6 +46,7 @@ from sqlalchemy import (
     event,
     func,
     insert,
+    inspect,
     select,
     text,
 )
@@ -160,6 +161,9 @@ class EstimateRow(Base):
     method: Mapped[str] = mapped_column(String(16))
     last_report_s: Mapped[float] = mapped_column(Float)
     estimated_s: Mapped[float] = mapped_column(Float)
+    # optional uncertainty columns (added by migration to databases created before them)
+    position_std_m: Mapped[float | None] = mapped_column(Float, nullable=True)
+    azimuth_std_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
 
 
 class CheckpointRow(Base):
@@ -173,6 +177,14 @@ class CheckpointRow(Base):
 
 ESTIMATE_FIELDS = tuple(c.name for c in ESTIMATE_COLUMNS)
 """The ``estimates.csv`` columns, in contract order: the fields of an estimate row."""
+ESTIMATE_STD_FIELDS = ("position_std_m", "azimuth_std_deg")
+"""The optional trailing uncertainty columns of ``estimates.csv`` (``NULL`` where a
+method gives none)."""
+_ADDED_COLUMNS: tuple[tuple[str, str], ...] = tuple(
+    ("estimates", name) for name in ESTIMATE_STD_FIELDS
+)
+"""Nullable columns added after the first release: :func:`_migrate` adds them to
+an existing database (old rows read ``NULL``)."""
 
 
 @dataclass(frozen=True)
@@ -219,6 +231,7 @@ class Database:
             self.dialect = self.engine.dialect.name
             if create:
                 Base.metadata.create_all(self.engine)
+            _migrate(self.engine)
         except (ArgumentError, NoSuchModuleError) as exc:
             raise InputError(f"--db {url!r}: not a usable database URL ({exc})") from None
         except OperationalError as exc:
@@ -526,6 +539,7 @@ class Database:
                     **{f: getattr(r, f) for f in ESTIMATE_FIELDS},
                     "last_report_s": r.last_report_s,
                     "estimated_s": r.estimated_s,
+                    **{f: getattr(r, f) for f in ESTIMATE_STD_FIELDS},
                 }
                 for r in rows
             ]
@@ -585,6 +599,29 @@ class Database:
                 return
             last = rows[-1][0]
             yield [tuple(r[1:]) for r in rows]
+
+
+def _migrate(engine: Engine) -> None:
+    """Add the nullable columns of :data:`_ADDED_COLUMNS` that an existing table lacks.
+
+    Idempotent and safe to race: another process adding the same column first
+    is not an error.
+    """
+    insp = inspect(engine)
+    tables = set(insp.get_table_names())
+    for table, column in _ADDED_COLUMNS:
+        if table not in tables:
+            continue
+        if column in {c["name"] for c in insp.get_columns(table)}:
+            continue
+        kind = Base.metadata.tables[table].c[column].type.compile(dialect=engine.dialect)
+        exists = "IF NOT EXISTS " if engine.dialect.name == "postgresql" else ""
+        try:
+            with engine.begin() as c:
+                c.execute(text(f"ALTER TABLE {table} ADD COLUMN {exists}{column} {kind}"))
+        except OperationalError as exc:  # SQLite: added meanwhile by another process
+            if "duplicate column" not in str(exc.orig):
+                raise
 
 
 def _row_dict(row: Any, model: type[Base]) -> dict[str, Any]:

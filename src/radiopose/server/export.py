@@ -20,6 +20,7 @@ no estimate either).
 from __future__ import annotations
 
 import csv
+import math
 import os
 from pathlib import Path
 
@@ -81,6 +82,8 @@ def export_run(db: Database, out_dir: str | os.PathLike[str]) -> list[Path]:
             (e["x_m"], e["y_m"], e["z_m"]),
             (e["azimuth_deg"], e["pitch_deg"], e["roll_deg"]),
             e["method"],
+            math.nan if e["position_std_m"] is None else e["position_std_m"],
+            math.nan if e["azimuth_std_deg"] is None else e["azimuth_std_deg"],
         )
         for e in est
     ]

@@ -14,8 +14,14 @@ the server stored them) and carries all of its state in one picklable
    ``max_lag_s``); when reports pause for ``idle_flush_s`` the open chains
    are closed so the last packets are not held back;
 3. **tracking** — each packet of a transmitter this partition owns goes to
-   the streaming :class:`radiopose.tracker.Tracker` (one
-   :class:`~radiopose.tracker.TrackState` per transmitter).
+   the streaming :class:`radiopose.tracker.Tracker` running the method of
+   :data:`radiopose.tracker.METHODS` named by ``LiveConfig.method`` (one state
+   per transmitter, of the method's own type). A lagged method (``filter``)
+   runs with the fixed lag ``LiveConfig.live_lag_s`` (at most 0.25 s): a
+   packet's estimate is stored once a packet at least that much later has
+   been processed, or at the idle flush — so every packet the filter answers
+   gets its estimate, trailing the packet by at most the lag (plus the gap to
+   the next packet of that transmitter).
 
 Each step's packets and estimates are stored in the same transaction as the
 new state (a checkpoint keyed by partition), so after a crash the pipeline
@@ -33,6 +39,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+import math
 import pickle
 import threading
 import time
@@ -49,12 +56,15 @@ from radiopose.server.db import Database, StoredBatch
 from radiopose.server.sitestore import build_site
 
 if TYPE_CHECKING:  # the tracker (and scikit-learn) load with the first site, not at import
+    from radiopose.estimates import PoseEstimate
     from radiopose.site import Site
-    from radiopose.tracker import Tracker, TrackerConfig, TrackState
+    from radiopose.tracker import Tracker, TrackerConfig
 
 log = logging.getLogger("radiopose.server.live")
 
 _NS = 1_000_000_000
+MAX_LIVE_LAG_S = 0.25
+"""The longest fixed lag the live server accepts for a lagged method, seconds."""
 
 
 @dataclass(frozen=True)
@@ -64,9 +74,13 @@ class LiveConfig:
     Attributes
     ----------
     method
-        Tracker method (:data:`radiopose.tracker.METHODS`).
+        Tracker method, a name of :data:`radiopose.tracker.METHODS` (``None``:
+        :data:`radiopose.tracker.DEFAULT_LIVE_METHOD`).
     tracker
         Tracker parameters (``None``: the tracker's defaults, kernel included).
+    live_lag_s
+        Fixed lag of a lagged method (``filter``'s smoother), seconds, in
+        ``[0, MAX_LIVE_LAG_S]``; 0 runs it causally. Other methods ignore it.
     tolerance_s
         Matching tolerance on the reference clock, seconds.
     max_lag_s
@@ -90,8 +104,9 @@ class LiveConfig:
         This worker's partition of the transmitters (see module docstring).
     """
 
-    method: str = "full"
+    method: str | None = None
     tracker: TrackerConfig | None = None
+    live_lag_s: float = MAX_LIVE_LAG_S
     tolerance_s: float = 0.005
     max_lag_s: float = 5.0
     calibration_s: float = 3.0
@@ -102,6 +117,21 @@ class LiveConfig:
     poll_s: float = 0.05
     partition: int = 0
     partitions: int = 1
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.live_lag_s <= MAX_LIVE_LAG_S:
+            raise ValueError(
+                f"live_lag_s must lie in [0, {MAX_LIVE_LAG_S}] s, got {self.live_lag_s!r}"
+            )
+
+    @property
+    def method_name(self) -> str:
+        """The method's name, :data:`radiopose.tracker.DEFAULT_LIVE_METHOD` if unset."""
+        if self.method is not None:
+            return self.method
+        from radiopose.tracker import DEFAULT_LIVE_METHOD
+
+        return DEFAULT_LIVE_METHOD
 
     @property
     def partition_key(self) -> str:
@@ -133,7 +163,8 @@ class PipelineState:
     clocks
         Clock models by receiver id.
     track_states
-        Tracker state per transmitter (lower-case address).
+        Tracker state per transmitter (lower-case address), of the method's
+        state type (a checkpoint of another method starts its devices afresh).
     next_packet_id
         Next packet id to assign.
     arrivals
@@ -148,7 +179,7 @@ class PipelineState:
     calibration: list[tuple[str, int, str, str, float]] | None = field(default_factory=list)
     matcher: StreamingMatcher | None = None
     clocks: dict[str, ClockModel] = field(default_factory=dict)
-    track_states: dict[str, TrackState] = field(default_factory=dict)
+    track_states: dict[str, Any] = field(default_factory=dict)
     next_packet_id: int = 0
     arrivals: dict[str, deque[tuple[int, float]]] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
@@ -210,7 +241,12 @@ class LivePipeline:
 
         self.site = build_site(self.db.site_rows())
         self.site_version = version
-        self.tracker = Tracker(self.site, self.config.method, self.config.tracker)
+        self.tracker = Tracker(
+            self.site,
+            self.config.method_name,
+            self.config.tracker,
+            lag_s=self.config.live_lag_s or None,
+        )
         self.tracker.states = self.state.track_states
         out: list[dict[str, Any]] = []
         receivers = self.site.receiver_ids
@@ -338,7 +374,10 @@ class LivePipeline:
         else:
             out = []
         assert st.matcher is not None
-        return out + self._handle(st.matcher.flush(), wall_s)
+        out += self._handle(st.matcher.flush(), wall_s)
+        if self.tracker is not None:  # a lagged method's held-back estimates
+            out += [self._estimate_row(e, wall_s) for e in self.tracker.flush()]
+        return out
 
     # ------------------------------------------------------------------ packets
     def _handle(self, packets: Packets, wall_s: float) -> list[dict[str, Any]]:
@@ -349,6 +388,8 @@ class LivePipeline:
         assert self.tracker is not None
         out: list[dict[str, Any]] = []
         tol_ns = round(self.config.tolerance_s * _NS)
+        from radiopose.tracker import PENDING
+
         for obs in group_packets(packets):
             pid = str(st.next_packet_id)
             st.next_packet_id += 1
@@ -370,28 +411,36 @@ class LivePipeline:
                     "timestamp_s": obs.timestamp_s,
                     "receiver_ids": list(obs.receiver_ids),
                     "rss_dbm": [float(v) for v in obs.rss_dbm],
-                    "reason": reason,
+                    "reason": None if reason == PENDING else reason,  # its estimate follows
                 }
             )
             if est is not None:
-                c["estimates"] = c.get("estimates", 0) + 1
-                out.append(
-                    {
-                        "kind": "estimate",
-                        "timestamp_s": est.timestamp_s,
-                        "transmitter": est.transmitter,
-                        "packet_id": pid,
-                        "x_m": est.position_m[0],
-                        "y_m": est.position_m[1],
-                        "z_m": est.position_m[2],
-                        "azimuth_deg": est.orientation_deg[0],
-                        "pitch_deg": est.orientation_deg[1],
-                        "roll_deg": est.orientation_deg[2],
-                        "method": est.method,
-                        "last_report_s": last_report,
-                    }
-                )
+                out.append(self._estimate_row(est, last_report))
+            # a lagged method's estimates of earlier packets, ready with this one
+            out += [self._estimate_row(e, last_report) for e in self.tracker.take_delayed()]
         return out
+
+    def _estimate_row(self, est: PoseEstimate, last_report_s: float) -> dict[str, Any]:
+        """An estimate row; ``last_report_s`` is the arrival of the report that made it
+        possible (for a lagged estimate, of the packet that released it)."""
+        c = self.state.counts
+        c["estimates"] = c.get("estimates", 0) + 1
+        return {
+            "kind": "estimate",
+            "timestamp_s": est.timestamp_s,
+            "transmitter": est.transmitter,
+            "packet_id": est.packet_id,
+            "x_m": est.position_m[0],
+            "y_m": est.position_m[1],
+            "z_m": est.position_m[2],
+            "azimuth_deg": est.orientation_deg[0],
+            "pitch_deg": est.orientation_deg[1],
+            "roll_deg": est.orientation_deg[2],
+            "method": est.method,
+            "last_report_s": last_report_s,
+            "position_std_m": _finite_or_none(est.position_std_m),
+            "azimuth_std_deg": _finite_or_none(est.azimuth_std_deg),
+        }
 
     def _arrival(self, receiver_id: str, t_ns: int, default: float) -> float:
         """Server arrival time of the first recent batch of a receiver reaching ``t_ns``."""
@@ -437,6 +486,10 @@ class LivePipeline:
         )
         self._last_commit_s = now
         self._committed_cursor = st.cursor
+
+
+def _finite_or_none(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
 
 
 class LiveWorker:

@@ -67,7 +67,7 @@ class ReportAck(BaseModel):
 
 
 class Estimate(BaseModel):
-    """One row of ``estimates.csv``."""
+    """One row of ``estimates.csv`` (the optional trailing columns only when set)."""
 
     timestamp_s: float
     transmitter: str
@@ -79,6 +79,8 @@ class Estimate(BaseModel):
     pitch_deg: float
     roll_deg: float
     method: str
+    position_std_m: float | None = None
+    azimuth_std_deg: float | None = None
 
 
 class ReceiverIn(BaseModel):

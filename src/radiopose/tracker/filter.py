@@ -1,0 +1,97 @@
+"""The ``filter`` method: the adapter onto :class:`radiopose.filtering.ParticleFilter`.
+
+Beyond the paper (docs/filter.md). One particle filter per device, built from
+the device's candidate space and scorer (the scorer serves the filter's
+re-entry of grid hypotheses). Its state is a
+:class:`~radiopose.filtering.FilterState`, mutated in place by each step
+(picklable, for live checkpoints).
+
+Lag: with ``Device.lag_s = None`` the step returns its packet's causal
+estimate. With a lag ``L`` (seconds) the fixed-lag smoother holds each
+packet's estimate back: a step returns ``PENDING`` for its packet and the
+smoothed estimates of the earlier packets at or before ``t − L``; a new track
+(after a silence of ``FilterConfig.reacquire_gap_s``) and :meth:`FilterMethod.flush`
+emit the rest. Offline :func:`~radiopose.tracker.locate` uses
+``TrackerConfig.smoothing_lag_s`` (1 s); the live server ``LiveConfig.live_lag_s``
+(0.25 s).
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+
+from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
+from radiopose.likelihood import HeardRss
+from radiopose.tracker.config import filter_config
+from radiopose.tracker.protocol import Delayed, Device, Evidence, Outcome, Step
+from radiopose.tracker.reasons import (
+    PENDING,
+    SKIP_NO_TRACK,
+    SKIP_OUT_OF_ORDER,
+    SKIP_TOO_FEW_RECEIVERS,
+)
+
+
+@dataclass(frozen=True)
+class FilterMethod:
+    """The Bayesian tracker (see the module docstring)."""
+
+    name: str = "filter"
+    label: str = "Bayesian tracker: particle filter with a fixed-lag smoother"
+    evidence: frozenset[Evidence] = frozenset({Evidence.RSS, Evidence.DENSE})
+    estimates_orientation: bool = True
+    acquires: bool = False
+    lagged: bool = True
+    state_type: type = field(default=FilterState)
+
+    def prepare(self, device: Device) -> None:
+        assert device.scorer is not None
+        model = FilterModel.build(device.site, device.space, device.scorer)
+        device.engine = ParticleFilter(model, filter_config(device.config), device.lag_s)
+
+    def new_state(self, device: Device) -> FilterState:
+        pf: ParticleFilter = device.engine
+        return pf.new_state(filter_seed(device.config.seed, device.key))
+
+    def step(
+        self, device: Device, state: FilterState, heard: HeardRss, t_s: float, packet_id: str
+    ) -> Step:
+        pf: ParticleFilter = device.engine
+        if state.last_time_s is not None and t_s < state.last_time_s:
+            return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
+        if heard.n_heard == 0:
+            return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        est = pf.step(state, t_s, heard, (packet_id, t_s))
+        earlier = _delayed(pf)
+        if est is None:
+            return Step(state, Outcome(reason=SKIP_NO_TRACK), earlier)
+        if pf.lag_s is not None:
+            return Step(state, Outcome(reason=PENDING), earlier)
+        return Step(state, _outcome(est), earlier)
+
+    def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
+        pf: ParticleFilter = device.engine
+        pf.flush(state)
+        return _delayed(pf)
+
+
+def _outcome(est: FilterEstimate) -> Outcome:
+    return Outcome(
+        est.position_m, est.orientation_deg, None, est.position_std_m, est.azimuth_std_deg
+    )
+
+
+def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
+    return tuple(
+        Delayed(t_s, packet_id, _outcome(est))
+        for (packet_id, t_s), est in pf.take_smoothed()  # type: ignore[misc]
+    )
+
+
+def filter_seed(seed: int, transmitter_key: str) -> int:
+    """The filter's random seed for one transmitter (``TrackerConfig.seed`` and its key)."""
+    return (seed * 1_000_003 + zlib.crc32(transmitter_key.encode())) % 2**63
+
+
+FILTER = FilterMethod()

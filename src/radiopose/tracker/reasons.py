@@ -1,0 +1,16 @@
+"""Why a packet has no estimate: the skip reasons the tracker counts (one string each)."""
+
+from __future__ import annotations
+
+SKIP_UNKNOWN_TRANSMITTER = "unknown transmitter"
+SKIP_TOO_FEW_RECEIVERS = "too few receivers"
+SKIP_OUT_OF_ORDER = "timestamp before previous packet"
+SKIP_NO_CANDIDATES = "no scorable candidate"
+SKIP_NO_ORIENTATION_CLUSTER = "no orientation cluster"
+SKIP_ROTATION_MODEL = "rejected by rotation model"
+SKIP_NO_POSITION_CLUSTER = "no position cluster"
+SKIP_MOVEMENT_MODEL = "rejected by movement model"
+SKIP_ACQUIRING = "acquiring (pooling packets)"
+SKIP_NO_TRACK = "no track yet (needs a packet heard by 3 receivers)"
+PENDING = "pending (smoothing lag)"
+"""Not a skip: the method will emit this packet's estimate later (fixed-lag smoother)."""

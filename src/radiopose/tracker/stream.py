@@ -1,0 +1,159 @@
+"""The streaming tracker: one packet in, its estimate (or why not) out.
+
+:class:`Tracker` keeps one state per transmitter and hands each packet to the
+method's step (:mod:`radiopose.tracker.protocol`); the method comes from the
+registry (:data:`radiopose.tracker.METHODS`). A lagged method (``filter``
+with ``lag_s``) answers a packet with ``PENDING`` and emits its estimate
+later: :meth:`Tracker.take_delayed` returns those, :meth:`Tracker.flush` emits
+every one still held back.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from radiopose.errors import InputError
+from radiopose.estimates import PoseEstimate
+from radiopose.likelihood import Scorer, candidate_space, make_scorer
+from radiopose.packets import PacketObservation
+from radiopose.site import Site
+from radiopose.tracker.config import TrackerConfig
+from radiopose.tracker.protocol import Delayed, Device, Method, Outcome, needs_scorer
+from radiopose.tracker.reasons import SKIP_UNKNOWN_TRANSMITTER
+from radiopose.tracker.registry import get_method
+
+
+class Tracker:
+    """Streaming tracker: one packet in, zero or one pose out.
+
+    Parameters
+    ----------
+    site
+        The site.
+    method
+        A name of :data:`radiopose.tracker.METHODS` (or a method object).
+    config
+        Pipeline parameters.
+    scorers
+        Optional prebuilt scorers by transmitter (lower case); otherwise built
+        on first use with ``config.kernel`` for methods that need one.
+    lag_s
+        Fixed lag for lagged methods, seconds (``None``: causal; ignored by
+        the others).
+
+    Notes
+    -----
+    ``states`` holds one state per transmitter (lower-case address), of the
+    method's ``state_type``; a stored state of another type (a checkpoint of
+    another method) is replaced by a fresh one.
+    """
+
+    def __init__(
+        self,
+        site: Site,
+        method: str | Method = "full",
+        config: TrackerConfig | None = None,
+        scorers: Mapping[str, Scorer] | None = None,
+        lag_s: float | None = None,
+    ) -> None:
+        self.impl: Method = get_method(method) if isinstance(method, str) else method
+        if lag_s is not None and not 0 <= lag_s < math.inf:
+            raise InputError(f"lag_s = {lag_s!r} must be a number >= 0")
+        self.site = site
+        self.method = self.impl.name
+        self.config = config or TrackerConfig()
+        self.lag_s = lag_s if self.impl.lagged else None
+        self.states: dict[str, Any] = {}
+        self._scorers = {k.lower(): v for k, v in (scorers or {}).items()}
+        self._devices: dict[str, Device] = {}
+        self._shared: dict[str, Any] = {}
+        self._delayed: list[PoseEstimate] = []
+
+    def _device(self, transmitter: str) -> Device:
+        key = transmitter.lower()
+        dev = self._devices.get(key)
+        if dev is None:
+            scorer = self._scorers.get(key)
+            space = scorer.space if scorer is not None else candidate_space(self.site, transmitter)
+            if scorer is None and needs_scorer(self.impl):
+                scorer = make_scorer(self.config.kernel, space)
+            dev = Device(
+                self.site,
+                space.transmitter,
+                key,
+                space,
+                scorer,
+                self.config,
+                self.lag_s,
+                self._shared,
+            )
+            self.impl.prepare(dev)
+            self._devices[key] = dev
+        return dev
+
+    def is_enrolled(self, transmitter: str) -> bool:
+        key = transmitter.lower()
+        return any(d.transmitter.lower() == key for d in self.site.devices)
+
+    def update(self, packet: PacketObservation) -> tuple[PoseEstimate | None, str | None]:
+        """Process one packet; return ``(estimate, None)`` or ``(None, reason)``.
+
+        With a lagged method the reason is ``PENDING`` and the estimate comes
+        later from :meth:`take_delayed` (or :meth:`flush`).
+
+        Raises
+        ------
+        InputError
+            The packet names a receiver that is not in the site.
+        """
+        if not self.is_enrolled(packet.transmitter):
+            return None, SKIP_UNKNOWN_TRANSMITTER
+        dev = self._device(packet.transmitter)
+        heard = dev.space.heard(packet)
+        t = float(packet.timestamp_s)
+        state = self.states.get(dev.key)
+        if not isinstance(state, self.impl.state_type):
+            state = self.impl.new_state(dev)
+        step = self.impl.step(dev, state, heard, t, packet.packet_id)
+        self.states[dev.key] = step.state
+        self._delayed += (
+            self._pose(dev, d.timestamp_s, d.packet_id, d.outcome) for d in step.earlier
+        )
+        out = step.outcome
+        if not out.ok:
+            return None, out.reason
+        return self._pose(dev, t, packet.packet_id, out), None
+
+    def take_delayed(self) -> list[PoseEstimate]:
+        """Estimates of earlier packets emitted since the last call (lagged methods)."""
+        out, self._delayed = self._delayed, []
+        return out
+
+    def flush(self) -> list[PoseEstimate]:
+        """Emit every estimate still held back (end of data, idle), with those not yet taken."""
+        for key, dev in self._devices.items():
+            state = self.states.get(key)
+            if isinstance(state, self.impl.state_type):
+                self._delayed += (
+                    self._pose(dev, d.timestamp_s, d.packet_id, d.outcome)
+                    for d in self.impl.flush(dev, state)
+                )
+        return self.take_delayed()
+
+    def _pose(self, dev: Device, t_s: float, packet_id: str, out: Outcome) -> PoseEstimate:
+        assert out.position_m is not None and out.orientation_deg is not None
+        return PoseEstimate(
+            t_s,
+            dev.transmitter,
+            packet_id,
+            out.position_m,
+            out.orientation_deg,
+            self.method,
+            math.nan if out.position_std_m is None else out.position_std_m,
+            math.nan if out.azimuth_std_deg is None else out.azimuth_std_deg,
+        )
+
+
+__all__ = ["Delayed", "Tracker"]
