@@ -5,6 +5,7 @@ noise and a walking person's motion differ from the simulator's). The file is
 optional; ``radiopose locate`` reads it when present and says so. Format::
 
     smoothing_lag_s = 10.0      # the filter's fixed lag in batch runs (optional)
+    live_method = "filter"      # the live server's method at this site (optional)
 
     [filter]                    # any field of radiopose.filtering.FilterConfig
     huber_c = 1.0
@@ -46,6 +47,7 @@ def read_tracker_toml(
     doc = load_toml(path)
     root = Section(doc, path)
     lag = root.number("smoothing_lag_s", None, low=0.0, high=3600.0)
+    _live_method(root)
     sec = root.section("filter", required=False)
     kinds = _filter_fields()
     overrides: dict[str, float | int] = {}
@@ -62,6 +64,28 @@ def read_tracker_toml(
     except InputError as exc:  # the dataclass names the field; add the file
         raise InputError(exc.reason, path=path, column="filter") from None
     return overrides, lag
+
+
+def _live_method(root: Section) -> str | None:
+    from radiopose.tracker import METHODS  # the registry (heavy: loaded only when asked)
+
+    if "live_method" not in root.data:
+        return None
+    return root.string("live_method", None, choices=tuple(METHODS))
+
+
+def load_site_live_method(site_dir: str | os.PathLike[str]) -> str | None:
+    """The ``live_method`` of ``SITE/tracker.toml`` (``None``: no file or no key).
+
+    Raises
+    ------
+    InputError
+        A method the registry does not know (file, line and key named).
+    """
+    p = Path(site_dir) / FILE_NAME
+    if not p.is_file():
+        return None
+    return _live_method(Section(load_toml(p), p))
 
 
 def load_site_tracker_settings(

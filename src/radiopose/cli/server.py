@@ -57,7 +57,8 @@ def serve(
         str | None,
         typer.Option(
             help="Tracker method: full, location, orientation, top, lms or filter "
-            "(default: radiopose.tracker.DEFAULT_LIVE_METHOD, full)."
+            "(default: SITE/tracker.toml's live_method, else "
+            "radiopose.tracker.DEFAULT_LIVE_METHOD, full)."
         ),
     ] = None,
     live_lag_s: Annotated[
@@ -88,13 +89,23 @@ def serve(
     log_level: Annotated[str, typer.Option("--log-level", help="Log level.")] = "info",
 ) -> None:
     """The central server: API, live localisation and dashboard (Ctrl-C stops)."""
+    from dataclasses import replace
+
     from radiopose.server.app import create_app, import_site_dir
     from radiopose.server.jsonlog import configure_logging
     from radiopose.server.live import MAX_LIVE_LAG_S, LiveConfig
-    from radiopose.tracker import METHODS
+    from radiopose.tracker import DEFAULT_LIVE_METHOD, METHODS, TrackerConfig
+    from radiopose.tracker_settings import load_site_live_method, load_site_tracker_settings
 
     if method is not None and method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    # the method: --method, else the site's tracker.toml live_method, else the default
+    method = method or load_site_live_method(site) or DEFAULT_LIVE_METHOD
+    tracker = None
+    overrides, _lag_s, settings_path = load_site_tracker_settings(site)
+    if settings_path is not None:  # the site's priors for the filter
+        base = TrackerConfig()
+        tracker = replace(base, filter=replace(base.filter, **overrides))
     if not 0 <= live_lag_s <= MAX_LIVE_LAG_S:
         raise InputError(f"--live-lag-s must lie in [0, {MAX_LIVE_LAG_S}], got {live_lag_s!r}")
     k, n = _partition(partition)
@@ -114,9 +125,16 @@ def serve(
         f"site {site}: {status} (version {database.site_version()}); database {database.url}",
         flush=True,
     )
+    print(
+        f"live method {method}"
+        + (f" (lag {live_lag_s:g} s)" if METHODS[method].lagged else "")
+        + ("" if settings_path is None else f", tracker settings from {settings_path}"),
+        flush=True,
+    )
     print(f"serving on {scheme}://{host}:{port}/ (API docs: /docs)", flush=True)
     live = LiveConfig(
         method=method,
+        tracker=tracker,
         live_lag_s=live_lag_s,
         partition=k,
         partitions=n,
