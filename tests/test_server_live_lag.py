@@ -91,6 +91,19 @@ def test_streaming_lag_emits_each_estimate_once_the_lag_has_passed(sim):
     )
 
 
+def test_a_silent_device_is_released_after_the_lag(sim):
+    obs = group_packets(sim.packets)[:40]
+    tr = Tracker(sim.site, "filter", lag_s=LAG_S)
+    for o in obs:
+        tr.update(o)
+    early = tr.take_delayed()
+    last = obs[-1].timestamp_s
+    assert tr.release(last + 0.5 * LAG_S) == []  # not silent for the lag yet
+    rest = tr.release(last + LAG_S)
+    assert [e.packet_id for e in early + rest] == [o.packet_id for o in obs]
+    assert tr.release(last + 2 * LAG_S) == [] and tr.flush() == []
+
+
 def test_causal_streaming_is_lag_zero(sim):
     obs = group_packets(sim.packets)[:60]
     causal = Tracker(sim.site, "filter")

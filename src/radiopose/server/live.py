@@ -418,6 +418,9 @@ class LivePipeline:
                 out.append(self._estimate_row(est, last_report))
             # a lagged method's estimates of earlier packets, ready with this one
             out += [self._estimate_row(e, last_report) for e in self.tracker.take_delayed()]
+        # ... and of devices silent for the lag while others send
+        now_s = float(np.max(packets.timestamp_s))
+        out += [self._estimate_row(e, wall_s) for e in self.tracker.release(now_s)]
         return out
 
     def _estimate_row(self, est: PoseEstimate, last_report_s: float) -> dict[str, Any]:

@@ -78,9 +78,10 @@ class TrackerConfig:
         its motion prior's support is ``max_speed_mps`` and twice the rotation
         bound (:func:`filter_config`).
     smoothing_lag_s
-        ``filter`` in batch :func:`locate`: the fixed-lag smoother's lag, seconds
-        (``None``: causal, as the live server runs it). The streaming
-        :class:`Tracker` is always causal.
+        A lagged method (``filter``) in batch :func:`locate`: the fixed-lag
+        smoother's lag, seconds (``None``: causal). The streaming
+        :class:`Tracker` takes its lag as an argument (causal by default; the
+        live server uses ``LiveConfig.live_lag_s``, at most 0.25 s).
     seed
         Seeds the ``filter``'s random numbers (with the transmitter id), so runs repeat.
     """

@@ -70,6 +70,7 @@ class Tracker:
         self._devices: dict[str, Device] = {}
         self._shared: dict[str, Any] = {}
         self._delayed: list[PoseEstimate] = []
+        self._last_s: dict[str, float] = {}  # last packet time per device (for release)
 
     def _device(self, transmitter: str) -> Device:
         key = transmitter.lower()
@@ -118,6 +119,7 @@ class Tracker:
             state = self.impl.new_state(dev)
         step = self.impl.step(dev, state, heard, t, packet.packet_id)
         self.states[dev.key] = step.state
+        self._last_s[dev.key] = max(t, self._last_s.get(dev.key, t))
         self._delayed += (
             self._pose(dev, d.timestamp_s, d.packet_id, d.outcome) for d in step.earlier
         )
@@ -131,9 +133,26 @@ class Tracker:
         out, self._delayed = self._delayed, []
         return out
 
-    def flush(self) -> list[PoseEstimate]:
-        """Emit every estimate still held back (end of data, idle), with those not yet taken."""
-        for key, dev in self._devices.items():
+    def release(self, now_s: float) -> list[PoseEstimate]:
+        """Flush the devices whose last packet is at least the lag before ``now_s``
+        (seconds, the packets' clock), with the estimates not yet taken.
+
+        A silent device's last estimates then wait no longer than the lag
+        after the latest packet of any device; a device still sending is
+        untouched (its own packets release its estimates).
+        """
+        if self.lag_s is None:
+            return self.take_delayed()
+        quiet = [k for k, t in self._last_s.items() if t <= now_s - self.lag_s]
+        for key in quiet:
+            del self._last_s[key]
+        return self.flush(quiet)
+
+    def flush(self, keys: list[str] | None = None) -> list[PoseEstimate]:
+        """Emit every estimate still held back (end of data, idle) for the devices
+        ``keys`` (lower-case transmitters; ``None``: all), with those not yet taken."""
+        for key in self._devices if keys is None else keys:
+            dev = self._devices[key]
             state = self.states.get(key)
             if isinstance(state, self.impl.state_type):
                 self._delayed += (
