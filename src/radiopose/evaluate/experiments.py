@@ -19,7 +19,7 @@ An experiment file describes one of the paper's evaluations (or a user's own):
     [motion]                            # MotionConfig fields (simulate/trajectories.py)
     rotation = "linear"
 
-    [tracker]                           # TrackerConfig fields (tracker.py), paper defaults
+    [tracker]                           # TrackerConfig fields (tracker/config.py), paper defaults
     k = 100
 
     [sweep]                             # conditions: the Cartesian product, in file order
