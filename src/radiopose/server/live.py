@@ -81,6 +81,10 @@ class LiveConfig:
     live_lag_s
         Fixed lag of a lagged method (``filter``'s smoother), seconds, in
         ``[0, MAX_LIVE_LAG_S]``; 0 runs it causally. Other methods ignore it.
+    lagged_commit_s
+        With a lagged method, output (and the checkpoint, which then carries
+        the smoother's lineage: megabytes per device) is committed at most
+        this often, seconds; other methods commit every step with output.
     tolerance_s
         Matching tolerance on the reference clock, seconds.
     max_lag_s
@@ -113,12 +117,15 @@ class LiveConfig:
     calibration_max_frames: int = 20_000
     idle_flush_s: float = 5.0
     checkpoint_s: float = 1.0
+    lagged_commit_s: float = 0.25
     batches_per_step: int = 200
     poll_s: float = 0.05
     partition: int = 0
     partitions: int = 1
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.lagged_commit_s < math.inf:
+            raise ValueError(f"lagged_commit_s must be >= 0, got {self.lagged_commit_s!r}")
         if not 0.0 <= self.live_lag_s <= MAX_LIVE_LAG_S:
             raise ValueError(
                 f"live_lag_s must lie in [0, {MAX_LIVE_LAG_S}] s, got {self.live_lag_s!r}"
@@ -218,6 +225,7 @@ class LivePipeline:
         self.state = PipelineState()
         self.latencies_s: deque[float] = deque(maxlen=5_000)
         self._last_commit_s = 0.0
+        self._unsaved: list[dict[str, Any]] = []  # output of steps not yet committed
         self._committed_cursor = -1
         self._load()
 
@@ -228,6 +236,7 @@ class LivePipeline:
         self.state = pickle.loads(ck[1]) if ck is not None else PipelineState()
         self.site_version = -1
         self.tracker = None
+        self._unsaved = []  # output not committed is re-derived from the checkpoint
         self._committed_cursor = self.state.cursor
         # after a restart, give the receivers time to resend before an idle flush
         self.state.last_batch_wall_s = time.time()
@@ -276,11 +285,18 @@ class LivePipeline:
         idle_s = now - st.last_batch_wall_s
         if not batches and not st.flushed and idle_s >= self.config.idle_flush_s:
             emitted += self._idle_flush(now)
-        if emitted or (
+        # Output is committed with the state that produced it (so a crash re-derives
+        # exactly what was not committed); a lagged method's state is large, so its
+        # commits are spaced by ``lagged_commit_s``.
+        self._unsaved += emitted
+        lagged = self.tracker is not None and self.tracker.lag_s is not None
+        wait_s = self.config.lagged_commit_s if lagged else 0.0
+        if (self._unsaved and now - self._last_commit_s >= wait_s) or (
             st.cursor != self._committed_cursor
             and now - self._last_commit_s >= self.config.checkpoint_s
         ):
-            self._commit(emitted)
+            self._commit(self._unsaved)
+            self._unsaved = []
         return len(batches)
 
     def _batch(self, b: StoredBatch) -> list[dict[str, Any]]:
