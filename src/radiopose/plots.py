@@ -148,7 +148,7 @@ def plot_trajectory(
 ) -> Axes:
     """True vs estimated positions, with azimuth arrows at ``arrows`` evenly spaced points."""
     if ax is None:
-        _, ax = plt.subplots(figsize=(6, 6))
+        _, ax = plt.subplots(figsize=(6, 6), layout="constrained")
     tp = np.asarray(truth_position_m, dtype=np.float64)
     ax.plot(tp[:, 0], tp[:, 1], "k-", lw=2, label="truth")
     orientation_arrows(ax, tp[:, :2], truth_azimuth_deg, _ARROW_M, arrows, color="k")
@@ -186,11 +186,22 @@ def plot_trajectory(
 def plot_orientation_error(
     errors: Mapping[str, tuple[FloatArray, FloatArray]], *, ax: Axes | None = None
 ) -> Axes:
-    """Orientation error (degrees) over time, one series per method: ``{name: (t_s, err_deg)}``."""
+    """Orientation error (degrees) over time, one series per method: ``{name: (t_s, err_deg)}``.
+
+    The series with fewer points are drawn on top (a sparse method stays visible
+    over a dense one).
+    """
     if ax is None:
-        _, ax = plt.subplots(figsize=(7, 3.5))
+        _, ax = plt.subplots(figsize=(7, 3.5), layout="constrained")
     for name, (t, e) in errors.items():
-        ax.plot(np.asarray(t), np.asarray(e), ".", ms=3, label=f"{name} ({len(e)})")
+        ax.plot(
+            np.asarray(t),
+            np.asarray(e),
+            ".",
+            ms=3,
+            label=f"{name} ({len(e)})",
+            zorder=3 + 1.0 / (1.0 + len(e)),
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("orientation error (°)")
     ax.set_ylim(bottom=0)
