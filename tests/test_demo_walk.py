@@ -77,6 +77,16 @@ def test_walk_in_a_small_area_and_a_short_trace() -> None:
         assert np.all((pos[:, :2] >= 1.0 - 1e-9) & (pos[:, :2] <= 9.0 + 1e-9))
 
 
+def test_walk_in_an_area_smaller_than_a_corner() -> None:
+    # a 0.5 m walkable square: corners shrink with the legs instead of folding the
+    # walk onto the centre (which once made the path never long enough: a hang)
+    t = np.arange(600) * 0.1
+    pos = walk_path(np.random.default_rng(3), t, (0.0, 2.5, 0.0, 2.5), 1.0, WALK)
+    assert np.all((pos[:, :2] >= 1.0 - 1e-9) & (pos[:, :2] <= 1.5 + 1e-9))
+    speed = np.hypot(*np.diff(pos[:, :2], axis=0).T) / 0.1
+    assert np.ptp(speed) < 0.1 * speed.mean()
+
+
 def test_walk_scenario_is_deterministic(tmp_path: Path) -> None:
     cfg = ScenarioConfig(size_m=10.0, step_m=0.5, duration_s=5.0, interval_ms=20.0, motion=WALK)
     a = simulate(cfg, seed=9)

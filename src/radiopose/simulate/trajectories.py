@@ -189,12 +189,19 @@ def walk_path(
     length = speed * float(t[-1]) if t.size else 0.0
     min_leg = min(config.walk_min_leg_m, 0.5 * float(np.hypot(*(hi - lo))))
     max_turn = math.radians(config.walk_max_turn_deg)
-    ds = 0.05
-    sigma = config.walk_corner_m / ds
+    # in an area smaller than a rounded corner the corners shrink with the legs
+    # (else smoothing would fold the walk onto the area's centre)
+    corner_m = min(config.walk_corner_m, 0.25 * min_leg)
+    ds = min(0.05, 0.25 * corner_m)
+    sigma = corner_m / ds
     pts = [rng.uniform(lo, hi)]
     heading: float | None = None
+    need_m = length + 4.0 * corner_m
+    raw_m, check_m = 0.0, need_m
     while True:
-        # extend the polyline until its smoothed version is long enough
+        # extend the polyline until its smoothed version is long enough; smoothing
+        # only shortens a curve, so it is tried once the raw polyline is, and after
+        # a miss once the raw polyline has grown by the smoothed one's shortfall
         best, best_bad = pts[-1], math.inf
         for _ in range(200):
             q = rng.uniform(lo, hi)
@@ -210,7 +217,8 @@ def walk_path(
         if np.hypot(*d) > 0:
             heading = math.atan2(d[1], d[0])
             pts.append(best)
-        if len(pts) < 2:
+            raw_m += float(np.hypot(*d))
+        if len(pts) < 2 or raw_m < check_m:
             continue
         poly = np.array(pts)
         seg = np.hypot(*np.diff(poly, axis=0).T)
@@ -221,14 +229,15 @@ def walk_path(
         )
         smooth = gaussian_filter1d(dense, sigma, axis=0, mode="nearest")
         arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(smooth, axis=0).T))])
-        if arc[-1] >= length + 4.0 * config.walk_corner_m:
+        if arc[-1] >= need_m:
             break
+        check_m = raw_m + (need_m - arc[-1])
     # start beyond the first corner-rounding span, where the curve is already
     # smooth; a cubic spline through the smoothed samples keeps the heading
     # continuous between them (linear interpolation would kink every 5 cm)
     keep = np.concatenate([[True], np.diff(arc) > 1e-9])
     curve = CubicSpline(arc[keep], smooth[keep], axis=0)
-    xy = curve(speed * t + min(2.0 * config.walk_corner_m, arc[-1] - length))
+    xy = curve(speed * t + min(2.0 * corner_m, arc[-1] - length))
     return np.column_stack([xy, np.full(t.size, z_m)])
 
 
