@@ -80,10 +80,10 @@ def test_walk_in_a_small_area_and_a_short_trace() -> None:
 def test_walk_in_an_area_smaller_than_a_corner() -> None:
     # a 0.5 m walkable square: corners shrink with the legs instead of folding the
     # walk onto the centre (which once made the path never long enough: a hang)
-    t = np.arange(600) * 0.1
+    t = np.arange(6000) * 0.01  # steps of ~1 cm: chords follow the tight curves
     pos = walk_path(np.random.default_rng(3), t, (0.0, 2.5, 0.0, 2.5), 1.0, WALK)
     assert np.all((pos[:, :2] >= 1.0 - 1e-9) & (pos[:, :2] <= 1.5 + 1e-9))
-    speed = np.hypot(*np.diff(pos[:, :2], axis=0).T) / 0.1
+    speed = np.hypot(*np.diff(pos[:, :2], axis=0).T) / 0.01
     assert np.ptp(speed) < 0.1 * speed.mean()
 
 
