@@ -199,7 +199,7 @@ def demo(
         float | None,
         typer.Option(
             "--interval-ms",
-            help="Time between packets, ms (default 20, the paper's 5 takes ~4x as long; "
+            help="Time between packets, ms (default 20; the paper's 5 gives 4x the packets; "
             "--live: 100).",
         ),
     ] = None,
