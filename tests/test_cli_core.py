@@ -189,7 +189,7 @@ def test_unexpected_errors_are_one_line(tmp_path, capsys, monkeypatch):
 def test_demo_failure_leaves_no_partial_output(tmp_path, capsys):
     out = tmp_path / "d"
     (out / "mse_map.png").mkdir(parents=True)  # the demo's last figure cannot be written
-    code, _, err = run(["demo", "-o", str(out)], capsys)
+    code, _, err = run(["demo", "-o", str(out), "--duration-s", "0.5"], capsys)
     assert code == 2 and "mse_map.png: is a directory" in err
     assert [p.name for p in out.iterdir()] == ["mse_map.png"]
     assert not list(tmp_path.glob(".d.*"))

@@ -7,7 +7,16 @@ except :func:`mse_map_figure`, which lays out several Axes and returns the Figur
   position, for one receiver or combined (paper, Figure 2 style);
 * :func:`mse_map_figure` — one panel per receiver and the combined map;
 * :func:`plot_trajectory` — true vs estimated positions with orientation arrows;
-* :func:`plot_orientation_error` — orientation error over time per method.
+* :func:`plot_orientation_error` — orientation error over time per method;
+* :func:`plot_track_uncertainty` — a tracker's track with its stated position
+  uncertainty (a band of discs of radius ``position_std_m``) and azimuth
+  wedges (± ``azimuth_std_deg``), beside sparse estimates and the truth;
+* :func:`plot_azimuth_over_time` — true and estimated azimuth over time, the
+  tracker's with a ± ``azimuth_std_deg`` band;
+* :func:`plot_error_over_time` — one error (position or orientation) over
+  time per method, coverage in the legend, a tracker's stated σ dashed;
+* :func:`track_figure` — the four above in one figure (``radiopose demo``'s
+  ``filter_track.png``).
 """
 
 from __future__ import annotations
@@ -25,7 +34,7 @@ from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_r
 from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.packets import PacketObservation
 from radiopose.plot_site import orientation_arrows
-from radiopose.units import FloatArray
+from radiopose.units import FloatArray, angle_diff_deg
 
 _ARROW_M = 0.5
 """Length of the orientation arrows of :func:`plot_trajectory`, metres."""
@@ -139,7 +148,7 @@ def plot_trajectory(
 ) -> Axes:
     """True vs estimated positions, with azimuth arrows at ``arrows`` evenly spaced points."""
     if ax is None:
-        _, ax = plt.subplots(figsize=(6, 6))
+        _, ax = plt.subplots(figsize=(6, 6), layout="constrained")
     tp = np.asarray(truth_position_m, dtype=np.float64)
     ax.plot(tp[:, 0], tp[:, 1], "k-", lw=2, label="truth")
     orientation_arrows(ax, tp[:, :2], truth_azimuth_deg, _ARROW_M, arrows, color="k")
@@ -177,14 +186,340 @@ def plot_trajectory(
 def plot_orientation_error(
     errors: Mapping[str, tuple[FloatArray, FloatArray]], *, ax: Axes | None = None
 ) -> Axes:
-    """Orientation error (degrees) over time, one series per method: ``{name: (t_s, err_deg)}``."""
+    """Orientation error (degrees) over time, one series per method: ``{name: (t_s, err_deg)}``.
+
+    The series with fewer points are drawn on top (a sparse method stays visible
+    over a dense one).
+    """
     if ax is None:
-        _, ax = plt.subplots(figsize=(7, 3.5))
+        _, ax = plt.subplots(figsize=(7, 3.5), layout="constrained")
     for name, (t, e) in errors.items():
-        ax.plot(np.asarray(t), np.asarray(e), ".", ms=3, label=f"{name} ({len(e)})")
+        ax.plot(
+            np.asarray(t),
+            np.asarray(e),
+            ".",
+            ms=3,
+            label=f"{name} ({len(e)})",
+            zorder=3 + 1.0 / (1.0 + len(e)),
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel("orientation error (°)")
     ax.set_ylim(bottom=0)
     ax.legend(loc="best", fontsize="small")
     ax.set_title("orientation error over time")
     return ax
+
+
+# ----------------------------------------------------------------------------- tracks
+_TRACK_COLOUR = "#1f77b4"
+"""The tracker's colour (line, band, wedges)."""
+_BAND_COLOUR = "#c6dbef"
+"""The azimuth band of :func:`plot_azimuth_over_time`."""
+_DISC_COLOUR = "#9ecae1"
+"""The position band of :func:`plot_track_uncertainty` (light: the track stays visible)."""
+_BAND_REF_M = 0.3
+"""Discs of :func:`plot_track_uncertainty` up to this radius are drawn at full
+band opacity, wider ones fainter (∝ 1/r²), metres."""
+_WEDGE_COLOUR = "#08306b"
+"""The azimuth wedges of :func:`plot_track_uncertainty`."""
+_SPARSE_COLOURS = ("#ff7f0e", "#2ca02c", "#d62728", "#9467bd")
+"""Colours of the sparse methods, in order."""
+
+
+def _coverage_label(name: str, n_estimates: int, n_packets: int | None) -> str:
+    if not n_packets:
+        return f"{name} ({n_estimates} estimates)"
+    return f"{name} ({100.0 * n_estimates / n_packets:.1f} % of packets)"
+
+
+def _needs_std(track: Estimates) -> tuple[FloatArray, FloatArray]:
+    if track.position_std_m is None or track.azimuth_std_deg is None:
+        raise ValueError("the track has no position_std_m / azimuth_std_deg columns")
+    return track.position_std_m, track.azimuth_std_deg
+
+
+def plot_track_uncertainty(
+    truth_t_s: FloatArray,
+    truth_position_m: FloatArray,
+    truth_azimuth_deg: FloatArray,
+    track: Estimates,
+    sparse: Mapping[str, Estimates] | None = None,
+    *,
+    n_packets: int | None = None,
+    receivers_xy_m: FloatArray | None = None,
+    n_wedges: int = 14,
+    wedge_m: float = 1.0,
+    ax: Axes | None = None,
+) -> Axes:
+    """A tracker's track with its uncertainty, beside sparse estimates and the truth.
+
+    Parameters
+    ----------
+    truth_t_s
+        ``(n,)`` times of the truth rows, seconds (increasing).
+    truth_position_m
+        ``(n, 3)`` true positions, metres (a black line).
+    truth_azimuth_deg
+        ``(n,)`` true azimuths, degrees (black arrows at the wedges' times).
+    track
+        The tracker's estimates (a line), with ``position_std_m`` drawn as a
+        band of discs of that radius around every estimate and, at ``n_wedges``
+        evenly spaced estimates, a wedge of ± ``azimuth_std_deg`` around its
+        azimuth (radius ``wedge_m`` metres; the device's top, body ``+y``).
+    sparse
+        Other methods' estimates, drawn as dots (e.g. ``{"full": ...}``).
+    n_packets
+        Packets in the trace: the legend then gives each method's coverage.
+    receivers_xy_m
+        ``(n_rx, 2)`` receiver positions, metres (grey triangles).
+    """
+    from matplotlib.collections import PatchCollection
+    from matplotlib.colors import to_rgba
+    from matplotlib.patches import Circle, Wedge
+
+    if ax is None:
+        _, ax = plt.subplots(figsize=(7, 7))
+    pos_sd, az_sd = _needs_std(track)
+    tp = np.asarray(truth_position_m, dtype=np.float64)
+    xy = track.position_m[:, :2]
+    # the band: a disc of radius position_std_m around every estimate (thinned to
+    # ~2,000), each holding the same ink, so its opacity falls as 1/r²: a wide,
+    # uncertain stretch shows as a faint cloud, a confident one as a solid band
+    step = max(1, len(track) // 2000)
+    radius = np.maximum(pos_sd[::step], 1e-3)
+    alpha = np.clip(0.3 * (_BAND_REF_M / radius) ** 2, 0.004, 0.3)
+    discs = [
+        Circle((float(x), float(y)), float(r)) for (x, y), r in zip(xy[::step], radius, strict=True)
+    ]
+    rgba = np.tile(np.array(to_rgba(_DISC_COLOUR)), (len(discs), 1))
+    rgba[:, 3] = alpha
+    ax.add_collection(
+        PatchCollection(discs, facecolors=rgba, edgecolors="none", zorder=1), autolim=False
+    )
+    ax.fill([], [], color=_DISC_COLOUR, alpha=0.6, label="filter ± position_std_m (ink ∝ 1/σ²)")
+    ax.plot(tp[:, 0], tp[:, 1], "-", color="k", lw=1.5, zorder=3, label="truth")
+    ax.plot(
+        xy[:, 0],
+        xy[:, 1],
+        "-",
+        color=_TRACK_COLOUR,
+        lw=1.2,
+        zorder=4,
+        label=_coverage_label(track_name(track), len(track), n_packets),
+    )
+    if len(track):
+        idx = np.unique(np.linspace(0, len(track) - 1, min(n_wedges, len(track))).astype(int))
+        up_deg = track.orientation_deg[idx, 0] + 90.0  # the top's direction from +x
+        half = np.minimum(az_sd[idx], 180.0)
+        wedges = [
+            Wedge((float(x), float(y)), wedge_m, float(u - h), float(u + h))
+            for (x, y), u, h in zip(xy[idx], up_deg, half, strict=True)
+        ]
+        ax.add_collection(
+            PatchCollection(
+                wedges, facecolor=_WEDGE_COLOUR, alpha=0.6, edgecolor=_WEDGE_COLOUR, zorder=5
+            ),
+            autolim=False,
+        )
+        orientation_arrows(
+            ax, xy[idx], track.orientation_deg[idx, 0], wedge_m, color=_TRACK_COLOUR, zorder=6
+        )
+        ti = np.clip(np.searchsorted(truth_t_s, track.timestamp_s[idx]), 0, tp.shape[0] - 1)
+        orientation_arrows(
+            ax, tp[ti, :2], np.asarray(truth_azimuth_deg)[ti], wedge_m, color="k", zorder=6
+        )
+        ax.fill([], [], color=_WEDGE_COLOUR, alpha=0.6, label="filter azimuth ± azimuth_std_deg")
+    for i, (name, est) in enumerate((sparse or {}).items()):
+        ax.plot(
+            est.position_m[:, 0],
+            est.position_m[:, 1],
+            "o",
+            ms=2.5,
+            color=_SPARSE_COLOURS[i % len(_SPARSE_COLOURS)],
+            zorder=7,
+            label=_coverage_label(name, len(est), n_packets),
+        )
+    if receivers_xy_m is not None:
+        ax.scatter(
+            receivers_xy_m[:, 0],
+            receivers_xy_m[:, 1],
+            marker="^",
+            s=80,
+            c="grey",
+            edgecolors="k",
+            zorder=8,
+            label="receivers",
+        )
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.legend(loc="best", fontsize="small", framealpha=0.9)
+    ax.set_title("track with uncertainty (arrows: the device's top)")
+    return ax
+
+
+def track_name(est: Estimates) -> str:
+    """The method of a set of estimates (``"estimates"`` if empty or mixed)."""
+    names = set(np.asarray(est.method).tolist()) if len(est) else set()
+    return str(names.pop()) if len(names) == 1 else "estimates"
+
+
+def plot_azimuth_over_time(
+    truth_t_s: FloatArray,
+    truth_azimuth_deg: FloatArray,
+    track: Estimates,
+    sparse: Mapping[str, Estimates] | None = None,
+    *,
+    ax: Axes | None = None,
+) -> Axes:
+    """True azimuth over time (black), the track's with a ± ``azimuth_std_deg``
+    band, and sparse methods' azimuths as dots.
+
+    Azimuth is drawn unwrapped along the truth (each estimate as the truth at
+    its time plus the wrapped difference), so a turn through 0°/360° reads as
+    one continuous curve and every error is the vertical distance to the truth.
+    """
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    t = np.asarray(truth_t_s, dtype=np.float64)
+    true_unwrapped = np.rad2deg(np.unwrap(np.deg2rad(np.asarray(truth_azimuth_deg, float))))
+
+    def along_truth(est: Estimates) -> FloatArray:
+        i = np.clip(np.searchsorted(t, est.timestamp_s), 0, t.size - 1)
+        return true_unwrapped[i] + angle_diff_deg(
+            est.orientation_deg[:, 0], np.asarray(truth_azimuth_deg)[i]
+        )
+
+    _, az_sd = _needs_std(track)
+    a = along_truth(track)
+    ax.fill_between(
+        track.timestamp_s, a - az_sd, a + az_sd, color=_BAND_COLOUR, lw=0, label="± azimuth_std_deg"
+    )
+    ax.plot(t, true_unwrapped, "-", color="k", lw=1.5, label="truth")
+    ax.plot(track.timestamp_s, a, "-", color=_TRACK_COLOUR, lw=1.0, label=track_name(track))
+    for i, (name, est) in enumerate((sparse or {}).items()):
+        ax.plot(
+            est.timestamp_s,
+            along_truth(est),
+            "o",
+            ms=2.5,
+            color=_SPARSE_COLOURS[i % len(_SPARSE_COLOURS)],
+            label=name,
+        )
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("azimuth (°, unwrapped)")
+    ax.legend(loc="best", fontsize="small", ncol=4)
+    ax.set_title("azimuth over time")
+    return ax
+
+
+def plot_error_over_time(
+    errors: Mapping[str, tuple[FloatArray, FloatArray]],
+    *,
+    quantity: str = "position error (m)",
+    coverage: Mapping[str, float] | None = None,
+    stated: tuple[str, FloatArray, FloatArray] | None = None,
+    ax: Axes | None = None,
+) -> Axes:
+    """One error over time per method: ``{name: (t_s, error)}``.
+
+    The first method is drawn as a line (a tracker, one estimate per packet),
+    the others as dots. ``coverage`` (``{name: estimates ÷ packets}``) and the
+    mean error go into the legend; ``stated = (label, t_s, std)`` adds the
+    tracker's own uncertainty as a dashed line (a calibrated tracker's error
+    lies mostly below about twice it).
+    """
+    if ax is None:
+        _, ax = plt.subplots(figsize=(8, 3))
+    unit = quantity[quantity.rfind("(") + 1 : quantity.rfind(")")] if "(" in quantity else ""
+    unit = "°" if unit == "°" else f" {unit}"
+    for i, (name, (t, e)) in enumerate(errors.items()):
+        e = np.asarray(e, dtype=np.float64)
+        label = name
+        if coverage is not None and name in coverage:
+            label += f": {100.0 * coverage[name]:.1f} % coverage"
+        if e.size:
+            label += f", mean {e.mean():.2f}{unit}" if unit != "°" else f", mean {e.mean():.1f}°"
+        if i == 0:
+            ax.plot(np.asarray(t), e, "-", color=_TRACK_COLOUR, lw=1.0, label=label)
+        else:
+            c = _SPARSE_COLOURS[(i - 1) % len(_SPARSE_COLOURS)]
+            ax.plot(np.asarray(t), e, "o", ms=2.5, color=c, label=label)
+    if stated is not None:
+        label, t, sd = stated
+        ax.plot(np.asarray(t), np.asarray(sd), "--", color=_TRACK_COLOUR, lw=0.8, label=label)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(quantity)
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="upper right", fontsize="small")
+    return ax
+
+
+def track_figure(
+    truth_t_s: FloatArray,
+    truth_position_m: FloatArray,
+    truth_azimuth_deg: FloatArray,
+    track: Estimates,
+    track_errors: tuple[FloatArray, FloatArray],
+    sparse: Mapping[str, tuple[Estimates, FloatArray, FloatArray]],
+    *,
+    n_packets: int,
+    receivers_xy_m: FloatArray | None = None,
+    title: str | None = None,
+) -> Figure:
+    """The track map (:func:`plot_track_uncertainty`) on the left; azimuth over
+    time and position and orientation error over time on the right.
+
+    ``track_errors`` is ``(position_error_m, orientation_error_deg)`` of each
+    of the track's estimates; ``sparse`` maps a method to ``(estimates,
+    position_error_m, orientation_error_deg)``.
+    """
+    fig = plt.figure(figsize=(16, 8.5), layout="constrained")
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.0, 1.15))
+    ax_map = fig.add_subplot(grid[:, 0])
+    ax_az = fig.add_subplot(grid[0, 1])
+    ax_pos = fig.add_subplot(grid[1, 1], sharex=ax_az)
+    ax_ori = fig.add_subplot(grid[2, 1], sharex=ax_az)
+    pos_sd, az_sd = _needs_std(track)
+    name = track_name(track)
+    sparse_est = {m: v[0] for m, v in sparse.items()}
+    plot_track_uncertainty(
+        truth_t_s,
+        truth_position_m,
+        truth_azimuth_deg,
+        track,
+        sparse_est,
+        n_packets=n_packets,
+        receivers_xy_m=receivers_xy_m,
+        ax=ax_map,
+    )
+    plot_azimuth_over_time(truth_t_s, truth_azimuth_deg, track, sparse_est, ax=ax_az)
+    cov = {name: len(track) / n_packets, **{m: len(v[0]) / n_packets for m, v in sparse.items()}}
+    plot_error_over_time(
+        {
+            name: (track.timestamp_s, track_errors[0]),
+            **{m: (v[0].timestamp_s, v[1]) for m, v in sparse.items()},
+        },
+        quantity="position error (m)",
+        coverage=cov,
+        stated=(f"{name}: position_std_m", track.timestamp_s, pos_sd),
+        ax=ax_pos,
+    )
+    plot_error_over_time(
+        {
+            name: (track.timestamp_s, track_errors[1]),
+            **{m: (v[0].timestamp_s, v[2]) for m, v in sparse.items()},
+        },
+        quantity="orientation error (°)",
+        coverage=cov,
+        stated=(f"{name}: azimuth_std_deg", track.timestamp_s, az_sd),
+        ax=ax_ori,
+    )
+    ax_az.tick_params(labelbottom=False)
+    ax_pos.tick_params(labelbottom=False)
+    ax_az.set_xlabel("")
+    ax_pos.set_xlabel("")
+    if title:
+        fig.suptitle(title)
+    return fig

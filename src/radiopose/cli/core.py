@@ -179,7 +179,7 @@ def simulate(
     print(f"{n_pk} packets, {len(sim.packets)} receptions at {receivers} receivers", flush=True)
 
 
-@app.command(short_help="Simulate, localise with the five methods, plot.")
+@app.command(short_help="Simulate a walk, localise it with every method, plot.")
 def demo(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")] = Path(
         "radiopose-demo"
@@ -189,16 +189,33 @@ def demo(
         float, typer.Option("--noise-db", help="σ of Gaussian noise on packet RSS, dB.")
     ] = 1.0,
     duration_s: Annotated[
-        float, typer.Option("--duration-s", help="Length of the simulated trace, seconds.")
-    ] = 1.0,
+        float | None,
+        typer.Option(
+            "--duration-s",
+            help="Length of the simulated walk, seconds (default 30; --live: 60).",
+        ),
+    ] = None,
+    interval_ms: Annotated[
+        float | None,
+        typer.Option(
+            "--interval-ms",
+            help="Time between packets, ms (default 20; the paper's 5 gives 4x the packets; "
+            "--live: 100).",
+        ),
+    ] = None,
     live: Annotated[
         bool,
         typer.Option(
             "--live",
             help="Run the live system instead: a server and one replaying receiver agent per "
-            "receiver (a 60 s trace unless --duration-s is longer than 1); Ctrl-C stops.",
+            "receiver (a 60 s walk, a packet every 100 ms) and the dashboard drawing the "
+            "track of --method; Ctrl-C stops.",
         ),
     ] = False,
+    method: Annotated[
+        str,
+        typer.Option(help="--live: the server's tracker method (the dashboard draws its track)."),
+    ] = "filter",
     port: Annotated[int, typer.Option(help="--live: the server's port on 127.0.0.1.")] = 8000,
     real: Annotated[
         bool,
@@ -209,7 +226,12 @@ def demo(
         ),
     ] = False,
 ) -> None:
-    """Simulate the paper's standard scenario, localise it, and write figures and a table."""
+    """Simulate a 30 s walk on the paper's standard site, localise it with the paper's five
+    methods and the filter, and write a table and figures."""
+    from radiopose.errors import InputError
+
+    if not 0 <= seed < 2**63:
+        raise InputError(f"--seed must be a non-negative integer below 2**63, got {seed}")
     if real:
         from radiopose.realdata.demo import run_real_demo
 
@@ -217,16 +239,30 @@ def demo(
         return
     if live:
         from radiopose.server.demo import run_live_demo
+        from radiopose.tracker import METHODS
 
+        if method not in METHODS:
+            raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
         run_live_demo(
             out,
             seed=seed,
             noise_db=noise_db,
-            duration_s=duration_s if duration_s > 1.0 else 60.0,
+            duration_s=60.0 if duration_s is None else duration_s,
+            interval_ms=100.0 if interval_ms is None else interval_ms,
+            method=method,
             port=port,
             echo=print,
         )
         return
-    from radiopose.demo import run_demo
+    if method != "filter":
+        raise InputError("--method applies to --live (the offline demo runs every method)")
+    from radiopose.demo import DEMO_DURATION_S, DEMO_INTERVAL_MS, run_demo
 
-    run_demo(out, seed=seed, noise_db=noise_db, duration_s=duration_s, echo=print)
+    run_demo(
+        out,
+        seed=seed,
+        noise_db=noise_db,
+        duration_s=DEMO_DURATION_S if duration_s is None else duration_s,
+        interval_ms=DEMO_INTERVAL_MS if interval_ms is None else interval_ms,
+        echo=print,
+    )

@@ -4,8 +4,8 @@
 scoring each packet once (the pattern methods share one memoised scorer).
 :func:`summarise` turns pooled errors into table rows (mean / median / p95 of
 position and orientation error, with coverage). :func:`run_demo_pipeline` is
-what ``radiopose demo`` calls: all methods on a short standard scenario, the
-table, and the figures of :mod:`radiopose.plots`.
+what ``radiopose demo`` calls: every method on the demo's walk, the table, the
+``filter``'s calibration, and the figures of :mod:`radiopose.plots`.
 """
 
 from __future__ import annotations
@@ -177,6 +177,43 @@ def format_table(rows: Sequence[TableRow]) -> str:
     return "\n".join(lines)
 
 
+@dataclass(frozen=True)
+class Calibration:
+    """How often a tracker's stated uncertainty covers its actual error.
+
+    Attributes
+    ----------
+    method
+        Method name.
+    position_within_2sd, orientation_within_2sd
+        Fraction of estimates whose position (orientation) error is at most
+        twice the stated ``position_std_m`` (``azimuth_std_deg``).
+    median_position_std_m, median_azimuth_std_deg
+        Median stated uncertainties.
+    """
+
+    method: str
+    position_within_2sd: float
+    orientation_within_2sd: float
+    median_position_std_m: float
+    median_azimuth_std_deg: float
+
+
+def calibration(run: MethodRun) -> Calibration | None:
+    """:class:`Calibration` of a run whose estimates state an uncertainty, else ``None``."""
+    est = run.estimates
+    if est.position_std_m is None or est.azimuth_std_deg is None or len(est) == 0:
+        return None
+    ori = run.orientation_error_deg
+    return Calibration(
+        run.method,
+        float(np.mean(run.position_error_m <= 2.0 * est.position_std_m)),
+        float(np.mean(ori <= 2.0 * est.azimuth_std_deg)) if ori.size else float("nan"),
+        float(np.median(est.position_std_m)),
+        float(np.median(est.azimuth_std_deg)),
+    )
+
+
 def run_demo_pipeline(
     sim: Simulation,
     out_dir: str | Path,
@@ -184,13 +221,16 @@ def run_demo_pipeline(
     config: TrackerConfig | None = None,
     echo: Callable[[str], None] | None = None,
 ) -> tuple[list[TableRow], list[Path]]:
-    """All five methods on a simulation, an error table and the figures.
+    """Every method on a simulation, an error table and the figures.
 
     Writes ``estimates_<method>.csv``, ``mse_map.png`` (first packet: each
     receiver's and the combined MSE over the area, best orientation per
     position), ``trajectory.png`` (truth vs ``full`` and ``top`` with
-    orientation arrows) and ``orientation_error.png`` (over time, every
-    pattern method) into ``out_dir``.
+    orientation arrows), ``orientation_error.png`` (over time, every method
+    that estimates orientation) and ``filter_track.png`` (the ``filter``'s
+    track with its stated uncertainty beside ``full``'s estimates and the
+    truth, azimuth and errors over time: :func:`radiopose.plots.track_figure`)
+    into ``out_dir``, and prints the table and the ``filter``'s calibration.
 
     Returns
     -------
@@ -207,6 +247,15 @@ def run_demo_pipeline(
     runs = run_methods(sim, METHOD_NAMES, config, scorer)
     rows = [summarise([runs[m]], sim.config.noise_db) for m in METHOD_NAMES]
     say(format_table(rows))
+    cal = calibration(runs["filter"])
+    if cal is not None:
+        say(
+            "filter's stated uncertainty: median position_std_m "
+            f"{cal.median_position_std_m:.2f} m, azimuth_std_deg "
+            f"{cal.median_azimuth_std_deg:.1f}°; the error is within twice it "
+            f"for {100 * cal.position_within_2sd:.0f} % (position) and "
+            f"{100 * cal.orientation_within_2sd:.0f} % (orientation) of the packets"
+        )
     written: list[Path] = []
     for m, r in runs.items():
         p = out / f"estimates_{m}.csv"
@@ -223,11 +272,12 @@ def run_demo_pipeline(
     written.append(_save(fig, out / "mse_map.png"))
     plt.close(fig)
 
+    rx_xy = sim.site.receiver_positions_m()[:, :2]
     ax = plots.plot_trajectory(
         sim.truth.position_m,
         sim.truth.orientation_deg[:, 0],
         {m: runs[m].estimates for m in ("full", "top")},
-        receivers_xy_m=sim.site.receiver_positions_m()[:, :2],
+        receivers_xy_m=rx_xy,
     )
     written.append(_save(ax.figure, out / "trajectory.png"))
     plt.close(ax.figure)
@@ -235,14 +285,39 @@ def run_demo_pipeline(
     ax = plots.plot_orientation_error(
         {
             m: (runs[m].estimates.timestamp_s, runs[m].orientation_error_deg)
-            for m in ("full", "location", "orientation", "top")
+            for m in METHODS
+            if m not in POSITION_ONLY_METHODS
         }
     )
     written.append(_save(ax.figure, out / "orientation_error.png"))
     plt.close(ax.figure)
+
+    f, full = runs["filter"], runs["full"]
+    if f.estimates.position_std_m is not None:
+        fig = plots.track_figure(
+            sim.truth.timestamp_s,
+            sim.truth.position_m,
+            sim.truth.orientation_deg[:, 0],
+            f.estimates,
+            (f.position_error_m, f.orientation_error_deg),
+            {"full": (full.estimates, full.position_error_m, full.orientation_error_deg)},
+            n_packets=f.n_packets,
+            receivers_xy_m=rx_xy,
+            title=_scenario_title(sim),
+        )
+        written.append(_save(fig, out / "filter_track.png"))
+        plt.close(fig)
     for p in written:
         say(f"wrote {p}")
     return rows, written
+
+
+def _scenario_title(sim: Simulation) -> str:
+    c = sim.config
+    return (
+        f"filter vs full: {c.duration_s:g} s, a packet every {c.interval_ms:g} ms, "
+        f"{len(sim.site.receivers)} receivers, σ = {c.noise_db:g} dB (seed {sim.seed})"
+    )
 
 
 def _save(fig, path: Path) -> Path:  # type: ignore[no-untyped-def]

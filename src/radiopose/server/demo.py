@@ -1,11 +1,13 @@
 """``radiopose demo --live``: a server and one replaying receiver agent per receiver.
 
-Simulates a small site (10 m × 10 m, 4 receivers, a packet every 100 ms),
-writes one pcap per receiver (each with its own clock offset and drift),
-creates a fresh SQLite database with tokens, starts ``radiopose serve`` and
-one ``radiopose receiver --replay`` per receiver as child processes, prints
-the dashboard URL (with a viewer token) and an admin token, and waits for
-Ctrl-C, which stops every child cleanly.
+Simulates a small site (10 m × 10 m, 4 receivers, a packet every 100 ms) with
+the device walking between random waypoints (rounded turns, facing the way it
+walks), writes one pcap per receiver (each with its own clock offset and
+drift), creates a fresh SQLite database with tokens, starts ``radiopose serve
+--method METHOD`` (default ``filter``: the dashboard draws its track with the
+stated uncertainty) and one ``radiopose receiver --replay`` per receiver as
+child processes, prints the dashboard URL (with a viewer token) and an admin
+token, and waits for Ctrl-C, which stops every child cleanly.
 """
 
 from __future__ import annotations
@@ -18,9 +20,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 
-def serve_command(site_dir: Path, db_url: str, port: int) -> list[str]:
+def serve_command(site_dir: Path, db_url: str, port: int, method: str | None = None) -> list[str]:
     """Command line of ``radiopose serve`` as the demo (and the server benchmark) runs it:
-    ``site_dir`` on ``port``, 2 s clock calibration, 3 s idle flush."""
+    ``site_dir`` on ``port``, 2 s clock calibration, 3 s idle flush, and the tracker
+    ``method`` (``None``: the server's default)."""
     return [
         sys.executable,
         "-m",
@@ -35,6 +38,7 @@ def serve_command(site_dir: Path, db_url: str, port: int) -> list[str]:
         "2",
         "--idle-flush-s",
         "3",
+        *([] if method is None else ["--method", method]),
     ]
 
 
@@ -77,12 +81,18 @@ def run_live_demo(
     seed: int = 7,
     noise_db: float = 1.0,
     duration_s: float = 60.0,
+    interval_ms: float = 100.0,
+    method: str = "filter",
     speed: float = 1.0,
     port: int = 8000,
     echo: Callable[[str], None] = print,
     stop_after_s: float | None = None,
 ) -> dict[str, str]:
-    """Run the live demo until Ctrl-C (or ``stop_after_s``); return URL and tokens."""
+    """Run the live demo until Ctrl-C (or ``stop_after_s``); return URL and tokens.
+
+    ``method`` is the server's tracker method; ``duration_s`` and ``interval_ms``
+    the simulated walk's length and packet interval.
+    """
     import httpx
     import numpy as np
 
@@ -90,7 +100,7 @@ def run_live_demo(
     from radiopose.errors import InputError
     from radiopose.server.auth import create_token
     from radiopose.server.db import Database
-    from radiopose.simulate import ScenarioConfig, simulate
+    from radiopose.simulate import MotionConfig, ScenarioConfig, simulate
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -99,10 +109,11 @@ def run_live_demo(
         step_m=0.25,
         n_receivers=4,
         duration_s=duration_s,
-        interval_ms=100.0,
+        interval_ms=interval_ms,
         azimuth_step_deg=3.0,
         noise_db=noise_db,
         min_receiver_spacing_m=4.0,
+        motion=MotionConfig(path="walk", rotation="heading"),
     )
     sim = simulate(cfg, seed=seed)
     sim.write(out / "scenario")
@@ -132,7 +143,7 @@ def run_live_demo(
     log = open(out / "server.log", "wb")  # noqa: SIM115
     try:
         server = subprocess.Popen(
-            serve_command(out / "scenario" / "site", db_url, port),
+            serve_command(out / "scenario" / "site", db_url, port, method),
             stdout=subprocess.DEVNULL,
             stderr=log,
         )
@@ -171,8 +182,9 @@ def run_live_demo(
                 )
             )
         echo(
-            f"{len(ids)} receiver agents replaying {duration_s:g} s of packets at "
-            f"{speed:g}x; Ctrl-C stops"
+            f"{len(ids)} receiver agents replaying a {duration_s:g} s walk (a packet every "
+            f"{interval_ms:g} ms) at {speed:g}x; the server tracks it with {method!r}; "
+            "Ctrl-C stops"
         )
         t0 = time.monotonic()
         while stop_after_s is None or time.monotonic() - t0 < stop_after_s:

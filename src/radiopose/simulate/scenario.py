@@ -30,7 +30,7 @@ from radiopose.packets import Packets, Truth, write_packets_csv, write_truth_csv
 from radiopose.patterns.pattern import Pattern
 from radiopose.patterns.synthetic import smartphone_like
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
-from radiopose.simulate.trajectories import MotionConfig, rotation_path, straight_path
+from radiopose.simulate.trajectories import MotionConfig, device_path
 from radiopose.site import (
     MAX_CANDIDATES,
     MAX_GRID_POINTS,
@@ -283,8 +283,7 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     # Trajectory and packets.
     n_pk = round(cfg.duration_s / (cfg.interval_ms / 1000.0))
     t = np.arange(n_pk) * (cfg.interval_ms / 1000.0)
-    pos = straight_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg.z_m, cfg.motion)
-    ori = rotation_path(rng, t, cfg.motion)
+    pos, ori = device_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg.z_m, cfg.motion)
     rss = link_rss_dbm(
         cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats
     )

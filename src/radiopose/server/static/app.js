@@ -4,10 +4,10 @@
 // server-sent events read with fetch() (EventSource cannot send the header).
 "use strict";
 
-const TRAIL = 60;            // positions kept per transmitter
+const TRAIL = 150;           // positions kept per transmitter (15 s of the demo's 100 ms packets)
 const COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#17becf", "#8c564b"];
-const state = { token: null, site: null, tracks: new Map(), health: null, moves: 0 };
-window.radiopose = state;  // for tests and the curious
+const state = { token: null, site: null, tracks: new Map(), health: null, moves: 0, drawn: {} };
+window.radiopose = state;  // for tests and the curious (state.addEstimates, state.draw too)
 
 function tokenFromPage() {
   const m = location.hash.match(/token=([^&]+)/);
@@ -71,8 +71,10 @@ function draw() {
     ctx.fillStyle = "#222"; ctx.fillRect(v.x(r.x_m) - 5, v.y(r.y_m) - 5, 10, 10);
     ctx.fillText(r.receiver_id, v.x(r.x_m) + 8, v.y(r.y_m) + 14);
   }
-  // transmitters: fading trail, position, orientation arrow
+  // transmitters: fading trail, uncertainty (when the estimate states it), position,
+  // orientation arrow. state.drawn records what was drawn per transmitter (for tests).
   let k = 0;
+  state.drawn = {};
   for (const [tx, t] of state.tracks) {
     const color = COLORS[k++ % COLORS.length], n = t.trail.length;
     for (let i = 1; i < n; i++) {
@@ -80,10 +82,46 @@ function draw() {
       ctx.beginPath(); ctx.moveTo(v.x(t.trail[i - 1].x_m), v.y(t.trail[i - 1].y_m)); ctx.lineTo(v.x(t.trail[i].x_m), v.y(t.trail[i].y_m)); ctx.stroke();
     }
     ctx.globalAlpha = 1;
-    const e = t.trail[n - 1];
+    const e = t.trail[n - 1], drawn = { method: e.method || null, circle_px: null, wedge_deg: null };
+    uncertainty(ctx, v, e, color, drawn);
     ctx.fillStyle = color; ctx.beginPath(); ctx.arc(v.x(e.x_m), v.y(e.y_m), 5, 0, 2 * Math.PI); ctx.fill();
     arrow(ctx, v, e.x_m, e.y_m, e.azimuth_deg, 36, color, 3);
-    ctx.fillText(tx, v.x(e.x_m) + 8, v.y(e.y_m) - 8);
+    const label = e.method ? `${tx} · ${e.method}` : tx;
+    const sd = finite(e.position_std_m) ? ` ±${e.position_std_m.toFixed(2)} m` : "";
+    ctx.fillStyle = color; ctx.fillText(label + sd, v.x(e.x_m) + 8, v.y(e.y_m) - 8);
+    state.drawn[tx] = drawn;
+  }
+  document.body.dataset.uncertainty = String(Object.values(state.drawn).filter((d) => d.circle_px !== null).length);
+}
+
+function finite(x) { return typeof x === "number" && Number.isFinite(x); }
+
+// The estimate's stated uncertainty: a circle of radius position_std_m around the
+// position and a wedge of ± azimuth_std_deg around the device's top (the arrow's
+// direction), each only when the estimate object carries that field.
+const WEDGE_PX = 60;
+function uncertainty(ctx, v, e, color, drawn) {
+  const x = v.x(e.x_m), y = v.y(e.y_m);
+  if (finite(e.position_std_m) && e.position_std_m >= 0) {
+    const r = Math.max(e.position_std_m * v.s, 1);
+    ctx.globalAlpha = 0.15; ctx.fillStyle = color;
+    ctx.beginPath(); ctx.arc(x, y, r, 0, 2 * Math.PI); ctx.fill();
+    ctx.globalAlpha = 0.8; ctx.strokeStyle = color; ctx.lineWidth = 1; ctx.setLineDash([4, 3]);
+    ctx.beginPath(); ctx.arc(x, y, r, 0, 2 * Math.PI); ctx.stroke();
+    ctx.setLineDash([]); ctx.globalAlpha = 1;
+    drawn.circle_px = r;
+  }
+  if (finite(e.azimuth_std_deg) && e.azimuth_std_deg >= 0) {
+    // canvas angles run clockwise from +x (y points down); the top points at
+    // azimuth + 90° anticlockwise from world +x, i.e. -(azimuth + 90°) on the canvas
+    const half = Math.min(e.azimuth_std_deg, 180) * Math.PI / 180;
+    const mid = -(e.azimuth_deg + 90) * Math.PI / 180;
+    ctx.globalAlpha = 0.3; ctx.fillStyle = color;
+    ctx.beginPath(); ctx.moveTo(x, y);
+    if (half >= Math.PI) ctx.arc(x, y, WEDGE_PX, 0, 2 * Math.PI);
+    else ctx.arc(x, y, WEDGE_PX, mid - half, mid + half);
+    ctx.closePath(); ctx.fill(); ctx.globalAlpha = 1;
+    drawn.wedge_deg = [e.azimuth_deg - Math.min(e.azimuth_std_deg, 180), e.azimuth_deg + Math.min(e.azimuth_std_deg, 180)];
   }
 }
 
@@ -173,5 +211,6 @@ document.getElementById("login").addEventListener("submit", (ev) => {
   sessionStorage.setItem("radiopose-token", state.token);
   start();
 });
+state.addEstimates = addEstimates; state.draw = draw;
 state.token = tokenFromPage();
 start();

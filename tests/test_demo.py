@@ -1,0 +1,231 @@
+"""``radiopose demo``: its outputs, its table, and the figure of the filter's track.
+
+End to end on a short walk (the default is 30 s; a few seconds keep the suite
+fast), then the plotting functions of the new figure on hand-made tracks whose
+drawing can be checked exactly.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import re
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+from matplotlib.collections import PatchCollection
+
+from radiopose import plots
+from radiopose.cli import main
+from radiopose.estimates import Estimates, read_estimates_csv
+from radiopose.evaluate.demo import MethodRun, calibration
+from radiopose.tracker import METHODS, RunSummary
+
+FIGURES = (
+    "scene.png",
+    "survey_map_rx1.png",
+    "patterns.png",
+    "mse_map.png",
+    "trajectory.png",
+    "orientation_error.png",
+    "filter_track.png",
+)
+ROW = re.compile(r"^\| [\d.]+ \| (\w+) \| ([\d.]+) % \| ([\d.]+) \|", re.MULTILINE)
+
+
+def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """One short demo (4 s of the walk, 200 packets), shared by the tests below."""
+    out = tmp_path_factory.mktemp("demo") / "d"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        code = main(["demo", "-o", str(out), "--duration-s", "4", "--seed", "11"])
+    assert code == 0
+    return out, buf.getvalue()
+
+
+def test_demo_prints_a_table_with_every_method_and_a_filter_row(demo_run) -> None:
+    _, out = demo_run
+    rows = {m: (float(cov), float(pos)) for m, cov, pos in ROW.findall(out)}
+    assert list(rows) == list(METHODS)
+    cov, pos_m = rows["filter"]
+    assert cov >= 99.0  # an estimate for every packet
+    assert rows["full"][0] < 50.0  # the paper's pipeline answers sparsely
+    assert pos_m < 1.5  # a broken filter (or scoring) lands metres off
+    assert "4 s walk with turns: 200 packets, one every 20 ms (the paper: 5 ms" in out
+    assert re.search(r"filter's stated uncertainty: median position_std_m [\d.]+ m", out)
+    assert "and the Bayesian tracker (filter)" in out
+
+
+def test_demo_writes_non_trivial_figures_and_estimates(demo_run) -> None:
+    d, out = demo_run
+    for name in FIGURES:
+        path = d / name
+        assert path.stat().st_size > 20_000, name
+        assert f"wrote {path}" in out
+        img = plt.imread(path)
+        assert img.ndim == 3 and img[..., :3].std() > 0.05, name  # not a blank canvas
+    h, w = plt.imread(d / "filter_track.png").shape[:2]
+    assert (w, h) == (1760, 935)  # 16 in × 8.5 in at 110 dpi
+    for m in METHODS:
+        est = read_estimates_csv(d / f"estimates_{m}.csv")
+        assert len(est) > 0 and set(est.method) == {m}
+    f = read_estimates_csv(d / "estimates_filter.csv")
+    assert f.position_std_m is not None and f.azimuth_std_deg is not None
+    assert len(f) >= 0.99 * 200
+    assert (d / "scenario" / "truth.csv").is_file()
+
+
+def test_demo_method_option_is_for_live(tmp_path: Path, capsys) -> None:
+    code, _, err = _run(["demo", "-o", str(tmp_path / "d"), "--method", "full"], capsys)
+    assert code == 2 and "--method applies to --live" in err and err.count("\n") == 1
+    code, _, err = _run(["demo", "-o", str(tmp_path / "d"), "--live", "--method", "x"], capsys)
+    assert code == 2 and "--method must be one of" in err and err.count("\n") == 1
+    assert not (tmp_path / "d").exists()
+
+
+def test_live_demo_serves_the_chosen_method() -> None:
+    from radiopose.server.demo import serve_command
+
+    cmd = serve_command(Path("site"), "sqlite:///x.db", 8123, "filter")
+    assert cmd[cmd.index("--method") + 1] == "filter"
+    assert "--method" not in serve_command(Path("site"), "sqlite:///x.db", 8123)
+
+
+# ----------------------------------------------------------------------------- figures
+def _track(n: int = 50, *, method: str = "filter", std: bool = True) -> Estimates:
+    t = np.arange(n) * 0.1
+    pos = np.column_stack([1.0 + 0.1 * np.arange(n), np.full(n, 5.0), np.ones(n)])
+    ori = np.column_stack([np.linspace(350.0, 370.0, n) % 360.0, np.zeros(n), np.zeros(n)])
+    return Estimates(
+        t,
+        np.full(n, "tx", dtype=object),
+        np.array([str(i) for i in range(n)], dtype=object),
+        pos,
+        ori,
+        np.full(n, method, dtype=object),
+        position_std_m=np.linspace(0.1, 2.0, n) if std else None,
+        azimuth_std_deg=np.linspace(5.0, 40.0, n) if std else None,
+    )
+
+
+def test_track_plot_draws_the_stated_uncertainty() -> None:
+    track = _track()
+    sparse = _track(method="full", std=False).select(np.arange(50) % 10 == 0)
+    ax = plots.plot_track_uncertainty(
+        track.timestamp_s,
+        track.position_m,
+        track.orientation_deg[:, 0],
+        track,
+        {"full": sparse},
+        n_packets=50,
+        n_wedges=5,
+    )
+    cols = [c for c in ax.collections if isinstance(c, PatchCollection)]
+    discs, wedges = cols[0], cols[1]
+    # one disc per estimate, radius position_std_m, fainter the wider (1/r²)
+    paths = discs.get_paths()
+    assert len(paths) == 50
+    radii = [0.5 * np.ptp(p.vertices[:, 0]) for p in paths]
+    np.testing.assert_allclose(radii, track.position_std_m, rtol=1e-6)
+    alpha = discs.get_facecolors()[:, 3]
+    assert alpha[0] > alpha[-1] and np.all(np.diff(alpha) <= 0)
+    # a wedge of ± azimuth_std_deg around the top (azimuth + 90° from +x)
+    assert len(wedges.get_paths()) == 5
+    idx = np.linspace(0, 49, 5).astype(int)
+    for p, i in zip(wedges.get_paths(), idx, strict=True):
+        v = p.vertices - track.position_m[i, :2]
+        far = np.hypot(v[:, 0], v[:, 1]) > 0.5
+        ang = np.degrees(np.arctan2(v[far, 1], v[far, 0]))
+        centre = track.orientation_deg[i, 0] + 90.0
+        spread = np.abs((ang - centre + 180.0) % 360.0 - 180.0)
+        assert spread.max() == pytest.approx(track.azimuth_std_deg[i], abs=0.5)
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert "filter (100.0 % of packets)" in labels
+    assert "full (10.0 % of packets)" in labels
+    plt.close(ax.figure)
+
+
+def test_azimuth_plot_unwraps_along_the_truth() -> None:
+    track = _track()
+    truth_az = track.orientation_deg[:, 0].copy()
+    track.orientation_deg[:, 0] = (truth_az + 3.0) % 360.0  # 3° off, across 0/360
+    ax = plots.plot_azimuth_over_time(track.timestamp_s, truth_az, track)
+    lines = {ln.get_label(): ln for ln in ax.get_lines()}
+    truth = lines["truth"].get_ydata()
+    est = lines["filter"].get_ydata()
+    np.testing.assert_allclose(truth, np.linspace(350.0, 370.0, 50), atol=1e-9)
+    np.testing.assert_allclose(np.asarray(est) - truth, 3.0, atol=1e-9)
+    plt.close(ax.figure)
+
+
+def test_error_plot_legend_has_coverage_and_mean() -> None:
+    t = np.arange(4.0)
+    ax = plots.plot_error_over_time(
+        {"filter": (t, np.array([0.1, 0.2, 0.3, 0.4])), "full": (t[:1], np.array([1.0]))},
+        coverage={"filter": 1.0, "full": 0.25},
+        stated=("filter: position_std_m", t, np.full(4, 0.5)),
+    )
+    labels = [x.get_text() for x in ax.get_legend().get_texts()]
+    assert labels == [
+        "filter: 100.0 % coverage, mean 0.25 m",
+        "full: 25.0 % coverage, mean 1.00 m",
+        "filter: position_std_m",
+    ]
+    plt.close(ax.figure)
+
+
+def test_track_figure_needs_the_uncertainty_columns() -> None:
+    track = _track(std=False)
+    with pytest.raises(ValueError, match="position_std_m"):
+        plots.track_figure(
+            track.timestamp_s,
+            track.position_m,
+            track.orientation_deg[:, 0],
+            track,
+            (np.zeros(50), np.zeros(50)),
+            {},
+            n_packets=50,
+        )
+    plt.close("all")
+
+
+def test_calibration_counts_errors_within_twice_the_stated_std() -> None:
+    track = _track(n=4)
+    assert track.position_std_m is not None
+    track.position_std_m[:] = 1.0
+    track.azimuth_std_deg[:] = 10.0  # type: ignore[index]
+    run = MethodRun(
+        "filter",
+        track,
+        RunSummary("filter", 4, 4),
+        np.array([0.5, 1.9, 2.1, 5.0]),
+        np.array([1.0, 25.0, 30.0, 2.0]),
+        np.arange(4),
+        4,
+    )
+    cal = calibration(run)
+    assert cal is not None
+    assert cal.position_within_2sd == 0.5 and cal.orientation_within_2sd == 0.5
+    assert cal.median_position_std_m == 1.0 and cal.median_azimuth_std_deg == 10.0
+    no_std = MethodRun(
+        "full",
+        _track(n=4, std=False),
+        RunSummary("full", 4, 4),
+        run.position_error_m,
+        run.orientation_error_deg,
+        run.truth_index,
+        4,
+    )
+    assert calibration(no_std) is None
