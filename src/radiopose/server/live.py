@@ -184,6 +184,7 @@ class LivePipeline:
         self.site: Site | None = None
         self.site_version = -1
         self.tracker: Tracker | None = None
+        self.alarm_monitor: Any = None  # radiopose.server.alarms.AlarmMonitor (filter only)
         self.state = PipelineState()
         self.latencies_s: deque[float] = deque(maxlen=5_000)
         self._last_commit_s = 0.0
@@ -212,6 +213,10 @@ class LivePipeline:
         self.site_version = version
         self.tracker = Tracker(self.site, self.config.method, self.config.tracker)
         self.tracker.states = self.state.track_states
+        if self.config.method == "filter":  # spoofing alarms beside the filter (issue 19)
+            from radiopose.server.alarms import AlarmMonitor
+
+            self.alarm_monitor = AlarmMonitor(self.site)
         out: list[dict[str, Any]] = []
         receivers = self.site.receiver_ids
         st = self.state
@@ -391,6 +396,10 @@ class LivePipeline:
                         "last_report_s": last_report,
                     }
                 )
+                if self.alarm_monitor is not None:
+                    event = self.alarm_monitor.observe(obs, est.position_m, est.orientation_deg)
+                    if event is not None:
+                        out.append({"kind": "alarm", **event})
         return out
 
     def _arrival(self, receiver_id: str, t_ns: int, default: float) -> float:
@@ -435,6 +444,11 @@ class LivePipeline:
         self.db.commit_step(
             self.config.partition_key, st.cursor, pickle.dumps(st), summary, packets, estimates
         )
+        alarms = [
+            {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "alarm"
+        ]
+        if alarms:
+            self.db.add_alarms(alarms)
         self._last_commit_s = now
         self._committed_cursor = st.cursor
 
