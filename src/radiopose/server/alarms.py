@@ -139,9 +139,8 @@ def router(db: Any, viewer: Callable[..., Any]) -> APIRouter:
     """``GET /api/v1/alarms`` over ``db`` for the ``viewer`` dependency's roles."""
     api = APIRouter()
 
-    @api.get("/api/v1/alarms", response_model=list[Alarm])
+    @api.get("/api/v1/alarms", response_model=list[Alarm], dependencies=[Depends(viewer)])
     def alarms(
-        who: Annotated[Any, Depends(viewer)],
         transmitter: Annotated[str | None, Query(max_length=64)] = None,
         since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
         limit: Annotated[int, Query(ge=1, le=100_000)] = 1_000,
