@@ -14,6 +14,7 @@ from radiopose.estimates import read_estimates_csv
 from radiopose.packets import PacketObservation
 from radiopose.security.detection import ALARM_COLUMN, SCORE_COLUMN
 from radiopose.simulate import ScenarioConfig, simulate
+from server_support import db_url, tiny  # noqa: F401 - fixtures of the live-server tests
 
 SEED = 4244
 
@@ -141,4 +142,59 @@ def test_alarms_table_endpoint_and_estimate_flags(small, tmp_path: Path) -> None
     assert [a["state"] for a in body] == ["raised", "cleared"]
     assert body[0]["score_nats"] == 41.0 and math.isfinite(body[0]["raised_s"])
     assert [e["spoof_alarm_flag"] for e in estimates.json()] == [0, 1, 0]
+    db.close()
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+def test_live_filter_pipeline_stores_alarm_events(
+    tiny,  # noqa: F811 - the fixture
+    db_url: str,  # noqa: F811
+    tmp_path: Path,
+    monkeypatch,
+) -> None:
+    """The live chain end to end: reports in, ``filter`` estimates, the monitor's
+    events in the alarms table and the API. The detector is set to a hair trigger
+    (threshold 0.01 nats, no warm-up) so genuine traffic raises alarms."""
+    import threading
+
+    from radiopose.receiver import AgentConfig, ReceiverAgent, run_replay
+    from radiopose.security.detection import DetectorConfig
+    from radiopose.server import alarms
+    from radiopose.server.app import import_site_dir
+    from radiopose.server.auth import create_token
+    from radiopose.server.db import Database
+    from server_support import RECEIVERS, fast_live, run_server, wait_for
+
+    monkeypatch.setattr(
+        alarms, "DetectorConfig", lambda: DetectorConfig(threshold_nats=0.01, warmup_s=0.0)
+    )
+    db = Database(db_url)
+    import_site_dir(db, tiny.site_dir)
+    tokens = {r: create_token(db, "receiver", r) for r in RECEIVERS}
+    viewer = create_token(db, "viewer")
+    with run_server(db, fast_live(method="filter")) as srv:
+        agents = []
+        for r in RECEIVERS:
+            cfg = AgentConfig(srv.url, tokens[r], r, spool_dir=tmp_path / "spool" / r)
+            agents.append(ReceiverAgent(cfg))
+        threads = [
+            threading.Thread(target=run_replay, args=(a, tiny.frames[a.config.receiver_id]))
+            for a in agents
+        ]
+        for a in agents:
+            a.refresh_transmitters()
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        for a in agents:
+            assert a.drain(60)
+            a.close()
+        events = wait_for(lambda: db.alarms(), 60)
+        assert events[0]["state"] == "raised"
+        assert events[0]["transmitter"].lower() == tiny.transmitter.lower()
+        got = srv.client(viewer).get("/api/v1/alarms").json()
+        assert [e["id"] for e in got][: len(events)] == [e["id"] for e in events]
+        flagged = srv.client(viewer).get("/api/v1/estimates").json()
+        assert any(e["spoof_alarm_flag"] == 1 for e in flagged)
     db.close()
