@@ -65,7 +65,7 @@ def test_locate_filter_writes_score_and_alarm_as_trailing_columns(
     assert SCORE_COLUMN not in out2.read_text().splitlines()[0]
 
 
-def test_alarm_monitor_raises_on_a_sender_elsewhere(small) -> None:
+def test_alarm_monitor_raises_on_a_clone_elsewhere(small) -> None:
     from radiopose.server.alarms import AlarmMonitor
 
     _, sim = small
@@ -83,7 +83,7 @@ def test_alarm_monitor_raises_on_a_sender_elsewhere(small) -> None:
     events = []
     for i in range(600):
         rss = base + rng.normal(0.0, 0.5, base.shape)
-        if i >= 400:  # another sender: each receiver off by several dB
+        if i >= 400 and i % 2:  # a clone elsewhere sends every other packet
             rss = rss + np.array([6.0, -6.0, 4.0, -4.0])
         obs = PacketObservation(str(i), i * 0.01, tx, ids, rss)
         e = mon.observe(obs, pose_p, pose_o)
