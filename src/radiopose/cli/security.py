@@ -64,7 +64,9 @@ def spoof(
     """Spoofing experiments: match probability, different pattern, path attack, end to end.
 
     Writes tidy CSVs (targets, paths, end_to_end, summary, …), PNG figures and
-    report.md into DIR, and prints the summary.
+    report.md into DIR, and prints the summary. ``radiopose spoof detect``
+    instead runs the spoofing detector against four attacks and genuine
+    traffic and writes DIR/detection.csv and DIR/roc.csv (docs/security.md).
     """
     if experiments and experiments[0].strip().lower() == "detect":
         if len(experiments) > 1:

@@ -263,15 +263,6 @@ def pose_residuals_db(
     return rss - expected
 
 
-def heard_matrix(n_receivers: int, heard: Sequence[tuple[np.ndarray, np.ndarray]]) -> FloatArray:
-    """``(n, n_receivers)`` RSS by receiver index from ``(receiver_index, rss_dbm)`` pairs
-    (``nan`` where a receiver did not hear the packet)."""
-    out = np.full((len(heard), n_receivers), np.nan)
-    for i, (idx, rss) in enumerate(heard):
-        out[i, np.asarray(idx, dtype=np.int64)] = rss
-    return out
-
-
 def score_estimates(
     site: Site,
     observations: Sequence[PacketObservation],
