@@ -14,7 +14,8 @@ traffic and its attack scores within 0.5 s.
 
 ``tuning``: seeds 7000–7011 (σ 0.5, 1, 3 dB; 8 runs per attack; 6 genuine
 chunks of 30 s per σ); ``quick``: what ``radiopose spoof detect --quick`` runs
-(seeds from 20000); ``full``: the full plan (hours).
+(σ = 1 dB, seeds from 20000); ``sigmas``: the same at σ = 0.5 and 3 dB;
+``full``: the full plan (hours).
 """
 
 from __future__ import annotations
@@ -43,6 +44,9 @@ PLANS = {
         sigmas_db=(1.0, 3.0, 0.5), attack_runs=8, genuine_chunks=6, chunk_s=30.0, seed=7000
     ),
     "quick": DetectPlan.quick(),
+    "sigmas": DetectPlan(
+        sigmas_db=(0.5, 3.0), attack_runs=10, genuine_chunks=20, chunk_s=30.0, seed=20_000
+    ),
     "full": DetectPlan(),
 }
 

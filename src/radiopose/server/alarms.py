@@ -77,7 +77,9 @@ class AlarmMonitor:
             from radiopose.likelihood import candidate_space, make_scorer
 
             space = candidate_space(self.site, transmitter)
-            self._models[key] = FilterModel.build(self.site, space, make_scorer("numba", space))
+            # only FilterModel.expected is used: the scorer that costs nothing to build
+            scorer = make_scorer("reference", space)
+            self._models[key] = FilterModel.build(self.site, space, scorer)
         return self._models[key]
 
     def observe(
