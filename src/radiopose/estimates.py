@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
 from radiopose.tables import Column, read_header, read_table, reject_repeated_rows, write_table
@@ -150,8 +151,18 @@ def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
     )
 
 
-def write_estimates_csv(estimates: Estimates, path: str | os.PathLike[str]) -> None:
-    """Write ``estimates.csv`` atomically (timestamps to 1 ns, positions to 1 µm)."""
+def write_estimates_csv(
+    estimates: Estimates,
+    path: str | os.PathLike[str],
+    extra_columns: Mapping[str, NDArray] | None = None,
+) -> None:
+    """Write ``estimates.csv`` atomically (timestamps to 1 ns, positions to 1 µm).
+
+    ``extra_columns`` are further optional trailing columns, each named with its
+    unit and one value per row (e.g. the spoofing detector's
+    ``spoof_score_nats``, ``spoof_alarm_flag``), written after the uncertainty
+    columns; readers ignore trailing columns they do not know.
+    """
     write_table(
         path,
         {
@@ -168,6 +179,7 @@ def write_estimates_csv(estimates: Estimates, path: str | os.PathLike[str]) -> N
                     "azimuth_std_deg": estimates.azimuth_std_deg,
                 }
             ),
+            **dict(extra_columns or {}),
         },
         decimals={"timestamp_s": 9},
     )

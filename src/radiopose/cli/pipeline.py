@@ -83,7 +83,25 @@ def locate(
             result = run_locate(the_site, pk, method, config, progress)
     else:
         result = run_locate(the_site, pk, method, config)
-    write_estimates_csv(result.estimates, out)
+    extra = None
+    if method == "filter" and len(result.estimates):
+        from radiopose.packets import group_packets
+        from radiopose.security.detection import ALARM_COLUMN, SCORE_COLUMN, score_estimates
+
+        det = score_estimates(
+            the_site,
+            group_packets(pk),
+            result.estimates,
+            reacquire_gap_s=config.filter.reacquire_gap_s,
+        )
+        extra = {SCORE_COLUMN: det.score_nats, ALARM_COLUMN: det.alarm.astype("int64")}
+        onsets = det.alarm_onsets().size
+        print(
+            f"spoofing detector: {onsets} alarm{'s' * (onsets != 1)} "
+            f"({int(det.alarm.sum())} of {len(det.alarm)} estimates flagged; docs/security.md)",
+            file=sys.stderr,
+        )
+    write_estimates_csv(result.estimates, out, extra)
     for line in result.summary.lines():
         print(line, file=sys.stderr)
     print(f"wrote {out}", file=sys.stderr)

@@ -18,7 +18,8 @@ def spoof(
     experiments: Annotated[
         list[str] | None,
         typer.Argument(
-            help="Experiments to run: 1 match, 2 pattern, 3 path, 4 e2e (default: all)."
+            help="Experiments to run: 1 match, 2 pattern, 3 path, 4 e2e (default: all); "
+            "or 'detect' alone: the spoofing detector's ROC (DIR/detection.csv)."
         ),
     ] = None,
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")] = Path(
@@ -63,8 +64,17 @@ def spoof(
     """Spoofing experiments: match probability, different pattern, path attack, end to end.
 
     Writes tidy CSVs (targets, paths, end_to_end, summary, …), PNG figures and
-    report.md into DIR, and prints the summary.
+    report.md into DIR, and prints the summary. ``radiopose spoof detect``
+    instead runs the spoofing detector against four attacks and genuine
+    traffic and writes DIR/detection.csv and DIR/roc.csv (docs/security.md).
     """
+    if experiments and experiments[0].strip().lower() == "detect":
+        if len(experiments) > 1:
+            from radiopose.errors import InputError
+
+            raise InputError("spoof detect takes no experiment names: run it on its own")
+        _spoof_detect(out, quick, runs, seed, workers, quiet)
+        return
     from contextlib import nullcontext
     from dataclasses import replace
 
@@ -181,5 +191,68 @@ def spoof(
         print(f"{r['experiment']:<8} {r['metric']:<44} {r['value']:.3f}{ci}")
     print(
         f"wrote {len(written)} tables, {len(figures)} figures and {report} in {wall:.0f} s",
+        file=sys.stderr,
+    )
+
+
+def _spoof_detect(
+    out: Path, quick: bool, runs: int | None, seed: int, workers: int | None, quiet: bool
+) -> None:
+    """``radiopose spoof detect``: attacks and genuine traffic through the filter and the
+    detector; writes ``DIR/detection.csv`` and ``DIR/roc.csv`` (docs/security.md)."""
+    from dataclasses import replace
+
+    from radiopose.errors import InputError
+    from radiopose.security.detect_experiment import (
+        DETECTION_COLUMNS,
+        DetectPlan,
+        detection_rows,
+        genuine_hours,
+        roc_rows,
+        run_tracks,
+        write_csv,
+    )
+    from radiopose.security.detection import DetectorConfig
+    from radiopose.security.runner import default_workers
+
+    plan = DetectPlan.quick(20_000 + seed) if quick else DetectPlan(seed=20_000 + seed)
+    if runs is not None:
+        if runs < 1:
+            raise InputError(f"--runs must be at least 1, got {runs}")
+        plan = replace(plan, attack_runs=runs)
+    n_workers = default_workers() if workers is None else workers
+    t0 = time.perf_counter()
+    n_tasks = len(plan.sigmas_db) * (4 * plan.attack_runs + plan.genuine_chunks)
+    done = [0]
+
+    def finished(track: object) -> None:
+        done[0] += 1
+        if not quiet and (done[0] % 10 == 0 or done[0] == n_tasks):
+            print(
+                f"spoof detect: {done[0]}/{n_tasks} tracks ({time.perf_counter() - t0:.0f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    tracks = run_tracks(plan, n_workers, finished)
+    config = DetectorConfig()
+    rows = detection_rows(tracks, config, plan.window_s)
+    base = config.threshold_nats
+    sweep = sorted({base * f for f in (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 2.0)})
+    roc = roc_rows(tracks, config, sweep, plan.window_s)
+    out.mkdir(parents=True, exist_ok=True)
+    write_csv(out / "detection.csv", rows, DETECTION_COLUMNS)
+    write_csv(out / "roc.csv", roc, ("threshold_nats", *DETECTION_COLUMNS))
+    for r in rows:
+        print(
+            f"{r['attack']:<7} σ={r['sigma_db']:<4g} runs={r['runs']:<3} "
+            f"P(detect ≤ {plan.window_s:g} s)={r['detection_probability']:.2f} "
+            f"delay={r['median_detection_delay_s']:.3f} s "
+            f"false alarms/h={r['false_alarms_per_hour']:.2f}"
+        )
+    hours = ", ".join(f"σ {s:g}: {genuine_hours(tracks, s) * 60:.1f} min" for s in plan.sigmas_db)
+    print(
+        f"genuine traffic behind the false-alarm rates: {hours}; wrote {out / 'detection.csv'} "
+        f"and {out / 'roc.csv'} in {time.perf_counter() - t0:.0f} s",
         file=sys.stderr,
     )

@@ -14,6 +14,7 @@ method   path                                role
 POST     /api/v1/reports                     receiver (own id only)
 GET      /api/v1/transmitters                receiver, viewer, admin
 GET      /api/v1/estimates                   viewer, admin
+GET      /api/v1/alarms                      viewer, admin
 GET      /api/v1/stream                      viewer, admin (SSE)
 GET      /api/v1/site                        viewer, admin
 GET      /api/v1/patterns/{name}             viewer, admin
@@ -50,6 +51,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from radiopose.capture.records import canonical_transmitter, transmitter_id_problem
 from radiopose.errors import InputError
 from radiopose.server import sitestore
+from radiopose.server.alarms import flag_estimates
+from radiopose.server.alarms import router as alarms_router
 from radiopose.server.auth import READ_ROLES, Principal, hash_token
 from radiopose.server.db import Database
 from radiopose.server.live import LiveConfig, LiveWorker
@@ -339,8 +342,12 @@ def create_app(
     ) -> list[dict[str, Any]]:
         """Estimates (columns of ``estimates.csv``) in time order; the optional
         uncertainty columns (``position_std_m``, ``azimuth_std_deg``) where the
-        method gives them."""
-        return db.estimates(transmitter, since_s, limit=limit)
+        method gives them, and ``spoof_alarm_flag`` (1 inside a raised spoofing
+        alarm, :mod:`radiopose.server.alarms`)."""
+        rows = db.estimates(transmitter, since_s, limit=limit)
+        return flag_estimates(rows, db.alarms(transmitter, limit=100_000)) if rows else rows
+
+    app.include_router(alarms_router(db, require(*sorted(READ_ROLES))))
 
     @app.get(f"{API}/stream")
     async def stream(

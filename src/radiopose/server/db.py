@@ -166,6 +166,21 @@ class EstimateRow(Base):
     azimuth_std_deg: Mapped[float | None] = mapped_column(Float, nullable=True)
 
 
+class AlarmRow(Base):
+    """A spoofing alarm event (:mod:`radiopose.server.alarms`): raised or cleared."""
+
+    __tablename__ = "alarms"
+    id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
+    transmitter: Mapped[str] = mapped_column(String(64), index=True)
+    packet_id: Mapped[str] = mapped_column(String(32))
+    timestamp_s: Mapped[float] = mapped_column(Float, index=True)
+    state: Mapped[str] = mapped_column(String(16))
+    score_nats: Mapped[float] = mapped_column(Float)
+    x_m: Mapped[float] = mapped_column(Float)
+    y_m: Mapped[float] = mapped_column(Float)
+    raised_s: Mapped[float] = mapped_column(Float)
+
+
 class CheckpointRow(Base):
     __tablename__ = "checkpoints"
     partition: Mapped[str] = mapped_column(String(32), primary_key=True)
@@ -543,6 +558,27 @@ class Database:
                 }
                 for r in rows
             ]
+
+    def add_alarms(self, events: Sequence[dict[str, Any]]) -> None:
+        """Store spoofing alarm events (:class:`AlarmRow` fields but ``id``/``raised_s``)."""
+        if not events:
+            return
+        now = time.time()
+        with self.write() as s:
+            s.execute(insert(AlarmRow), [{**e, "raised_s": now} for e in events])
+
+    def alarms(
+        self, transmitter: str | None = None, since_s: float | None = None, limit: int = 1_000
+    ) -> list[dict[str, Any]]:
+        """Spoofing alarm events in time order, as dicts with ``id``."""
+        q = select(AlarmRow)
+        if transmitter is not None:
+            q = q.where(func.lower(AlarmRow.transmitter) == transmitter.lower())
+        if since_s is not None:
+            q = q.where(AlarmRow.timestamp_s >= since_s)
+        q = q.order_by(AlarmRow.timestamp_s, AlarmRow.id).limit(limit)
+        with self.read() as s:
+            return [_row_dict(r, AlarmRow) for r in s.scalars(q).all()]
 
     def recent_latencies_s(self, n: int = 1_000) -> list[float]:
         """Report-to-estimate latency of the last ``n`` estimates, seconds."""

@@ -222,6 +222,8 @@ class LivePipeline:
         self.site: Site | None = None
         self.site_version = -1
         self.tracker: Tracker | None = None
+        self.alarm_monitor: Any = None  # radiopose.server.alarms.AlarmMonitor (filter only)
+        self._pending_obs: dict[tuple[str, str], PacketObservation] = {}
         self.state = PipelineState()
         self.latencies_s: deque[float] = deque(maxlen=5_000)
         self._last_commit_s = 0.0
@@ -257,6 +259,10 @@ class LivePipeline:
             lag_s=self.config.live_lag_s or None,
         )
         self.tracker.states = self.state.track_states
+        if self.config.method_name == "filter":  # spoofing alarms beside the filter (issue 19)
+            from radiopose.server.alarms import AlarmMonitor
+
+            self.alarm_monitor = AlarmMonitor(self.site)
         out: list[dict[str, Any]] = []
         receivers = self.site.receiver_ids
         st = self.state
@@ -392,7 +398,8 @@ class LivePipeline:
         assert st.matcher is not None
         out += self._handle(st.matcher.flush(), wall_s)
         if self.tracker is not None:  # a lagged method's held-back estimates
-            out += [self._estimate_row(e, wall_s) for e in self.tracker.flush()]
+            for e in self.tracker.flush():
+                out += self._estimate_rows(e, wall_s)
         return out
 
     # ------------------------------------------------------------------ packets
@@ -414,6 +421,8 @@ class LivePipeline:
             obs = PacketObservation(
                 pid, obs.timestamp_s, obs.transmitter, obs.receiver_ids, obs.rss_dbm
             )
+            if self.alarm_monitor is not None:  # its estimate may come after the lag
+                self._pending_obs[(obs.transmitter, pid)] = obs
             est, reason = self.tracker.update(obs)
             t_ns = round(obs.timestamp_s * _NS)
             last_report = max(self._arrival(r, t_ns - tol_ns, wall_s) for r in obs.receiver_ids)
@@ -431,13 +440,32 @@ class LivePipeline:
                 }
             )
             if est is not None:
-                out.append(self._estimate_row(est, last_report))
+                out += self._estimate_rows(est, last_report)
             # a lagged method's estimates of earlier packets, ready with this one
-            out += [self._estimate_row(e, last_report) for e in self.tracker.take_delayed()]
+            for e in self.tracker.take_delayed():
+                out += self._estimate_rows(e, last_report)
         # ... and of devices silent for the lag while others send
         now_s = float(np.max(packets.timestamp_s))
-        out += [self._estimate_row(e, wall_s) for e in self.tracker.release(now_s)]
+        for e in self.tracker.release(now_s):
+            out += self._estimate_rows(e, wall_s)
         return out
+
+    def _estimate_rows(self, est: PoseEstimate, last_report_s: float) -> list[dict[str, Any]]:
+        """The estimate's row, and the spoofing alarm it raises (``filter`` only,
+        :class:`radiopose.server.alarms.AlarmMonitor`)."""
+        rows = [self._estimate_row(est, last_report_s)]
+        if self.alarm_monitor is not None:
+            obs = self._pending_obs.pop((est.transmitter, est.packet_id), None)
+            # packets that never got an estimate (e.g. an unenrolled device) age out
+            for key in [
+                k for k, o in self._pending_obs.items() if o.timestamp_s < est.timestamp_s - 5.0
+            ]:
+                del self._pending_obs[key]
+            if obs is not None:
+                event = self.alarm_monitor.observe(obs, est.position_m, est.orientation_deg)
+                if event is not None:
+                    rows.append({"kind": "alarm", **event})
+        return rows
 
     def _estimate_row(self, est: PoseEstimate, last_report_s: float) -> dict[str, Any]:
         """An estimate row; ``last_report_s`` is the arrival of the report that made it
@@ -503,6 +531,11 @@ class LivePipeline:
         self.db.commit_step(
             self.config.partition_key, st.cursor, pickle.dumps(st), summary, packets, estimates
         )
+        alarms = [
+            {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "alarm"
+        ]
+        if alarms:
+            self.db.add_alarms(alarms)
         self._last_commit_s = now
         self._committed_cursor = st.cursor
 

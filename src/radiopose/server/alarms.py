@@ -1,0 +1,153 @@
+"""Spoofing alarms on the live server (issue 19, ``docs/security.md``).
+
+The live pipeline hands every ``filter`` estimate to an :class:`AlarmMonitor`,
+which keeps one :class:`~radiopose.security.detection.ConsistencyDetector` per
+transmitter (the residuals of the packet at the estimate's pose) and returns an
+event when a transmitter's alarm switches on (``raised``) or off
+(``cleared``). Events are stored in the ``alarms`` table
+(:meth:`radiopose.server.db.Database.add_alarms`) and served by:
+
+=======  ==================================  ===========================
+method   path                                role
+=======  ==================================  ===========================
+GET      /api/v1/alarms                      viewer, admin
+=======  ==================================  ===========================
+
+``GET /api/v1/estimates`` marks each estimate that falls inside a raised alarm
+with ``spoof_alarm_flag = 1`` (:func:`flag_estimates`).
+
+The detectors' state is not part of the pipeline checkpoint: after a restart
+each transmitter's detector learns its references again (``warmup_s``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Annotated, Any
+
+import numpy as np
+from fastapi import APIRouter, Depends, Query
+from pydantic import BaseModel
+
+from radiopose.packets import PacketObservation
+from radiopose.security.detection import (
+    ConsistencyDetector,
+    DetectorConfig,
+    pose_residuals_db,
+)
+from radiopose.site import Site
+
+
+class Alarm(BaseModel):
+    """One alarm event: a transmitter's spoofing alarm ``raised`` or ``cleared``."""
+
+    id: int
+    transmitter: str
+    packet_id: str
+    timestamp_s: float
+    state: str
+    score_nats: float
+    x_m: float
+    y_m: float
+    raised_s: float
+
+
+class AlarmMonitor:
+    """Per-transmitter consistency detectors over the live ``filter`` estimates.
+
+    Parameters
+    ----------
+    site
+        The site (its survey map and devices give the expected RSS).
+    config
+        Detector parameters.
+    """
+
+    def __init__(self, site: Site, config: DetectorConfig | None = None) -> None:
+        self.site = site
+        self.config = config or DetectorConfig()
+        self._models: dict[str, Any] = {}
+        self._detectors: dict[str, ConsistencyDetector] = {}
+        self._rx = {r: i for i, r in enumerate(site.receiver_ids)}
+
+    def _model(self, transmitter: str) -> Any:
+        key = transmitter.lower()
+        if key not in self._models:
+            from radiopose.filtering import FilterModel
+            from radiopose.likelihood import candidate_space, make_scorer
+
+            space = candidate_space(self.site, transmitter)
+            # only FilterModel.expected is used: the scorer that costs nothing to build
+            scorer = make_scorer("reference", space)
+            self._models[key] = FilterModel.build(self.site, space, scorer)
+        return self._models[key]
+
+    def observe(
+        self,
+        obs: PacketObservation,
+        position_m: Sequence[float],
+        orientation_deg: Sequence[float],
+    ) -> dict[str, Any] | None:
+        """One estimated packet; an alarm event row (without ``id``) if the alarm changed."""
+        key = obs.transmitter.lower()
+        rss = np.full(len(self._rx), np.nan)
+        for r, v in zip(obs.receiver_ids, obs.rss_dbm, strict=True):
+            if r in self._rx:
+                rss[self._rx[r]] = v
+        res = pose_residuals_db(self._model(obs.transmitter), position_m, orientation_deg, rss)[0]
+        det = self._detectors.get(key)
+        if det is None:
+            det = self._detectors[key] = ConsistencyDetector(self.config)
+        elif det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
+            det.reset()  # the tracker re-acquires after a silence
+        before = det.alarm
+        score, alarm = det.update(obs.timestamp_s, res)
+        if alarm == before:
+            return None
+        return {
+            "transmitter": obs.transmitter,
+            "packet_id": str(obs.packet_id),
+            "timestamp_s": float(obs.timestamp_s),
+            "state": "raised" if alarm else "cleared",
+            "score_nats": float(score),
+            "x_m": float(position_m[0]),
+            "y_m": float(position_m[1]),
+        }
+
+
+def flag_estimates(
+    rows: list[dict[str, Any]], events: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """Add ``spoof_alarm_flag`` (1 inside a raised alarm of its transmitter, else 0)."""
+    spans: dict[str, list[tuple[float, float]]] = {}
+    open_at: dict[str, float] = {}
+    for e in sorted(events, key=lambda e: (e["timestamp_s"], e["id"])):
+        tx = e["transmitter"].lower()
+        if e["state"] == "raised":
+            open_at.setdefault(tx, e["timestamp_s"])
+        elif tx in open_at:
+            spans.setdefault(tx, []).append((open_at.pop(tx), e["timestamp_s"]))
+    for tx, t0 in open_at.items():
+        spans.setdefault(tx, []).append((t0, float("inf")))
+    out = []
+    for r in rows:
+        t = r["timestamp_s"]
+        flag = any(a <= t < b for a, b in spans.get(r["transmitter"].lower(), ()))
+        out.append({**r, "spoof_alarm_flag": int(flag)})
+    return out
+
+
+def router(db: Any, viewer: Callable[..., Any]) -> APIRouter:
+    """``GET /api/v1/alarms`` over ``db`` for the ``viewer`` dependency's roles."""
+    api = APIRouter()
+
+    @api.get("/api/v1/alarms", response_model=list[Alarm], dependencies=[Depends(viewer)])
+    def alarms(
+        transmitter: Annotated[str | None, Query(max_length=64)] = None,
+        since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
+        limit: Annotated[int, Query(ge=1, le=100_000)] = 1_000,
+    ) -> list[dict[str, Any]]:
+        """Spoofing alarm events (``raised``/``cleared``) in time order."""
+        return db.alarms(transmitter, since_s, limit=limit)
+
+    return api

@@ -1,0 +1,182 @@
+"""The spoofing detector (issue 19): analytic CUSUM behaviour, each attack on a
+seeded scenario through the real filter, a genuine fast-rotating track left
+alone, ``spoof detect``'s table, ``locate``'s trailing columns and the alarms API.
+
+Seeds 4240–4249 are this file's own (not the tuning seeds 7000–7011 nor the
+held-out 1000–1009).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from radiopose.errors import InputError
+from radiopose.security.attacks import (
+    ATTACKS,
+    AttackConfig,
+    SiteModel,
+    attack_stream,
+    genuine_stream,
+    scenario_for,
+)
+from radiopose.security.detect_experiment import (
+    DETECTION_COLUMNS,
+    DetectPlan,
+    Track,
+    detection_rows,
+    filter_residuals,
+)
+from radiopose.security.detection import (
+    ConsistencyDetector,
+    DetectorConfig,
+    score_track,
+)
+from radiopose.simulate.trajectories import MotionConfig
+
+SEED = 4242
+
+
+# ----------------------------------------------------------------------------- analytic
+def test_cusum_stays_quiet_on_stationary_residuals_and_fires_on_inflation() -> None:
+    rng = np.random.default_rng(SEED)
+    t = np.arange(60_000) * 0.005  # 5 minutes at 200 packets/s
+    res = rng.normal(3.0, 1.0, (t.size, 4))  # offset 3 dB, σ 1 dB
+    quiet = score_track(t, res, DetectorConfig())
+    assert not quiet.alarm.any()
+    start = 30_000
+    res[start:] = rng.normal(3.0, 2.0, (t.size - start, 4))  # variance ×4
+    loud = score_track(t, res, DetectorConfig())
+    first = np.flatnonzero(loud.alarm)[0]
+    assert start <= first and t[first] - t[start] < 0.5
+
+
+def test_a_silence_a_real_device_does_not_show_is_evidence() -> None:
+    rng = np.random.default_rng(SEED + 1)
+    t = np.arange(2_000) * 0.005
+    t[1_000:] += 0.25  # one 250 ms silence in 5 ms traffic
+    res = rng.normal(0.0, 1.0, (t.size, 4))
+    with_gap = score_track(t, res, DetectorConfig(gap_nats=10.0))
+    without = score_track(t, res, DetectorConfig())  # the default: no gap test
+    assert with_gap.score_nats[1_000] > without.score_nats[1_000] + 10.0
+    assert with_gap.score_nats[1_000] == pytest.approx(
+        without.score_nats[1_000] + 10.0 * np.log2(0.255 / (5 * 0.005)), abs=2.0
+    )
+
+
+def test_streaming_and_batch_forms_agree_and_config_is_checked() -> None:
+    rng = np.random.default_rng(SEED + 2)
+    t = np.arange(500) * 0.01
+    res = rng.normal(0.0, 1.5, (t.size, 3))
+    res[::7, 1] = np.nan  # a receiver missing some packets
+    batch = score_track(t, res)
+    det = ConsistencyDetector()
+    stream = [det.update(float(a), b)[0] for a, b in zip(t, res, strict=True)]
+    np.testing.assert_allclose(batch.score_nats, stream)
+    with pytest.raises(InputError, match="inflation"):
+        DetectorConfig(inflation=1.0)
+    with pytest.raises(InputError, match="residual rows"):
+        score_track(t, res[:-1])
+
+
+# ----------------------------------------------------------------------------- end to end
+@pytest.fixture(scope="module")
+def site() -> SiteModel:
+    return SiteModel.build(scenario_for(1.0), SEED)
+
+
+def _first_alarm_after_attack(site: SiteModel, attack: str) -> float:
+    rng = np.random.default_rng([SEED, ATTACKS.index(attack)])
+    stream = attack_stream(site, attack, 1.0, AttackConfig(), rng)
+    res, _, new = filter_residuals(site, stream, SEED)
+    out = score_track(stream.t_s, res, DetectorConfig(), new)
+    before = stream.t_s < stream.t_attack_s
+    assert not out.alarm[before].any(), "false alarm on the genuine prefix"
+    hits = np.flatnonzero(out.alarm & ~before)
+    return float(stream.t_s[hits[0]] - stream.t_attack_s) if hits.size else math.inf
+
+
+_NOT_MET = pytest.mark.xfail(
+    strict=True,
+    reason="issue 19 goal not met: an attacker that matches the spoofed path's RSS within "
+    "the noise is not told from a real device by RSS alone (docs/security.md, detection)",
+)
+
+
+@pytest.mark.parametrize(
+    "attack",
+    [
+        pytest.param("fixed", marks=_NOT_MET),
+        pytest.param("moving", marks=_NOT_MET),
+        "clone",
+        "replay",
+    ],
+)
+def test_each_attack_is_detected_within_half_a_second(site: SiteModel, attack: str) -> None:
+    assert _first_alarm_after_attack(site, attack) <= 0.5
+
+
+def test_without_the_detector_the_attack_goes_unflagged(site: SiteModel) -> None:
+    """The detector is what flags: the same residuals with an unreachable threshold
+    (the detector in effect removed) give no alarm."""
+    rng = np.random.default_rng([SEED, 0])
+    stream = attack_stream(site, "fixed", 1.0, AttackConfig(), rng)
+    res, _, new = filter_residuals(site, stream, SEED)
+    off = score_track(stream.t_s, res, DetectorConfig(threshold_nats=1e12), new)
+    assert not off.alarm.any()
+
+
+def test_genuine_fast_bounded_rotation_is_not_flagged() -> None:
+    """A genuine device turning at 300–350 °/s (inside the 360 °/s bound) for 10 s."""
+    scenario = replace(
+        scenario_for(1.0),
+        motion=replace(MotionConfig(), rotation="fast", fast_rate_deg_s=(300.0, 350.0)),
+    )
+    site = SiteModel.build(scenario, SEED + 3)
+    stream = genuine_stream(site, 10.0, 1.0, np.random.default_rng(SEED + 3))
+    res, _, new = filter_residuals(site, stream, SEED + 3)
+    out = score_track(stream.t_s, res, DetectorConfig(), new)
+    assert not out.alarm.any()
+
+
+# ----------------------------------------------------------------------------- tables
+def _track(kind: str, t_attack_s: float, alarm_at_s: float | None) -> Track:
+    t = np.arange(0.0, 3.0, 0.005)
+    res = np.random.default_rng(SEED + 4).normal(0.0, 1.0, (t.size, 4))
+    if alarm_at_s is not None:  # residual changes 5 times larger from then on
+        res[t >= alarm_at_s] *= 5.0
+    return Track(kind, 1.0, 0, t, res, res, np.zeros(t.size, bool), t_attack_s)
+
+
+def test_detection_rows_count_detections_delays_and_false_alarms() -> None:
+    tracks = [
+        _track("fixed", 2.0, 2.1),  # detected ~0.1 s after the start
+        _track("fixed", 2.0, None),  # missed
+        _track("genuine", math.inf, 2.5),  # one false alarm in 3 s of traffic
+    ]
+    rows = detection_rows(tracks, DetectorConfig(), 0.5)
+    assert list(rows[0]) == list(DETECTION_COLUMNS)
+    (fixed,) = [r for r in rows if r["attack"] == "fixed"]
+    assert fixed["runs"] == 2 and fixed["detection_probability"] == 0.5
+    assert 0.1 < fixed["median_detection_delay_s"] <= 0.25  # the change is at +0.1 s
+    hours = (3.0 - 0.005 + 2 * (2.0 - 0.005)) / 3600.0
+    assert fixed["false_alarms_per_hour"] == pytest.approx(1.0 / hours, rel=1e-6)
+
+
+def test_spoof_detect_cli_writes_the_contract_table(tmp_path: Path, monkeypatch, capsys) -> None:
+    from radiopose.cli import main
+    from radiopose.security import detect_experiment
+
+    tiny = DetectPlan(sigmas_db=(1.0,), attack_runs=1, genuine_chunks=1, chunk_s=3.0)
+    monkeypatch.setattr(detect_experiment.DetectPlan, "quick", classmethod(lambda cls, seed: tiny))
+    out = tmp_path / "det"
+    code = main(["spoof", "detect", "--quick", "--workers", "0", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    lines = (out / "detection.csv").read_text().splitlines()
+    assert lines[0] == ",".join(DETECTION_COLUMNS)
+    assert [ln.split(",")[0] for ln in lines[1:]] == list(ATTACKS)
+    assert (out / "roc.csv").exists()
