@@ -124,49 +124,74 @@ def predict(  # pragma: no cover - compiled
             S[i, ROLL_RAD] = min(max(r, tilt_box[2]), tilt_box[3])
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, inline="always")
+def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pragma: no cover
+    """Expected RSS of particle ``i`` at the heard receivers into ``out[row, :h]``
+    (see :func:`expected_rss_dbm`)."""
+    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
+    x = S[i, X_M]
+    y = S[i, Y_M]
+    pitch = S[i, PITCH_RAD]
+    roll = S[i, ROLL_RAD]
+    ca = math.cos(S[i, AZIMUTH_RAD])
+    sa = math.sin(S[i, AZIMUTH_RAD])
+    if pitch == 0.0 and roll == 0.0:  # the same numbers as the general case, cheaper
+        cp, sp, cr, sr = 1.0, 0.0, 1.0, 0.0
+    else:
+        cp = math.cos(pitch)
+        sp = math.sin(pitch)
+        cr = math.cos(roll)
+        sr = math.sin(roll)
+    # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
+    r00 = ca * cr - sa * sp * sr
+    r01 = -sa * cp
+    r02 = ca * sr + sa * sp * cr
+    r10 = sa * cr + ca * sp * sr
+    r11 = ca * cp
+    r12 = sa * sr - ca * sp * cr
+    r20 = -cp * sr
+    r21 = sp
+    r22 = cp * cr
+    slice_pattern = d.shape[1] == 1  # polar angle unused: no acos
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        ddx = rx[r, 0] - x
+        ddy = rx[r, 1] - y
+        ddz = rx[r, 2] - S[i, Z_M]
+        vx = ddx * r00 + ddy * r10 + ddz * r20
+        vy = ddx * r01 + ddy * r11 + ddz * r21
+        vz = ddx * r02 + ddy * r12 + ddz * r22
+        nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if nrm > 0.0:
+            phi = math.atan2(vy, vx) * _RAD_TO_DEG
+            theta = (
+                90.0 if slice_pattern else math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+            )
+        else:
+            phi = 0.0
+            theta = 90.0
+        m = _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny)
+        out[row, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
+
+
+@numba.njit(cache=True)
+def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma: no cover
+    """:func:`expected_rss_dbm` into a preallocated ``out`` ``(n, h)``."""
+    for i in range(S.shape[0]):
+        _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, i)
+
+
+@numba.njit(cache=True)
 def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no cover - compiled
     """Expected RSS ``(n, h)`` dBm of every particle at the heard receivers,
     without the power offset. ``grid`` = ``[x0, dx, nx, y0, dy, ny]``;
-    ``pat`` = ``[az0, az_step, polar_step]`` (degrees)."""
-    n = S.shape[0]
-    h = heard.shape[0]
-    out = np.empty((n, h))
-    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
-    for i in numba.prange(n):
-        ca = math.cos(S[i, AZIMUTH_RAD])
-        sa = math.sin(S[i, AZIMUTH_RAD])
-        cp = math.cos(S[i, PITCH_RAD])
-        sp = math.sin(S[i, PITCH_RAD])
-        cr = math.cos(S[i, ROLL_RAD])
-        sr = math.sin(S[i, ROLL_RAD])
-        # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
-        r00 = ca * cr - sa * sp * sr
-        r01 = -sa * cp
-        r02 = ca * sr + sa * sp * cr
-        r10 = sa * cr + ca * sp * sr
-        r11 = ca * cp
-        r12 = sa * sr - ca * sp * cr
-        r20 = -cp * sr
-        r21 = sp
-        r22 = cp * cr
-        for q in range(h):
-            r = heard[q]
-            ddx = rx[r, 0] - S[i, X_M]
-            ddy = rx[r, 1] - S[i, Y_M]
-            ddz = rx[r, 2] - S[i, Z_M]
-            vx = ddx * r00 + ddy * r10 + ddz * r20
-            vy = ddx * r01 + ddy * r11 + ddz * r21
-            vz = ddx * r02 + ddy * r12 + ddz * r22
-            nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if nrm > 0.0:
-                phi = math.atan2(vy, vx) * _RAD_TO_DEG
-                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
-            else:
-                phi = 0.0
-                theta = 90.0
-            m = _map_db(chan, r, S[i, X_M], S[i, Y_M], x0, dx, nx, y0, dy, ny)
-            out[i, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
+    ``pat`` = ``[az0, az_step, polar_step]`` (degrees).
+
+    Serial: a packet's few thousand particles take well under a millisecond,
+    less than what a parallel region costs to start on a busy 2-core machine.
+    """
+    out = np.empty((S.shape[0], heard.shape[0]))
+    expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out)
     return out
 
 
@@ -245,3 +270,172 @@ def systematic_resample(weights, u0):  # pragma: no cover - compiled
             c += weights[j]
         idx[i] = j
     return idx
+
+
+# ----------------------------------------------------------------------------- one packet
+# The per-packet path of ParticleFilter.step in few compiled calls: no
+# (n, h)-sized temporaries from Python, resampling in place.
+
+
+@numba.njit(cache=True)
+def log_sum_exp(logw):  # pragma: no cover - compiled
+    """``log Σ exp(logw)`` (``-inf`` if every entry is ``-inf``)."""
+    m = -np.inf
+    for v in logw:
+        if v > m:
+            m = v
+    if not math.isfinite(m):
+        return m
+    acc = 0.0
+    for v in logw:
+        acc += math.exp(v - m)
+    return m + math.log(acc)
+
+
+@numba.njit(cache=True)
+def normalise_into(logw, w):  # pragma: no cover - compiled
+    """Normalised weights ``w = exp(logw − max) / Σ`` (``logw`` has a finite entry)."""
+    m = -np.inf
+    for v in logw:
+        if v > m:
+            m = v
+    total = 0.0
+    for i in range(logw.shape[0]):
+        w[i] = math.exp(logw[i] - m)
+        total += w[i]
+    for i in range(logw.shape[0]):
+        w[i] /= total
+
+
+@numba.njit(cache=True)
+def packet_update(  # pragma: no cover - compiled
+    S, logw, noise, dt_s, motion, box, tilt_box,
+    heard, rx, chan, grid, tx_dbm, d, pat,
+    rss, sigma_db, likelihood_parameter, pred, w,
+):  # fmt: skip
+    """One packet's predict + weight in one call.
+
+    :func:`predict` by ``dt_s`` (skipped if ``dt_s <= 0``; ``motion`` =
+    ``[q_acc, q_rate, q_tilt, max_speed, max_rate]`` as in :func:`predict`),
+    the expected RSS into ``pred`` ``(n, h)`` (:func:`expected_rss_into`), the
+    likelihood (:func:`measurement_update`, which alone defines it:
+    ``likelihood_parameter`` is its scalar after σ), and, if any particle is
+    still possible, the normalised weights into ``w``.
+
+    Returns ``(lse0, lse1)``: ``log Σ exp(logw)`` before and after the packet
+    (their difference is the packet's evidence; ``lse1 = -inf`` if every
+    particle became impossible).
+    """
+    if dt_s > 0.0:
+        predict(
+            S, noise, dt_s, motion[0], motion[1], motion[2], motion[3], motion[4], box, tilt_box
+        )
+    lse0 = log_sum_exp(logw)
+    expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, pred)
+    measurement_update(S, pred, rss, sigma_db, likelihood_parameter, logw)
+    lse1 = log_sum_exp(logw)
+    if math.isfinite(lse1):
+        normalise_into(logw, w)
+    return lse0, lse1
+
+
+@numba.njit(cache=True)
+def weighted_median_sq_residual(S, pred, rss, w, lim2):  # pragma: no cover - compiled
+    """The ``w``-weighted median over particles of the mean squared residual
+    ``mean_q min((rss_q − pred_q − b̄)², lim2)`` (a NaN row counts as ``lim2``):
+    the first value, in increasing order, at which the cumulative weight
+    reaches ½."""
+    n = S.shape[0]
+    h = rss.shape[0]
+    r2 = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for q in range(h):
+            e = rss[q] - pred[i, q] - S[i, OFFSET_DB]
+            acc += min(e * e, lim2)
+        v = acc / h
+        r2[i] = lim2 if math.isnan(v) else v
+    order = np.argsort(r2)
+    c = 0.0
+    for k in range(n):
+        c += w[order[k]]
+        if c >= 0.5:
+            return r2[order[k]]
+    return r2[order[n - 1]]
+
+
+@numba.njit(cache=True, inline="always")
+def _add_pose(m, wi, x, y, z, az, pitch, roll):  # pragma: no cover - compiled
+    m[0] += wi * x
+    m[1] += wi * y
+    m[2] += wi * z
+    m[3] += wi * math.cos(az)
+    m[4] += wi * math.sin(az)
+    m[5] += wi * pitch
+    m[6] += wi * math.cos(roll)
+    m[7] += wi * math.sin(roll)
+
+
+@numba.njit(cache=True)
+def posterior_moments(S, w):  # pragma: no cover - compiled
+    """Weighted moments of the particles (normalised ``w``)::
+
+        [x̄, ȳ, z̄, Σw cos a, Σw sin a, pitch̄, Σw cos r, Σw sin r,
+         Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
+
+    (angles radians; ``1 / Σw²`` is the effective sample size).
+    """
+    m = np.zeros(11)
+    for i in range(S.shape[0]):
+        wi = w[i]
+        _add_pose(
+            m,
+            wi,
+            S[i, X_M],
+            S[i, Y_M],
+            S[i, Z_M],
+            S[i, AZIMUTH_RAD],
+            S[i, PITCH_RAD],
+            S[i, ROLL_RAD],
+        )
+        m[9] += wi * S[i, OFFSET_DB]
+        m[10] += wi * wi
+    for i in range(S.shape[0]):
+        dx = S[i, X_M] - m[0]
+        dy = S[i, Y_M] - m[1]
+        m[8] += w[i] * (dx * dx + dy * dy)
+    return m
+
+
+@numba.njit(cache=True)
+def lineage_moments(rows, anc, w):  # pragma: no cover - compiled
+    """The first nine :func:`posterior_moments` of the lineage rows ``rows[anc[i]]``
+    (``rows`` ``(·, 6)``: x, y, z, azimuth, pitch, roll) with weights ``w[i]``."""
+    m = np.zeros(9)
+    for i in range(anc.shape[0]):
+        k = anc[i]
+        _add_pose(m, w[i], rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3], rows[k, 4], rows[k, 5])
+    for i in range(anc.shape[0]):
+        k = anc[i]
+        dx = rows[k, 0] - m[0]
+        dy = rows[k, 1] - m[1]
+        m[8] += w[i] * (dx * dx + dy * dy)
+    return m
+
+
+@numba.njit(cache=True)
+def resample_in_place(S, w, u0, scratch, idx):  # pragma: no cover - compiled
+    """Systematic resampling of the rows of ``S`` in place (``scratch`` a
+    same-shaped work array); the ancestor indices go to ``idx``."""
+    n = S.shape[0]
+    c = w[0]
+    j = 0
+    for i in range(n):
+        u = (u0 + i) / n
+        while u > c and j < n - 1:
+            j += 1
+            c += w[j]
+        idx[i] = j
+    scratch[:, :] = S
+    for i in range(n):
+        S[i, :] = scratch[idx[i], :]

@@ -1,0 +1,286 @@
+"""The Bayesian tracker (``filter``): packets/s and memory, as ratios against ``full``.
+
+Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown FILE]``):
+
+1. **Warm, in process.** The paper's standard scenario (201 × 201 positions ×
+   360 azimuths, 4 receivers, a packet every 5 ms), an ``N``-packet trace
+   (default 2,000). numba's kernels compiled and the site prepared (scorer
+   tables, :class:`~radiopose.filtering.FilterModel`) before timing; then the
+   streaming ``Tracker.update`` (causal) and batch ``locate`` (fixed-lag
+   smoother, the offline default) of ``filter`` and of ``full`` over the same
+   trace, alternating, ``R`` repeats, median. Ratio: filter / full of the same
+   mode.
+2. **Whole process.** ``radiopose locate SITE PACKETS -o EST --method M`` in a
+   fresh process on the same trace written to disk (wall time including
+   interpreter start-up, imports, numba cache load, site preparation and CSV
+   parsing), ``M`` = ``filter`` and ``full``, ``R`` repeats, median, after one
+   untimed run of each (so numba's on-disk cache is filled). Peak memory: the
+   process's ``ru_maxrss`` (read in a small launcher, since Linux carries a
+   parent's ``ru_maxrss`` into its children).
+3. **Where a fresh process spends its time**: imports of the command line,
+   site load, packets CSV parsing, scorer tables, the filter's model and the
+   first packet, each timed inside one process (second of two runs).
+
+Every number is measured in this run on this machine; only the ratios compare
+across runs (the project's machine is shared and noisy).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from radiopose.likelihood import candidate_space
+from radiopose.likelihood.compiled import ShiftScorer
+from radiopose.packets import group_packets, write_packets_csv
+from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.site import write_site
+from radiopose.tracker import Tracker, TrackerConfig, locate
+
+TX = "02:00:00:00:00:01"
+METHODS = ("filter", "full")
+
+
+def standard_trace(n_packets: int, seed: int = 202):  # type: ignore[no-untyped-def]
+    """The standard scenario with ``n_packets`` packets (σ = 1 dB)."""
+    cfg = replace(ScenarioConfig(), duration_s=n_packets * 0.005, noise_db=1.0)
+    return simulate(cfg, seed=seed)
+
+
+def section_warm(n_packets: int, repeat: int) -> list[dict]:
+    sim = standard_trace(n_packets)
+    space = candidate_space(sim.site, TX)
+    scorer = ShiftScorer(space)
+    obs = group_packets(sim.packets)
+    cfg = TrackerConfig(kernel="numba")
+    # warm-up: compile (or load) every kernel of both methods on a short trace
+    warm = standard_trace(100, seed=203)
+    for m in METHODS:
+        locate(warm.site, warm.packets, m, cfg)
+
+    def stream(method: str) -> float:
+        tracker = Tracker(sim.site, method, cfg, scorers={TX: scorer})
+        tracker.update(obs[0])  # site preparation (FilterModel) outside the timing
+        t0 = time.perf_counter()
+        for o in obs[1:]:
+            tracker.update(o)
+        return (len(obs) - 1) / (time.perf_counter() - t0)
+
+    def batch(method: str) -> float:
+        t0 = time.perf_counter()
+        locate(sim.site, sim.packets, method, cfg, scorers={TX: scorer})
+        return len(obs) / (time.perf_counter() - t0)
+
+    rates: dict[tuple[str, str], list[float]] = {}
+    for _ in range(repeat):
+        for mode, fn in (("streaming Tracker.update", stream), ("batch locate", batch)):
+            for m in METHODS:
+                rates.setdefault((mode, m), []).append(fn(m))
+    out = []
+    for mode in ("streaming Tracker.update", "batch locate"):
+        full = float(np.median(rates[(mode, "full")]))
+        for m in METHODS:
+            r = rates[(mode, m)]
+            out.append(
+                {
+                    "mode": mode,
+                    "method": m,
+                    "packets": len(obs),
+                    "packets_per_s": float(np.median(r)),
+                    "range": f"{min(r):.0f}-{max(r):.0f}",
+                    "ratio_vs_full": float(np.median(r)) / full,
+                }
+            )
+    return out
+
+
+_LAUNCH = """
+import resource, subprocess, sys, time
+t0 = time.perf_counter()
+rc = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+wall = time.perf_counter() - t0
+if rc.returncode:
+    sys.exit(rc.stderr.decode())
+print(wall, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+"""
+
+
+def _run_cli(args: list[str]) -> tuple[float, float]:
+    """Wall seconds and peak RSS (MB) of ``python -m radiopose ARGS`` in a fresh process."""
+    res = subprocess.run(
+        [sys.executable, "-c", _LAUNCH, sys.executable, "-m", "radiopose", *args],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    wall, kb = res.stdout.split()
+    return float(wall), int(kb) / 1024.0
+
+
+def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
+    sim = standard_trace(n_packets)
+    site_dir = tmp / "site"
+    write_site(sim.site, site_dir)
+    packets = tmp / "packets.csv"
+    write_packets_csv(sim.packets, packets)
+    n = len(group_packets(sim.packets))
+
+    def args(m: str) -> list[str]:
+        return ["locate", str(site_dir), str(packets), "-o", str(tmp / f"est_{m}.csv")]
+
+    for m in METHODS:  # fill numba's cache; not timed
+        _run_cli([*args(m), "--method", m, "--quiet"])
+    runs: dict[str, list[tuple[float, float]]] = {m: [] for m in METHODS}
+    for _ in range(repeat):
+        for m in METHODS:
+            runs[m].append(_run_cli([*args(m), "--method", m, "--quiet"]))
+    full_wall = float(np.median([w for w, _ in runs["full"]]))
+    out = []
+    for m in METHODS:
+        walls = [w for w, _ in runs[m]]
+        wall = float(np.median(walls))
+        out.append(
+            {
+                "method": m,
+                "packets": n,
+                "wall_s": wall,
+                "range_s": f"{min(walls):.2f}-{max(walls):.2f}",
+                "packets_per_s": n / wall,
+                "ratio_vs_full": full_wall / wall,
+                "peak_rss_mb": max(mb for _, mb in runs[m]),
+            }
+        )
+    return out
+
+
+_STAGES = """
+import sys, time
+t0 = time.perf_counter()
+import radiopose.cli
+radiopose.cli._register()
+t1 = time.perf_counter()
+from radiopose.packets import group_packets, read_packets_csv
+from radiopose.site import load_site
+from radiopose.tracker import Tracker, TrackerConfig
+t2 = time.perf_counter()
+site = load_site(sys.argv[1])
+t3 = time.perf_counter()
+pk = read_packets_csv(sys.argv[2])
+obs = group_packets(pk)
+t4 = time.perf_counter()
+tr = Tracker(site, sys.argv[3], TrackerConfig())
+tr._device(obs[0].transmitter)
+t5 = time.perf_counter()
+tr.update(obs[0])
+t6 = time.perf_counter()
+print(t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5)
+"""
+
+
+def section_stages(tmp: Path) -> list[dict]:
+    """Stages of a fresh process, run twice per method (the second is reported)."""
+    site_dir, packets = tmp / "site", tmp / "packets.csv"
+    out = []
+    for m in METHODS:
+        for _ in range(2):
+            t0 = time.perf_counter()
+            res = subprocess.run(
+                [sys.executable, "-c", _STAGES, str(site_dir), str(packets), m],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            wall = time.perf_counter() - t0
+        cli, lib, load, parse, prep, first = (float(x) for x in res.stdout.split())
+        out.append(
+            {
+                "method": m,
+                "process_wall_s": wall,
+                "cli_imports_s": cli,
+                "library_imports_s": lib,
+                "load_site_s": load,
+                "read_packets_csv_s": parse,
+                "prepare_device_s": prep,
+                "first_packet_s": first,
+            }
+        )
+    return out
+
+
+def machine() -> dict:
+    info = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "numba_threads": numba.get_num_threads(),
+        "cpus": os.cpu_count(),
+        "load_average_1m": round(os.getloadavg()[0], 2),
+    }
+    try:
+        with open("/proc/cpuinfo") as fh:
+            info["cpu"] = next(
+                (ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), "?"
+            )
+    except OSError:
+        pass
+    return info
+
+
+def table(rows: list[dict], fmt: dict[str, str]) -> list[str]:
+    keys = list(rows[0])
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        cells = [
+            format(r[k], fmt.get(k, "")) if isinstance(r[k], float) else str(r[k]) for k in keys
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--packets", type=int, default=2000, help="packets in the trace")
+    ap.add_argument("--repeat", type=int, default=3, help="repeats per measurement (median)")
+    ap.add_argument("--skip-process", action="store_true", help="only the in-process section")
+    ap.add_argument("--markdown", help="also write the tables to this Markdown file")
+    args = ap.parse_args(argv)
+    lines = [f"Machine: `{machine()}`", ""]
+    lines += [f"### 1. Warm, in process ({args.packets} packets, standard scenario)", ""]
+    lines += table(
+        section_warm(args.packets, args.repeat), {"packets_per_s": ".0f", "ratio_vs_full": ".2f"}
+    )
+    if not args.skip_process:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = section_process(args.packets, args.repeat, Path(tmp))
+            lines += ["### 2. Whole process: `radiopose locate --method M`", ""]
+            lines += table(
+                rows,
+                {
+                    "wall_s": ".2f",
+                    "packets_per_s": ".0f",
+                    "ratio_vs_full": ".2f",
+                    "peak_rss_mb": ".0f",
+                },
+            )
+            lines += ["### 3. Stages of a fresh process (s)", ""]
+            stages = section_stages(Path(tmp))
+            lines += table(stages, {k: ".3f" for k in stages[0]})
+    text = "\n".join(lines)
+    print(text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
