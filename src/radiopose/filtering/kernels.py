@@ -57,12 +57,20 @@ def _pattern_dbi(d, phi_deg, theta_deg, az0, az_step, polar_step):  # pragma: no
     """Bilinear pattern lookup, as :meth:`radiopose.patterns.pattern.Pattern.lookup_dbi`."""
     n_az = d.shape[0]
     n_pol = d.shape[1]
-    u = ((phi_deg - az0) % 360.0) / az_step
+    a = phi_deg - az0
+    # a % 360 (Python's sign rule) without fmod: the same numbers for |a| < 720
+    if a < 0.0:
+        a = a + 360.0 if a >= -360.0 else a % 360.0
+    elif a >= 360.0:
+        a = a - 360.0 if a < 720.0 else a % 360.0
+    u = a / az_step
     w = 0.0 if n_pol == 1 else min(max(theta_deg, 0.0), 180.0) / polar_step
     fi0 = math.floor(u)
     fu = u - fi0
-    i0 = int(fi0) % n_az
-    i1 = (i0 + 1) % n_az
+    i0 = int(fi0)
+    if i0 >= n_az:
+        i0 %= n_az
+    i1 = i0 + 1 if i0 + 1 < n_az else 0
     j0 = min(int(w), n_pol - 1)
     fw = w - j0
     j1 = min(j0 + 1, n_pol - 1)
@@ -161,15 +169,16 @@ def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pra
         vx = ddx * r00 + ddy * r10 + ddz * r20
         vy = ddx * r01 + ddy * r11 + ddz * r21
         vz = ddx * r02 + ddy * r12 + ddz * r22
-        nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
-        if nrm > 0.0:
-            phi = math.atan2(vy, vx) * _RAD_TO_DEG
-            theta = (
-                90.0 if slice_pattern else math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
-            )
-        else:
+        if vx == 0.0 and vy == 0.0 and vz == 0.0:
             phi = 0.0
             theta = 90.0
+        else:
+            phi = math.atan2(vy, vx) * _RAD_TO_DEG
+            if slice_pattern:
+                theta = 90.0
+            else:
+                nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
         m = _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny)
         out[row, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
 
@@ -343,11 +352,13 @@ def packet_update(  # pragma: no cover - compiled
 def weighted_median_sq_residual(S, pred, rss, w, lim2):  # pragma: no cover - compiled
     """The ``w``-weighted median over particles of the mean squared residual
     ``mean_q min((rss_q − pred_q − b̄)², lim2)`` (a NaN row counts as ``lim2``):
-    the first value, in increasing order, at which the cumulative weight
-    reaches ½."""
+    the smallest value ``v`` with ``Σ_{r² ≤ v} w ≥ ½`` (the first value, in
+    increasing order, at which the cumulative weight reaches ½), found by a
+    weighted quickselect in ``O(n)`` instead of a sort."""
     n = S.shape[0]
     h = rss.shape[0]
     r2 = np.empty(n)
+    ww = np.empty(n)
     for i in range(n):
         acc = 0.0
         for q in range(h):
@@ -355,49 +366,83 @@ def weighted_median_sq_residual(S, pred, rss, w, lim2):  # pragma: no cover - co
             acc += min(e * e, lim2)
         v = acc / h
         r2[i] = lim2 if math.isnan(v) else v
-    order = np.argsort(r2)
-    c = 0.0
-    for k in range(n):
-        c += w[order[k]]
-        if c >= 0.5:
-            return r2[order[k]]
-    return r2[order[n - 1]]
+        ww[i] = w[i]
+    lo = 0
+    hi = n  # the answer lies in r2[lo:hi]; the weight of the values below is `below`
+    below = 0.0
+    while hi - lo > 1:
+        pivot = r2[(lo + hi) // 2]
+        # three-way partition of [lo, hi): < pivot, == pivot, > pivot
+        lt = lo
+        gt = hi
+        i = lo
+        while i < gt:
+            if r2[i] < pivot:
+                r2[i], r2[lt] = r2[lt], r2[i]
+                ww[i], ww[lt] = ww[lt], ww[i]
+                lt += 1
+                i += 1
+            elif r2[i] > pivot:
+                gt -= 1
+                r2[i], r2[gt] = r2[gt], r2[i]
+                ww[i], ww[gt] = ww[gt], ww[i]
+            else:
+                i += 1
+        w_lt = 0.0
+        for k in range(lo, lt):
+            w_lt += ww[k]
+        w_eq = 0.0
+        for k in range(lt, gt):
+            w_eq += ww[k]
+        if below + w_lt >= 0.5:
+            hi = lt
+        elif below + w_lt + w_eq >= 0.5 or gt == hi:
+            return pivot
+        else:
+            below += w_lt + w_eq
+            lo = gt
+    return r2[lo]
+
+
+POSE_ROW = 8
+"""Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
 
 
 @numba.njit(cache=True, inline="always")
-def _add_pose(m, wi, x, y, z, az, pitch, roll):  # pragma: no cover - compiled
-    m[0] += wi * x
-    m[1] += wi * y
-    m[2] += wi * z
-    m[3] += wi * math.cos(az)
-    m[4] += wi * math.sin(az)
-    m[5] += wi * pitch
-    m[6] += wi * math.cos(roll)
-    m[7] += wi * math.sin(roll)
+def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
+    """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
+    rows[k, 0] = S[i, X_M]
+    rows[k, 1] = S[i, Y_M]
+    rows[k, 2] = S[i, Z_M]
+    rows[k, 3] = math.cos(S[i, AZIMUTH_RAD])
+    rows[k, 4] = math.sin(S[i, AZIMUTH_RAD])
+    rows[k, 5] = S[i, PITCH_RAD]
+    roll = S[i, ROLL_RAD]
+    if roll == 0.0:  # cos 0 and sin 0, exactly
+        rows[k, 6] = 1.0
+        rows[k, 7] = 0.0
+    else:
+        rows[k, 6] = math.cos(roll)
+        rows[k, 7] = math.sin(roll)
 
 
 @numba.njit(cache=True)
-def posterior_moments(S, w):  # pragma: no cover - compiled
+def posterior_moments(S, w, rows):  # pragma: no cover - compiled
     """Weighted moments of the particles (normalised ``w``)::
 
         [x̄, ȳ, z̄, Σw cos a, Σw sin a, pitch̄, Σw cos r, Σw sin r,
          Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
 
-    (angles radians; ``1 / Σw²`` is the effective sample size).
+    (angles radians; ``1 / Σw²`` is the effective sample size). The particles'
+    pose rows (:data:`POSE_ROW`) go to ``rows`` ``(n, POSE_ROW)``: what the
+    smoother keeps (:func:`lineage_moments`).
     """
     m = np.zeros(11)
     for i in range(S.shape[0]):
+        _pose_row(S, i, rows, i)
         wi = w[i]
-        _add_pose(
-            m,
-            wi,
-            S[i, X_M],
-            S[i, Y_M],
-            S[i, Z_M],
-            S[i, AZIMUTH_RAD],
-            S[i, PITCH_RAD],
-            S[i, ROLL_RAD],
-        )
+        for c in range(POSE_ROW):
+            m[c] += wi * rows[i, c]
         m[9] += wi * S[i, OFFSET_DB]
         m[10] += wi * wi
     for i in range(S.shape[0]):
@@ -409,12 +454,14 @@ def posterior_moments(S, w):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def lineage_moments(rows, anc, w):  # pragma: no cover - compiled
-    """The first nine :func:`posterior_moments` of the lineage rows ``rows[anc[i]]``
-    (``rows`` ``(·, 6)``: x, y, z, azimuth, pitch, roll) with weights ``w[i]``."""
+    """The first nine :func:`posterior_moments` of the pose rows ``rows[anc[i]]``
+    (``rows`` ``(·, POSE_ROW)``) with weights ``w[i]``."""
     m = np.zeros(9)
     for i in range(anc.shape[0]):
         k = anc[i]
-        _add_pose(m, w[i], rows[k, 0], rows[k, 1], rows[k, 2], rows[k, 3], rows[k, 4], rows[k, 5])
+        wi = w[i]
+        for c in range(POSE_ROW):
+            m[c] += wi * rows[k, c]
     for i in range(anc.shape[0]):
         k = anc[i]
         dx = rows[k, 0] - m[0]

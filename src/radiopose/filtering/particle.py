@@ -503,12 +503,12 @@ class ParticleFilter:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
             K.normalise_into(logw, w)
-        moments = K.posterior_moments(S, w)
+        moments = K.posterior_moments(S, w, work.rows)
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self.lag_s is not None:
             if st.lineage is None:
                 st.lineage = Lineage(n)
-            st.lineage.push(t_s, S)
+            st.lineage.push(t_s, work.rows)
             st.pending.append((t_s, key, est))
             self._emit(st, w, t_s - self.lag_s)
         if 1.0 / float(moments[10]) < 0.5 * n:
@@ -611,6 +611,7 @@ class _Work:
     w: FloatArray  # (n,) normalised weights
     scratch: FloatArray  # (n, N_COLUMNS) resampling copy
     idx: np.ndarray  # (n,) ancestor indices of a resampling
+    rows: FloatArray  # (n, POSE_ROW) the particles' pose rows
 
     @classmethod
     def allocate(cls, n: int, n_receivers: int) -> _Work:
@@ -620,4 +621,5 @@ class _Work:
             np.empty(n),
             np.empty((n, K.N_COLUMNS)),
             np.empty(n, np.int64),
+            np.empty((n, K.POSE_ROW)),
         )
