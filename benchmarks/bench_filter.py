@@ -22,7 +22,10 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown F
    first packet, each timed inside one process (second of two runs).
 
 Every number is measured in this run on this machine; only the ratios compare
-across runs (the project's machine is shared and noisy).
+across runs (the project's machine is shared and noisy). Beside wall-clock
+rates the tables give CPU-time rates (``process_time``; the launcher's
+children's user + system time), which another process's load disturbs far
+less; all ratios are filter over full in rate terms (> 1: filter faster).
 """
 
 from __future__ import annotations
@@ -68,37 +71,41 @@ def section_warm(n_packets: int, repeat: int) -> list[dict]:
     for m in METHODS:
         locate(warm.site, warm.packets, m, cfg)
 
-    def stream(method: str) -> float:
+    def stream(method: str) -> tuple[float, float]:
         tracker = Tracker(sim.site, method, cfg, scorers={TX: scorer})
         tracker.update(obs[0])  # site preparation (FilterModel) outside the timing
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         for o in obs[1:]:
             tracker.update(o)
-        return (len(obs) - 1) / (time.perf_counter() - t0)
+        n = len(obs) - 1
+        return n / (time.perf_counter() - t0), n / (time.process_time() - c0)
 
-    def batch(method: str) -> float:
-        t0 = time.perf_counter()
+    def batch(method: str) -> tuple[float, float]:
+        t0, c0 = time.perf_counter(), time.process_time()
         locate(sim.site, sim.packets, method, cfg, scorers={TX: scorer})
-        return len(obs) / (time.perf_counter() - t0)
+        return len(obs) / (time.perf_counter() - t0), len(obs) / (time.process_time() - c0)
 
-    rates: dict[tuple[str, str], list[float]] = {}
+    rates: dict[tuple[str, str], list[tuple[float, float]]] = {}
     for _ in range(repeat):
         for mode, fn in (("streaming Tracker.update", stream), ("batch locate", batch)):
             for m in METHODS:
                 rates.setdefault((mode, m), []).append(fn(m))
     out = []
     for mode in ("streaming Tracker.update", "batch locate"):
-        full = float(np.median(rates[(mode, "full")]))
+        full = np.median(rates[(mode, "full")], axis=0)
         for m in METHODS:
-            r = rates[(mode, m)]
+            r = np.asarray(rates[(mode, m)])
+            med = np.median(r, axis=0)
             out.append(
                 {
                     "mode": mode,
                     "method": m,
                     "packets": len(obs),
-                    "packets_per_s": float(np.median(r)),
-                    "range": f"{min(r):.0f}-{max(r):.0f}",
-                    "ratio_vs_full": float(np.median(r)) / full,
+                    "packets_per_s": float(med[0]),
+                    "range": f"{r[:, 0].min():.0f}-{r[:, 0].max():.0f}",
+                    "ratio_vs_full": float(med[0] / full[0]),
+                    "packets_per_cpu_s": float(med[1]),
+                    "cpu_ratio_vs_full": float(med[1] / full[1]),
                 }
             )
     return out
@@ -111,20 +118,22 @@ rc = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.P
 wall = time.perf_counter() - t0
 if rc.returncode:
     sys.exit(rc.stderr.decode())
-print(wall, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(wall, ru.ru_maxrss, ru.ru_utime + ru.ru_stime)
 """
 
 
-def _run_cli(args: list[str]) -> tuple[float, float]:
-    """Wall seconds and peak RSS (MB) of ``python -m radiopose ARGS`` in a fresh process."""
+def _run_cli(args: list[str]) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MB) and CPU seconds of ``python -m radiopose ARGS``
+    in a fresh process."""
     res = subprocess.run(
         [sys.executable, "-c", _LAUNCH, sys.executable, "-m", "radiopose", *args],
         capture_output=True,
         text=True,
         check=True,
     )
-    wall, kb = res.stdout.split()
-    return float(wall), int(kb) / 1024.0
+    wall, kb, cpu = res.stdout.split()
+    return float(wall), int(kb) / 1024.0, float(cpu)
 
 
 def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
@@ -140,15 +149,17 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
 
     for m in METHODS:  # fill numba's cache; not timed
         _run_cli([*args(m), "--method", m, "--quiet"])
-    runs: dict[str, list[tuple[float, float]]] = {m: [] for m in METHODS}
+    runs: dict[str, list[tuple[float, float, float]]] = {m: [] for m in METHODS}
     for _ in range(repeat):
         for m in METHODS:
             runs[m].append(_run_cli([*args(m), "--method", m, "--quiet"]))
-    full_wall = float(np.median([w for w, _ in runs["full"]]))
+    full_wall = float(np.median([r[0] for r in runs["full"]]))
+    full_cpu = float(np.median([r[2] for r in runs["full"]]))
     out = []
     for m in METHODS:
-        walls = [w for w, _ in runs[m]]
+        walls = [r[0] for r in runs[m]]
         wall = float(np.median(walls))
+        cpu = float(np.median([r[2] for r in runs[m]]))
         out.append(
             {
                 "method": m,
@@ -157,7 +168,9 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
                 "range_s": f"{min(walls):.2f}-{max(walls):.2f}",
                 "packets_per_s": n / wall,
                 "ratio_vs_full": full_wall / wall,
-                "peak_rss_mb": max(mb for _, mb in runs[m]),
+                "cpu_s": cpu,
+                "cpu_ratio_vs_full": full_cpu / cpu,
+                "peak_rss_mb": max(r[1] for r in runs[m]),
             }
         )
     return out
@@ -257,7 +270,13 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"Machine: `{machine()}`", ""]
     lines += [f"### 1. Warm, in process ({args.packets} packets, standard scenario)", ""]
     lines += table(
-        section_warm(args.packets, args.repeat), {"packets_per_s": ".0f", "ratio_vs_full": ".2f"}
+        section_warm(args.packets, args.repeat),
+        {
+            "packets_per_s": ".0f",
+            "ratio_vs_full": ".2f",
+            "packets_per_cpu_s": ".0f",
+            "cpu_ratio_vs_full": ".2f",
+        },
     )
     if not args.skip_process:
         with tempfile.TemporaryDirectory() as tmp:
@@ -269,6 +288,8 @@ def main(argv: list[str] | None = None) -> int:
                     "wall_s": ".2f",
                     "packets_per_s": ".0f",
                     "ratio_vs_full": ".2f",
+                    "cpu_s": ".2f",
+                    "cpu_ratio_vs_full": ".2f",
                     "peak_rss_mb": ".0f",
                 },
             )

@@ -427,17 +427,17 @@ def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def posterior_moments(S, w, rows):  # pragma: no cover - compiled
+def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
     """Weighted moments of the particles (normalised ``w``)::
 
         [x̄, ȳ, z̄, Σw cos a, Σw sin a, pitch̄, Σw cos r, Σw sin r,
          Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
 
-    (angles radians; ``1 / Σw²`` is the effective sample size). The particles'
-    pose rows (:data:`POSE_ROW`) go to ``rows`` ``(n, POSE_ROW)``: what the
-    smoother keeps (:func:`lineage_moments`).
+    into ``m`` ``(11,)`` (angles radians; ``1 / Σw²`` is the effective sample
+    size). The particles' pose rows (:data:`POSE_ROW`) go to ``rows``
+    ``(n, POSE_ROW)``: what the smoother keeps (:func:`lineage_moments`).
     """
-    m = np.zeros(11)
+    m[:] = 0.0
     for i in range(S.shape[0]):
         _pose_row(S, i, rows, i)
         wi = w[i]
@@ -449,14 +449,13 @@ def posterior_moments(S, w, rows):  # pragma: no cover - compiled
         dx = S[i, X_M] - m[0]
         dy = S[i, Y_M] - m[1]
         m[8] += w[i] * (dx * dx + dy * dy)
-    return m
 
 
 @numba.njit(cache=True)
-def lineage_moments(rows, anc, w):  # pragma: no cover - compiled
+def lineage_moments(rows, anc, w, m):  # pragma: no cover - compiled
     """The first nine :func:`posterior_moments` of the pose rows ``rows[anc[i]]``
-    (``rows`` ``(·, POSE_ROW)``) with weights ``w[i]``."""
-    m = np.zeros(9)
+    (``rows`` ``(·, POSE_ROW)``) with weights ``w[i]``, into ``m[:9]``."""
+    m[:] = 0.0
     for i in range(anc.shape[0]):
         k = anc[i]
         wi = w[i]
@@ -467,7 +466,6 @@ def lineage_moments(rows, anc, w):  # pragma: no cover - compiled
         dx = rows[k, 0] - m[0]
         dy = rows[k, 1] - m[1]
         m[8] += w[i] * (dx * dx + dy * dy)
-    return m
 
 
 @numba.njit(cache=True)

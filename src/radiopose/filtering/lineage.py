@@ -155,14 +155,13 @@ class Lineage:
     def oldest_time_s(self) -> float:
         return float(self.times_s[self.head])
 
-    def pop_moments(self, w: FloatArray) -> FloatArray:
-        """Drop the oldest packet; return :func:`~radiopose.filtering.kernels.lineage_moments`
-        of its ancestors' rows under the current weights ``w``."""
+    def pop_moments(self, w: FloatArray, m: FloatArray) -> None:
+        """Drop the oldest packet; :func:`~radiopose.filtering.kernels.lineage_moments`
+        of its ancestors' rows under the current weights ``w`` into ``m``."""
         k = self.head
-        m = K.lineage_moments(self.rows[k], self.anc[k], w)
+        K.lineage_moments(self.rows[k], self.anc[k], w, m)
         self.head = (self.head + 1) % self.capacity
         self.size -= 1
-        return m
 
     def __getstate__(self) -> dict:
         """Only the live packets, oldest first (a checkpoint need not carry the ring)."""

@@ -503,7 +503,8 @@ class ParticleFilter:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
             K.normalise_into(logw, w)
-        moments = K.posterior_moments(S, w, work.rows)
+        moments = work.moments
+        K.posterior_moments(S, w, work.rows, moments)
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self.lag_s is not None:
             if st.lineage is None:
@@ -545,7 +546,8 @@ class ParticleFilter:
         lin = st.lineage
         assert lin is not None and len(st.pending) == lin.size
         while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
-            moments = lin.pop_moments(w)
+            moments = self._buffers(lin.n).lineage_moments
+            lin.pop_moments(w, moments)
             _, key, causal = st.pending.popleft()
             smooth = _summary(moments, causal.offset_db, causal.sigma_db)
             # the genealogy collapses (few distinct ancestors), so its spread
@@ -587,7 +589,7 @@ def _summary(moments: FloatArray, offset_db: float, sigma_db: float) -> FilterEs
     """The estimate from weighted pose moments (:func:`kernels.posterior_moments`'
     first nine): mean position, circular mean azimuth and roll, mean pitch, and
     the spread."""
-    x, y, z, c, s, pitch, cr, sr, var = (float(v) for v in moments[:9])
+    x, y, z, c, s, pitch, cr, sr, var = moments[:9].tolist()
     r = min(math.hypot(c, s), 1.0)
     az_std = math.degrees(math.sqrt(-2.0 * math.log(r))) if r > 1e-12 else 180.0
     roll = math.degrees(math.atan2(sr, cr)) % 360.0 if (cr or sr) else 0.0
@@ -612,6 +614,8 @@ class _Work:
     scratch: FloatArray  # (n, N_COLUMNS) resampling copy
     idx: np.ndarray  # (n,) ancestor indices of a resampling
     rows: FloatArray  # (n, POSE_ROW) the particles' pose rows
+    moments: FloatArray  # (11,) posterior moments
+    lineage_moments: FloatArray  # (9,) a smoothed packet's moments
 
     @classmethod
     def allocate(cls, n: int, n_receivers: int) -> _Work:
@@ -622,4 +626,6 @@ class _Work:
             np.empty((n, K.N_COLUMNS)),
             np.empty(n, np.int64),
             np.empty((n, K.POSE_ROW)),
+            np.empty(11),
+            np.empty(9),
         )
