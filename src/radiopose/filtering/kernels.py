@@ -342,10 +342,20 @@ def packet_update(  # pragma: no cover - compiled
     lse0 = log_sum_exp(logw)
     expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, pred)
     measurement_update(S, pred, rss, sigma_db, likelihood_parameter, logw)
-    lse1 = log_sum_exp(logw)
-    if math.isfinite(lse1):
-        normalise_into(logw, w)
-    return lse0, lse1
+    # lse1 = log Σ exp(logw) and w = exp(logw − max) / Σ from the same exponentials
+    top = -np.inf
+    for v in logw:
+        if v > top:
+            top = v
+    if not math.isfinite(top):
+        return lse0, top
+    total = 0.0
+    for i in range(logw.shape[0]):
+        w[i] = math.exp(logw[i] - top)
+        total += w[i]
+    for i in range(logw.shape[0]):
+        w[i] /= total
+    return lse0, top + math.log(total)
 
 
 @numba.njit(cache=True)
