@@ -205,3 +205,27 @@ def test_lineage_pickle_keeps_only_the_live_packets():
     assert len(pickle.dumps(ring)) < 2 * (2 * 1000 * K.POSE_ROW * 8 + 2 * 1000 * 4)
     back = pickle.loads(pickle.dumps(ring))
     assert back.size == 2 and back.oldest_time_s() == 1.0 and not math.isnan(m[0])
+
+
+def test_filter_model_scores_on_one_thread_with_the_same_answers():
+    from dataclasses import replace
+
+    from radiopose.filtering import FilterModel
+    from radiopose.likelihood import candidate_space
+    from radiopose.likelihood.compiled import ShiftScorer
+    from radiopose.packets import group_packets
+    from radiopose.simulate import ScenarioConfig, simulate
+
+    sim = simulate(
+        replace(ScenarioConfig(), size_m=6.0, duration_s=0.05, min_receiver_spacing_m=1.5), 4309
+    )
+    space = candidate_space(sim.site, sim.site.devices[0].transmitter)
+    scorer = ShiftScorer(space, parallel=True)
+    model = FilterModel.build(sim.site, space, scorer)
+    assert model.scorer is not scorer and not model.scorer.parallel and scorer.parallel
+    assert model.scorer.posf is scorer.posf  # tables shared, not copied
+    for packet in group_packets(sim.packets)[:3]:
+        heard = space.heard(packet)
+        a, b = scorer.score_heard(heard, 50), model.scorer.score_heard(heard, 50)
+        np.testing.assert_array_equal(a.candidate_idx, b.candidate_idx)
+        np.testing.assert_array_equal(a.mse_db2, b.mse_db2)

@@ -207,6 +207,13 @@ class FilterModel:
 
     @classmethod
     def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
+        """The device's arrays; ``scorer`` serves the proposals (re-entry), run
+        on one thread where it can (``with_parallel``): the filter's other work
+        is serial, and on a busy 2-core machine a parallel region spends more
+        CPU waiting than it saves (docs/performance.md, "The Bayesian tracker")."""
+        one_thread = getattr(scorer, "with_parallel", None)
+        if one_thread is not None:
+            scorer = one_thread(False)
         sm = site.survey_map
         x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)
         dx = float(x[1] - x[0]) if x.size > 1 else 1.0
