@@ -57,12 +57,20 @@ def _pattern_dbi(d, phi_deg, theta_deg, az0, az_step, polar_step):  # pragma: no
     """Bilinear pattern lookup, as :meth:`radiopose.patterns.pattern.Pattern.lookup_dbi`."""
     n_az = d.shape[0]
     n_pol = d.shape[1]
-    u = ((phi_deg - az0) % 360.0) / az_step
+    a = phi_deg - az0
+    # a % 360 (Python's sign rule) without fmod: the same numbers for |a| < 720
+    if a < 0.0:
+        a = a + 360.0 if a >= -360.0 else a % 360.0
+    elif a >= 360.0:
+        a = a - 360.0 if a < 720.0 else a % 360.0
+    u = a / az_step
     w = 0.0 if n_pol == 1 else min(max(theta_deg, 0.0), 180.0) / polar_step
     fi0 = math.floor(u)
     fu = u - fi0
-    i0 = int(fi0) % n_az
-    i1 = (i0 + 1) % n_az
+    i0 = int(fi0)
+    if i0 >= n_az:
+        i0 %= n_az
+    i1 = i0 + 1 if i0 + 1 < n_az else 0
     j0 = min(int(w), n_pol - 1)
     fw = w - j0
     j1 = min(j0 + 1, n_pol - 1)
@@ -124,49 +132,75 @@ def predict(  # pragma: no cover - compiled
             S[i, ROLL_RAD] = min(max(r, tilt_box[2]), tilt_box[3])
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True, inline="always")
+def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pragma: no cover
+    """Expected RSS of particle ``i`` at the heard receivers into ``out[row, :h]``
+    (see :func:`expected_rss_dbm`)."""
+    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
+    x = S[i, X_M]
+    y = S[i, Y_M]
+    pitch = S[i, PITCH_RAD]
+    roll = S[i, ROLL_RAD]
+    ca = math.cos(S[i, AZIMUTH_RAD])
+    sa = math.sin(S[i, AZIMUTH_RAD])
+    if pitch == 0.0 and roll == 0.0:  # the same numbers as the general case, cheaper
+        cp, sp, cr, sr = 1.0, 0.0, 1.0, 0.0
+    else:
+        cp = math.cos(pitch)
+        sp = math.sin(pitch)
+        cr = math.cos(roll)
+        sr = math.sin(roll)
+    # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
+    r00 = ca * cr - sa * sp * sr
+    r01 = -sa * cp
+    r02 = ca * sr + sa * sp * cr
+    r10 = sa * cr + ca * sp * sr
+    r11 = ca * cp
+    r12 = sa * sr - ca * sp * cr
+    r20 = -cp * sr
+    r21 = sp
+    r22 = cp * cr
+    slice_pattern = d.shape[1] == 1  # polar angle unused: no acos
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        ddx = rx[r, 0] - x
+        ddy = rx[r, 1] - y
+        ddz = rx[r, 2] - S[i, Z_M]
+        vx = ddx * r00 + ddy * r10 + ddz * r20
+        vy = ddx * r01 + ddy * r11 + ddz * r21
+        vz = ddx * r02 + ddy * r12 + ddz * r22
+        if vx == 0.0 and vy == 0.0 and vz == 0.0:
+            phi = 0.0
+            theta = 90.0
+        else:
+            phi = math.atan2(vy, vx) * _RAD_TO_DEG
+            if slice_pattern:
+                theta = 90.0
+            else:
+                nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+        m = _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny)
+        out[row, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
+
+
+@numba.njit(cache=True)
+def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma: no cover
+    """:func:`expected_rss_dbm` into a preallocated ``out`` ``(n, h)``."""
+    for i in range(S.shape[0]):
+        _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, i)
+
+
+@numba.njit(cache=True)
 def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no cover - compiled
     """Expected RSS ``(n, h)`` dBm of every particle at the heard receivers,
     without the power offset. ``grid`` = ``[x0, dx, nx, y0, dy, ny]``;
-    ``pat`` = ``[az0, az_step, polar_step]`` (degrees)."""
-    n = S.shape[0]
-    h = heard.shape[0]
-    out = np.empty((n, h))
-    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
-    for i in numba.prange(n):
-        ca = math.cos(S[i, AZIMUTH_RAD])
-        sa = math.sin(S[i, AZIMUTH_RAD])
-        cp = math.cos(S[i, PITCH_RAD])
-        sp = math.sin(S[i, PITCH_RAD])
-        cr = math.cos(S[i, ROLL_RAD])
-        sr = math.sin(S[i, ROLL_RAD])
-        # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
-        r00 = ca * cr - sa * sp * sr
-        r01 = -sa * cp
-        r02 = ca * sr + sa * sp * cr
-        r10 = sa * cr + ca * sp * sr
-        r11 = ca * cp
-        r12 = sa * sr - ca * sp * cr
-        r20 = -cp * sr
-        r21 = sp
-        r22 = cp * cr
-        for q in range(h):
-            r = heard[q]
-            ddx = rx[r, 0] - S[i, X_M]
-            ddy = rx[r, 1] - S[i, Y_M]
-            ddz = rx[r, 2] - S[i, Z_M]
-            vx = ddx * r00 + ddy * r10 + ddz * r20
-            vy = ddx * r01 + ddy * r11 + ddz * r21
-            vz = ddx * r02 + ddy * r12 + ddz * r22
-            nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if nrm > 0.0:
-                phi = math.atan2(vy, vx) * _RAD_TO_DEG
-                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
-            else:
-                phi = 0.0
-                theta = 90.0
-            m = _map_db(chan, r, S[i, X_M], S[i, Y_M], x0, dx, nx, y0, dy, ny)
-            out[i, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
+    ``pat`` = ``[az0, az_step, polar_step]`` (degrees).
+
+    Serial: a packet's few thousand particles take well under a millisecond,
+    less than what a parallel region costs to start on a busy 2-core machine.
+    """
+    out = np.empty((S.shape[0], heard.shape[0]))
+    expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out)
     return out
 
 
@@ -245,3 +279,218 @@ def systematic_resample(weights, u0):  # pragma: no cover - compiled
             c += weights[j]
         idx[i] = j
     return idx
+
+
+# ----------------------------------------------------------------------------- one packet
+# The per-packet path of ParticleFilter.step in few compiled calls: no
+# (n, h)-sized temporaries from Python, resampling in place.
+
+
+@numba.njit(cache=True)
+def log_sum_exp(logw):  # pragma: no cover - compiled
+    """``log Σ exp(logw)`` (``-inf`` if every entry is ``-inf``)."""
+    m = -np.inf
+    for v in logw:
+        if v > m:
+            m = v
+    if not math.isfinite(m):
+        return m
+    acc = 0.0
+    for v in logw:
+        acc += math.exp(v - m)
+    return m + math.log(acc)
+
+
+@numba.njit(cache=True)
+def normalise_into(logw, w):  # pragma: no cover - compiled
+    """Normalised weights ``w = exp(logw − max) / Σ`` (``logw`` has a finite entry)."""
+    m = -np.inf
+    for v in logw:
+        if v > m:
+            m = v
+    total = 0.0
+    for i in range(logw.shape[0]):
+        w[i] = math.exp(logw[i] - m)
+        total += w[i]
+    for i in range(logw.shape[0]):
+        w[i] /= total
+
+
+@numba.njit(cache=True)
+def packet_update(  # pragma: no cover - compiled
+    S, logw, noise, dt_s, motion, box, tilt_box,
+    heard, rx, chan, grid, tx_dbm, d, pat,
+    rss, sigma_db, likelihood_parameter, pred, w,
+):  # fmt: skip
+    """One packet's predict + weight in one call.
+
+    :func:`predict` by ``dt_s`` (skipped if ``dt_s <= 0``; ``motion`` =
+    ``[q_acc, q_rate, q_tilt, max_speed, max_rate]`` as in :func:`predict`),
+    the expected RSS into ``pred`` ``(n, h)`` (:func:`expected_rss_into`), the
+    likelihood (:func:`measurement_update`, which alone defines it:
+    ``likelihood_parameter`` is its scalar after σ), and, if any particle is
+    still possible, the normalised weights into ``w``.
+
+    Returns ``(lse0, lse1)``: ``log Σ exp(logw)`` before and after the packet
+    (their difference is the packet's evidence; ``lse1 = -inf`` if every
+    particle became impossible).
+    """
+    if dt_s > 0.0:
+        predict(
+            S, noise, dt_s, motion[0], motion[1], motion[2], motion[3], motion[4], box, tilt_box
+        )
+    lse0 = log_sum_exp(logw)
+    expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, pred)
+    measurement_update(S, pred, rss, sigma_db, likelihood_parameter, logw)
+    # lse1 = log Σ exp(logw) and w = exp(logw − max) / Σ from the same exponentials
+    top = -np.inf
+    for v in logw:
+        if v > top:
+            top = v
+    if not math.isfinite(top):
+        return lse0, top
+    total = 0.0
+    for i in range(logw.shape[0]):
+        w[i] = math.exp(logw[i] - top)
+        total += w[i]
+    for i in range(logw.shape[0]):
+        w[i] /= total
+    return lse0, top + math.log(total)
+
+
+@numba.njit(cache=True)
+def weighted_median_sq_residual(S, pred, rss, w, lim2):  # pragma: no cover - compiled
+    """The ``w``-weighted median over particles of the mean squared residual
+    ``mean_q min((rss_q − pred_q − b̄)², lim2)`` (a NaN row counts as ``lim2``):
+    the smallest value ``v`` with ``Σ_{r² ≤ v} w ≥ ½`` (the first value, in
+    increasing order, at which the cumulative weight reaches ½), found by a
+    weighted quickselect in ``O(n)`` instead of a sort."""
+    n = S.shape[0]
+    h = rss.shape[0]
+    r2 = np.empty(n)
+    ww = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for q in range(h):
+            e = rss[q] - pred[i, q] - S[i, OFFSET_DB]
+            acc += min(e * e, lim2)
+        v = acc / h
+        r2[i] = lim2 if math.isnan(v) else v
+        ww[i] = w[i]
+    lo = 0
+    hi = n  # the answer lies in r2[lo:hi]; the weight of the values below is `below`
+    below = 0.0
+    while hi - lo > 1:
+        pivot = r2[(lo + hi) // 2]
+        # three-way partition of [lo, hi): < pivot, == pivot, > pivot
+        lt = lo
+        gt = hi
+        i = lo
+        while i < gt:
+            if r2[i] < pivot:
+                r2[i], r2[lt] = r2[lt], r2[i]
+                ww[i], ww[lt] = ww[lt], ww[i]
+                lt += 1
+                i += 1
+            elif r2[i] > pivot:
+                gt -= 1
+                r2[i], r2[gt] = r2[gt], r2[i]
+                ww[i], ww[gt] = ww[gt], ww[i]
+            else:
+                i += 1
+        w_lt = 0.0
+        for k in range(lo, lt):
+            w_lt += ww[k]
+        w_eq = 0.0
+        for k in range(lt, gt):
+            w_eq += ww[k]
+        if below + w_lt >= 0.5:
+            hi = lt
+        elif below + w_lt + w_eq >= 0.5 or gt == hi:
+            return pivot
+        else:
+            below += w_lt + w_eq
+            lo = gt
+    return r2[lo]
+
+
+POSE_ROW = 8
+"""Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
+
+
+@numba.njit(cache=True, inline="always")
+def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
+    """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
+    rows[k, 0] = S[i, X_M]
+    rows[k, 1] = S[i, Y_M]
+    rows[k, 2] = S[i, Z_M]
+    rows[k, 3] = math.cos(S[i, AZIMUTH_RAD])
+    rows[k, 4] = math.sin(S[i, AZIMUTH_RAD])
+    rows[k, 5] = S[i, PITCH_RAD]
+    roll = S[i, ROLL_RAD]
+    if roll == 0.0:  # cos 0 and sin 0, exactly
+        rows[k, 6] = 1.0
+        rows[k, 7] = 0.0
+    else:
+        rows[k, 6] = math.cos(roll)
+        rows[k, 7] = math.sin(roll)
+
+
+@numba.njit(cache=True)
+def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
+    """Weighted moments of the particles (normalised ``w``)::
+
+        [x̄, ȳ, z̄, Σw cos a, Σw sin a, pitch̄, Σw cos r, Σw sin r,
+         Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
+
+    into ``m`` ``(11,)`` (angles radians; ``1 / Σw²`` is the effective sample
+    size). The particles' pose rows (:data:`POSE_ROW`) go to ``rows``
+    ``(n, POSE_ROW)``: what the smoother keeps (:func:`lineage_moments`).
+    """
+    m[:] = 0.0
+    for i in range(S.shape[0]):
+        _pose_row(S, i, rows, i)
+        wi = w[i]
+        for c in range(POSE_ROW):
+            m[c] += wi * rows[i, c]
+        m[9] += wi * S[i, OFFSET_DB]
+        m[10] += wi * wi
+    for i in range(S.shape[0]):
+        dx = S[i, X_M] - m[0]
+        dy = S[i, Y_M] - m[1]
+        m[8] += w[i] * (dx * dx + dy * dy)
+
+
+@numba.njit(cache=True)
+def lineage_moments(rows, anc, w, m):  # pragma: no cover - compiled
+    """The first nine :func:`posterior_moments` of the pose rows ``rows[anc[i]]``
+    (``rows`` ``(·, POSE_ROW)``) with weights ``w[i]``, into ``m[:9]``."""
+    m[:] = 0.0
+    for i in range(anc.shape[0]):
+        k = anc[i]
+        wi = w[i]
+        for c in range(POSE_ROW):
+            m[c] += wi * rows[k, c]
+    for i in range(anc.shape[0]):
+        k = anc[i]
+        dx = rows[k, 0] - m[0]
+        dy = rows[k, 1] - m[1]
+        m[8] += w[i] * (dx * dx + dy * dy)
+
+
+@numba.njit(cache=True)
+def resample_in_place(S, w, u0, scratch, idx):  # pragma: no cover - compiled
+    """Systematic resampling of the rows of ``S`` in place (``scratch`` a
+    same-shaped work array); the ancestor indices go to ``idx``."""
+    n = S.shape[0]
+    c = w[0]
+    j = 0
+    for i in range(n):
+        u = (u0 + i) / n
+        while u > c and j < n - 1:
+            j += 1
+            c += w[j]
+        idx[i] = j
+    scratch[:, :] = S
+    for i in range(n):
+        S[i, :] = scratch[idx[i], :]

@@ -54,11 +54,12 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.filtering.lineage import Lineage
 from radiopose.likelihood import CandidateSpace, HeardRss, Scorer
 from radiopose.site import Site
 from radiopose.units import FloatArray
 
-_LINEAGE_COLUMNS = [K.X_M, K.Y_M, K.Z_M, K.AZIMUTH_RAD, K.PITCH_RAD, K.ROLL_RAD]
+_LookupArrays = tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, FloatArray]
 
 
 @dataclass(frozen=True)
@@ -206,6 +207,13 @@ class FilterModel:
 
     @classmethod
     def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
+        """The device's arrays; ``scorer`` serves the proposals (re-entry), run
+        on one thread where it can (``with_parallel``): the filter's other work
+        is serial, and on a busy 2-core machine a parallel region spends more
+        CPU waiting than it saves (docs/performance.md, "The Bayesian tracker")."""
+        one_thread = getattr(scorer, "with_parallel", None)
+        if one_thread is not None:
+            scorer = one_thread(False)
         sm = site.survey_map
         x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)
         dx = float(x[1] - x[0]) if x.size > 1 else 1.0
@@ -237,9 +245,17 @@ class FilterModel:
 
     def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
         """Expected RSS ``(n, h)`` dBm without the offset."""
-        return K.expected_rss_dbm(
-            S,
-            np.ascontiguousarray(heard_index, dtype=np.int64),
+        heard = np.ascontiguousarray(heard_index, dtype=np.int64)
+        out = np.empty((S.shape[0], heard.size))
+        # into a Python-made array: a numba function returning a new array
+        # pays for boxing it (≈ 10–30 µs, more than 100 particles' lookups)
+        K.expected_rss_into(np.ascontiguousarray(S), heard, *self.lookup_arrays(), out)
+        return out
+
+    def lookup_arrays(self) -> _LookupArrays:
+        """The arguments of the kernels' expected-RSS lookup after the heard
+        receivers: ``(rx, chan, grid, tx_dbm, d, pat)``."""
+        return (
             self.receivers_m,
             self.channel_db,
             self.grid,
@@ -255,8 +271,9 @@ class FilterState:
 
     ``particles`` ``(n, N_COLUMNS)`` and ``log_weights`` ``(n,)``; ``sigma2_db2``
     the σ² estimate; ``window`` the recent packets ``(t_s, heard, log_evidence)``
-    of the evidence window; the lineage (``history``, ``ancestors``,
-    ``pending``) serves the fixed-lag smoother.
+    of the evidence window; ``lineage`` (the genealogy, :class:`Lineage`) and
+    ``pending`` (``(t_s, key, causal estimate)`` per packet within the lag)
+    serve the fixed-lag smoother.
     """
 
     rng: np.random.Generator
@@ -268,9 +285,8 @@ class FilterState:
     sigma_count: int = 0
     offset_prior_db: float = 0.0
     window: deque = field(default_factory=deque)
-    history: list = field(default_factory=list)
-    ancestors: list = field(default_factory=list)
-    pending: list = field(default_factory=list)
+    lineage: Lineage | None = None
+    pending: deque = field(default_factory=deque)
 
 
 class ParticleFilter:
@@ -294,6 +310,16 @@ class ParticleFilter:
         self.config = config
         self.lag_s = lag_s
         self._smoothed: list[tuple[object, FilterEstimate]] = []
+        self._motion = np.array(
+            [
+                config.accel_noise_mps2,
+                math.radians(config.angular_accel_noise_dps2),
+                math.radians(config.tilt_noise_dps),
+                config.max_speed_mps,
+                math.radians(config.max_rate_dps),
+            ]
+        )
+        self._work: _Work | None = None
 
     def new_state(self, seed: int = 0) -> FilterState:
         return FilterState(
@@ -360,7 +386,7 @@ class ParticleFilter:
         st.particles = S
         st.log_weights = np.zeros(n)
         st.window.clear()
-        st.history, st.ancestors = [], []
+        st.lineage = None
         return True
 
     def _reenter(self, st: FilterState, t_s: float, w: FloatArray) -> None:
@@ -427,20 +453,8 @@ class ParticleFilter:
         """Give re-entered particles a past for the smoother: within the evidence
         window their pose moved back along their velocity and turn rate; before
         it, the past of the particle whose motion they copied."""
-        m = new.shape[0]
-        times = [p[0] for p in st.pending]
-        for j in range(len(st.history)):
-            lag = t_s - times[j]
-            if lag > self.config.proposal_window_s:
-                st.ancestors[j][slots] = st.ancestors[j][donors]
-                continue
-            rows = new[:, _LINEAGE_COLUMNS].copy()
-            rows[:, 0] -= new[:, K.VX_MPS] * lag
-            rows[:, 1] -= new[:, K.VY_MPS] * lag
-            rows[:, 3] -= new[:, K.RATE_RAD_S] * lag
-            base = st.history[j].shape[0]
-            st.history[j] = np.vstack([st.history[j], rows])
-            st.ancestors[j][slots] = base + np.arange(m)
+        if st.lineage is not None:
+            st.lineage.inject(t_s, self.config.proposal_window_s, new, slots, donors)
 
     # ------------------------------------------------------------------ step
     def step(
@@ -455,6 +469,7 @@ class ParticleFilter:
         new_track = st.particles is None or (
             st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
         )
+        dt = 0.0
         if new_track:
             if st.particles is not None:
                 w = _normalised(st.log_weights)
@@ -468,21 +483,21 @@ class ParticleFilter:
         else:
             assert st.particles is not None and st.last_time_s is not None
             dt = max(t_s - st.last_time_s, 0.0)
-            if dt > 0:
-                noise = st.rng.standard_normal((st.particles.shape[0], K.N_NOISE))
-                K.predict(
-                    st.particles, noise, dt, cfg.accel_noise_mps2,
-                    math.radians(cfg.angular_accel_noise_dps2), math.radians(cfg.tilt_noise_dps),
-                    cfg.max_speed_mps, math.radians(cfg.max_rate_dps), mod.box_m, mod.tilt_box_rad,
-                )  # fmt: skip
         st.last_time_s = t_s
         S, logw = st.particles, st.log_weights
         assert S is not None and logw is not None
-        pred = mod.expected(S, heard.receiver_index)
+        n, h = S.shape[0], heard.n_heard
+        work = self._buffers(n)
+        if dt > 0:
+            st.rng.standard_normal(out=work.noise)
+        pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
-        lse0 = float(np.logaddexp.reduce(logw))
-        K.measurement_update(S, pred, heard.rss_dbm, sigma, cfg.huber_c, logw)
-        lse1 = float(np.logaddexp.reduce(logw))
+        lse0, lse1 = K.packet_update(
+            S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
+            np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
+            np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
+            self._likelihood_parameter(sigma), pred, work.w,
+        )  # fmt: skip
         if not math.isfinite(lse1):  # every particle impossible: start again
             self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
             st.particles = None
@@ -490,24 +505,37 @@ class ParticleFilter:
         st.window.append((t_s, heard, lse1 - lse0))
         while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
             st.window.popleft()
-        w = _normalised(logw)
+        w = work.w
         self._update_sigma(st, S, pred, heard, w)
         if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
-            w = _normalised(logw)
-        est = self._estimate(st, S, w)
+            K.normalise_into(logw, w)
+        moments = work.moments
+        K.posterior_moments(S, w, work.rows, moments)
+        est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self.lag_s is not None:
-            st.history.append(S[:, _LINEAGE_COLUMNS].copy())
-            st.ancestors.append(np.arange(S.shape[0]))
+            if st.lineage is None:
+                st.lineage = Lineage(n)
+            st.lineage.push(t_s, work.rows)
             st.pending.append((t_s, key, est))
             self._emit(st, w, t_s - self.lag_s)
-        if 1.0 / float(np.sum(w * w)) < 0.5 * S.shape[0]:
-            idx = K.systematic_resample(w, float(st.rng.uniform()))
-            st.particles = S[idx]
-            st.log_weights = np.zeros(S.shape[0])
-            st.ancestors = [a[idx] for a in st.ancestors]
+        if 1.0 / float(moments[10]) < 0.5 * n:
+            K.resample_in_place(S, w, float(st.rng.uniform()), work.scratch, work.idx)
+            logw[:] = 0.0
+            if st.lineage is not None:
+                st.lineage.remap(work.idx)
         return est
+
+    def _likelihood_parameter(self, sigma_db: float) -> float:
+        """The scalar that :func:`kernels.measurement_update` takes after σ."""
+        return self.config.huber_c
+
+    def _buffers(self, n: int) -> _Work:
+        """Work arrays for ``n`` particles (reused from packet to packet)."""
+        if self._work is None or self._work.w.size != n:
+            self._work = _Work.allocate(n, self.model.receivers_m.shape[0])
+        return self._work
 
     def _update_sigma(
         self, st: FilterState, S: FloatArray, pred: FloatArray, heard: HeardRss, w: FloatArray
@@ -515,30 +543,21 @@ class ParticleFilter:
         """EWMA of the posterior-median mean squared residual (clipped at 2c σ)."""
         cfg = self.config
         lim2 = (2.0 * cfg.huber_c) ** 2 * st.sigma2_db2
-        r2 = np.minimum((heard.rss_dbm[None, :] - pred - S[:, K.OFFSET_DB, None]) ** 2, lim2)
-        r2 = np.nan_to_num(r2.mean(axis=1), nan=lim2)
-        order = np.argsort(r2)
-        median = float(r2[order[min(np.searchsorted(np.cumsum(w[order]), 0.5), r2.size - 1)]])
+        median = float(K.weighted_median_sq_residual(S, pred, heard.rss_dbm, w, lim2))
         h = heard.n_heard
         st.sigma_count += h
         a = max(h / (st.sigma_count + 20.0), h / (cfg.sigma_memory_packets * 4.0))
         st.sigma2_db2 = max((1.0 - a) * st.sigma2_db2 + a * median, cfg.sigma_floor_db**2)
 
-    def _estimate(self, st: FilterState, S: FloatArray, w: FloatArray) -> FilterEstimate:
-        return _summary(
-            S[:, _LINEAGE_COLUMNS],
-            w,
-            float(np.sum(w * S[:, K.OFFSET_DB])),
-            math.sqrt(st.sigma2_db2),
-        )
-
     # ------------------------------------------------------------------ smoothing
     def _emit(self, st: FilterState, w: FloatArray, upto_s: float | None) -> None:
-        assert len(st.pending) == len(st.history) == len(st.ancestors)
+        lin = st.lineage
+        assert lin is not None and len(st.pending) == lin.size
         while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
-            rows = st.history.pop(0)[st.ancestors.pop(0)]
-            _, key, causal = st.pending.pop(0)
-            smooth = _summary(rows, w, causal.offset_db, causal.sigma_db)
+            moments = self._buffers(lin.n).lineage_moments
+            lin.pop_moments(w, moments)
+            _, key, causal = st.pending.popleft()
+            smooth = _summary(moments, causal.offset_db, causal.sigma_db)
             # the genealogy collapses (few distinct ancestors), so its spread
             # understates the uncertainty: report the filter's own at that packet
             self._smoothed.append(
@@ -553,9 +572,9 @@ class ParticleFilter:
             )
 
     def _flush_into(self, st: FilterState, w: FloatArray) -> None:
-        if self.lag_s is not None:
+        if self.lag_s is not None and st.lineage is not None:
             self._emit(st, w, None)
-        st.history, st.ancestors = [], []
+        st.lineage = None
 
     def flush(self, st: FilterState) -> None:
         """Emit every pending smoothed estimate (end of the data)."""
@@ -574,26 +593,47 @@ def _normalised(logw: FloatArray | None) -> FloatArray:
     return w / np.sum(w)
 
 
-def _summary(rows: FloatArray, w: FloatArray, offset_db: float, sigma_db: float) -> FilterEstimate:
-    """Weighted mean pose and spread of lineage rows ``(n, 6)``: x, y, z, azimuth,
-    pitch, roll (radians)."""
-    x = float(np.sum(w * rows[:, 0]))
-    y = float(np.sum(w * rows[:, 1]))
-    z = float(np.sum(w * rows[:, 2]))
-    c = float(np.sum(w * np.cos(rows[:, 3])))
-    s = float(np.sum(w * np.sin(rows[:, 3])))
+def _summary(moments: FloatArray, offset_db: float, sigma_db: float) -> FilterEstimate:
+    """The estimate from weighted pose moments (:func:`kernels.posterior_moments`'
+    first nine): mean position, circular mean azimuth and roll, mean pitch, and
+    the spread."""
+    x, y, z, c, s, pitch, cr, sr, var = moments[:9].tolist()
     r = min(math.hypot(c, s), 1.0)
     az_std = math.degrees(math.sqrt(-2.0 * math.log(r))) if r > 1e-12 else 180.0
-    pitch = math.degrees(float(np.sum(w * rows[:, 4])))
-    cr = float(np.sum(w * np.cos(rows[:, 5])))
-    sr = float(np.sum(w * np.sin(rows[:, 5])))
     roll = math.degrees(math.atan2(sr, cr)) % 360.0 if (cr or sr) else 0.0
-    var = float(np.sum(w * ((rows[:, 0] - x) ** 2 + (rows[:, 1] - y) ** 2)))
     return FilterEstimate(
         (x, y, z),
-        (math.degrees(math.atan2(s, c)) % 360.0, pitch, roll),
+        (math.degrees(math.atan2(s, c)) % 360.0, math.degrees(pitch), roll),
         math.sqrt(max(var, 0.0)),
         az_std,
         offset_db,
         sigma_db,
     )
+
+
+@dataclass(eq=False)
+class _Work:
+    """Work arrays of one packet's compiled calls, reused from packet to packet
+    (their contents never outlive a :meth:`ParticleFilter.step`)."""
+
+    noise: FloatArray  # (n, N_NOISE) standard normal draws of the motion model
+    pred: FloatArray  # (n · n_receivers,) expected RSS, viewed as (n, h)
+    w: FloatArray  # (n,) normalised weights
+    scratch: FloatArray  # (n, N_COLUMNS) resampling copy
+    idx: np.ndarray  # (n,) ancestor indices of a resampling
+    rows: FloatArray  # (n, POSE_ROW) the particles' pose rows
+    moments: FloatArray  # (11,) posterior moments
+    lineage_moments: FloatArray  # (9,) a smoothed packet's moments
+
+    @classmethod
+    def allocate(cls, n: int, n_receivers: int) -> _Work:
+        return cls(
+            np.empty((n, K.N_NOISE)),
+            np.empty(n * max(n_receivers, 1)),
+            np.empty(n),
+            np.empty((n, K.N_COLUMNS)),
+            np.empty(n, np.int64),
+            np.empty((n, K.POSE_ROW)),
+            np.empty(11),
+            np.empty(9),
+        )

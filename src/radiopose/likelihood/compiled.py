@@ -55,6 +55,7 @@ order.
 
 from __future__ import annotations
 
+import copy
 import math
 import os
 
@@ -910,6 +911,16 @@ class ShiftScorer(ScorerBase):
     def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
         """Top-k candidates of one packet (best first)."""
         return self.score_heard(self.space.heard(packet), k)
+
+    def with_parallel(self, parallel: bool) -> ShiftScorer:
+        """The same scorer on numba's threads or on one: the prepared tables are
+        shared, not copied; its own hint of the last shortlist starts empty.
+        Results do not depend on it."""
+        twin = copy.copy(self)
+        twin.parallel = bool(parallel)
+        twin._kernel = _shift_topk if twin.parallel else _shift_topk_serial
+        twin._hint = np.empty(0, np.int64)
+        return twin
 
 
 def threads() -> int:

@@ -1,0 +1,313 @@
+"""The Bayesian tracker (``filter``): packets/s and memory, as ratios against ``full``.
+
+Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown FILE]``):
+
+1. **Warm, in process.** The paper's standard scenario (201 × 201 positions ×
+   360 azimuths, 4 receivers, a packet every 5 ms), an ``N``-packet trace
+   (default 2,000). numba's kernels compiled and the site prepared (scorer
+   tables, :class:`~radiopose.filtering.FilterModel`) before timing; then the
+   streaming ``Tracker.update`` (causal) and batch ``locate`` (fixed-lag
+   smoother, the offline default) of ``filter`` and of ``full`` over the same
+   trace, alternating, ``R`` repeats, median. Ratio: filter / full of the same
+   mode.
+2. **Whole process.** ``radiopose locate SITE PACKETS -o EST --method M`` in a
+   fresh process on the same trace written to disk (wall time including
+   interpreter start-up, imports, numba cache load, site preparation and CSV
+   parsing), ``M`` = ``filter`` and ``full``, ``R`` repeats, median, after one
+   untimed run of each (so numba's on-disk cache is filled). Peak memory: the
+   process's ``ru_maxrss`` (read in a small launcher, since Linux carries a
+   parent's ``ru_maxrss`` into its children).
+3. **Where a fresh process spends its time**: imports of the command line,
+   site load, packets CSV parsing, scorer tables, the filter's model, the
+   first packet (the kernels' cache loads, the track's acquisition) and the
+   next 49 packets, each timed (CPU) inside one process (second of two runs).
+
+Every number is measured in this run on this machine; only the ratios compare
+across runs (the project's machine is shared and noisy). Beside wall-clock
+rates the tables give CPU-time rates (``process_time``; the launcher's
+children's user + system time), which another process's load disturbs far
+less; all ratios are filter over full in rate terms (> 1: filter faster).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numba
+import numpy as np
+
+from radiopose.likelihood import candidate_space
+from radiopose.likelihood.compiled import ShiftScorer
+from radiopose.packets import group_packets, write_packets_csv
+from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.site import write_site
+from radiopose.tracker import Tracker, TrackerConfig, locate
+
+TX = "02:00:00:00:00:01"
+METHODS = ("filter", "full")
+
+
+def standard_trace(n_packets: int, seed: int = 202):  # type: ignore[no-untyped-def]
+    """The standard scenario with ``n_packets`` packets (σ = 1 dB)."""
+    cfg = replace(ScenarioConfig(), duration_s=n_packets * 0.005, noise_db=1.0)
+    return simulate(cfg, seed=seed)
+
+
+def section_warm(n_packets: int, repeat: int) -> list[dict]:
+    sim = standard_trace(n_packets)
+    space = candidate_space(sim.site, TX)
+    scorer = ShiftScorer(space)
+    obs = group_packets(sim.packets)
+    cfg = TrackerConfig(kernel="numba")
+    # warm-up: compile (or load) every kernel of both methods on a short trace
+    warm = standard_trace(100, seed=203)
+    for m in METHODS:
+        locate(warm.site, warm.packets, m, cfg)
+
+    def stream(method: str) -> tuple[float, float]:
+        tracker = Tracker(sim.site, method, cfg, scorers={TX: scorer})
+        tracker.update(obs[0])  # site preparation (FilterModel) outside the timing
+        t0, c0 = time.perf_counter(), time.process_time()
+        for o in obs[1:]:
+            tracker.update(o)
+        n = len(obs) - 1
+        return n / (time.perf_counter() - t0), n / (time.process_time() - c0)
+
+    def batch(method: str) -> tuple[float, float]:
+        t0, c0 = time.perf_counter(), time.process_time()
+        locate(sim.site, sim.packets, method, cfg, scorers={TX: scorer})
+        return len(obs) / (time.perf_counter() - t0), len(obs) / (time.process_time() - c0)
+
+    rates: dict[tuple[str, str], list[tuple[float, float]]] = {}
+    for _ in range(repeat):
+        for mode, fn in (("streaming Tracker.update", stream), ("batch locate", batch)):
+            for m in METHODS:
+                rates.setdefault((mode, m), []).append(fn(m))
+    out = []
+    for mode in ("streaming Tracker.update", "batch locate"):
+        full = np.median(rates[(mode, "full")], axis=0)
+        for m in METHODS:
+            r = np.asarray(rates[(mode, m)])
+            med = np.median(r, axis=0)
+            out.append(
+                {
+                    "mode": mode,
+                    "method": m,
+                    "packets": len(obs),
+                    "packets_per_s": float(med[0]),
+                    "range": f"{r[:, 0].min():.0f}-{r[:, 0].max():.0f}",
+                    "ratio_vs_full": float(med[0] / full[0]),
+                    "packets_per_cpu_s": float(med[1]),
+                    "cpu_ratio_vs_full": float(med[1] / full[1]),
+                }
+            )
+    return out
+
+
+_LAUNCH = """
+import resource, subprocess, sys, time
+t0 = time.perf_counter()
+rc = subprocess.run(sys.argv[1:], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+wall = time.perf_counter() - t0
+if rc.returncode:
+    sys.exit(rc.stderr.decode())
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+print(wall, ru.ru_maxrss, ru.ru_utime + ru.ru_stime)
+"""
+
+
+def _run_cli(args: list[str]) -> tuple[float, float, float]:
+    """Wall seconds, peak RSS (MB) and CPU seconds of ``python -m radiopose ARGS``
+    in a fresh process."""
+    res = subprocess.run(
+        [sys.executable, "-c", _LAUNCH, sys.executable, "-m", "radiopose", *args],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    wall, kb, cpu = res.stdout.split()
+    return float(wall), int(kb) / 1024.0, float(cpu)
+
+
+def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
+    sim = standard_trace(n_packets)
+    site_dir = tmp / "site"
+    write_site(sim.site, site_dir)
+    packets = tmp / "packets.csv"
+    write_packets_csv(sim.packets, packets)
+    n = len(group_packets(sim.packets))
+
+    def args(m: str) -> list[str]:
+        return ["locate", str(site_dir), str(packets), "-o", str(tmp / f"est_{m}.csv")]
+
+    for m in METHODS:  # fill numba's cache; not timed
+        _run_cli([*args(m), "--method", m, "--quiet"])
+    runs: dict[str, list[tuple[float, float, float]]] = {m: [] for m in METHODS}
+    for _ in range(repeat):
+        for m in METHODS:
+            runs[m].append(_run_cli([*args(m), "--method", m, "--quiet"]))
+    full_wall = float(np.median([r[0] for r in runs["full"]]))
+    full_cpu = float(np.median([r[2] for r in runs["full"]]))
+    out = []
+    for m in METHODS:
+        walls = [r[0] for r in runs[m]]
+        wall = float(np.median(walls))
+        cpu = float(np.median([r[2] for r in runs[m]]))
+        out.append(
+            {
+                "method": m,
+                "packets": n,
+                "wall_s": wall,
+                "range_s": f"{min(walls):.2f}-{max(walls):.2f}",
+                "packets_per_s": n / wall,
+                "ratio_vs_full": full_wall / wall,
+                "cpu_s": cpu,
+                "cpu_ratio_vs_full": full_cpu / cpu,
+                "peak_rss_mb": max(r[1] for r in runs[m]),
+            }
+        )
+    return out
+
+
+_STAGES = """
+import sys, time
+clock = time.process_time
+t0 = clock()
+import radiopose.cli
+radiopose.cli._register()
+t1 = clock()
+from radiopose.packets import group_packets, read_packets_csv
+from radiopose.site import load_site
+from radiopose.tracker import Tracker, TrackerConfig
+t2 = clock()
+site = load_site(sys.argv[1])
+t3 = clock()
+pk = read_packets_csv(sys.argv[2])
+obs = group_packets(pk)
+t4 = clock()
+tr = Tracker(site, sys.argv[3], TrackerConfig())
+tr._device(obs[0].transmitter)
+t5 = clock()
+tr.update(obs[0])
+t6 = clock()
+for o in obs[1:50]:
+    tr.update(o)
+t7 = clock()
+print(t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4, t6 - t5, (t7 - t6) / 49)
+"""
+
+
+def section_stages(tmp: Path) -> list[dict]:
+    """Stages of a fresh process, run twice per method (the second is reported)."""
+    site_dir, packets = tmp / "site", tmp / "packets.csv"
+    out = []
+    for m in METHODS:
+        for _ in range(2):
+            t0 = time.perf_counter()
+            res = subprocess.run(
+                [sys.executable, "-c", _STAGES, str(site_dir), str(packets), m],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
+            wall = time.perf_counter() - t0
+        cli, lib, load, parse, prep, first, later = (float(x) for x in res.stdout.split())
+        out.append(
+            {
+                "method": m,
+                "process_wall_s": wall,
+                "cli_imports_s": cli,
+                "library_imports_s": lib,
+                "load_site_s": load,
+                "read_packets_csv_s": parse,
+                "prepare_device_s": prep,
+                "first_packet_s": first,
+                "next_packets_s_each": later,
+            }
+        )
+    return out
+
+
+def machine() -> dict:
+    info = {
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "numba_threads": numba.get_num_threads(),
+        "cpus": os.cpu_count(),
+        "load_average_1m": round(os.getloadavg()[0], 2),
+    }
+    try:
+        with open("/proc/cpuinfo") as fh:
+            info["cpu"] = next(
+                (ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), "?"
+            )
+    except OSError:
+        pass
+    return info
+
+
+def table(rows: list[dict], fmt: dict[str, str]) -> list[str]:
+    keys = list(rows[0])
+    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
+    for r in rows:
+        cells = [
+            format(r[k], fmt.get(k, "")) if isinstance(r[k], float) else str(r[k]) for k in keys
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--packets", type=int, default=2000, help="packets in the trace")
+    ap.add_argument("--repeat", type=int, default=3, help="repeats per measurement (median)")
+    ap.add_argument("--skip-process", action="store_true", help="only the in-process section")
+    ap.add_argument("--markdown", help="also write the tables to this Markdown file")
+    args = ap.parse_args(argv)
+    lines = [f"Machine: `{machine()}`", ""]
+    lines += [f"### 1. Warm, in process ({args.packets} packets, standard scenario)", ""]
+    lines += table(
+        section_warm(args.packets, args.repeat),
+        {
+            "packets_per_s": ".0f",
+            "ratio_vs_full": ".2f",
+            "packets_per_cpu_s": ".0f",
+            "cpu_ratio_vs_full": ".2f",
+        },
+    )
+    if not args.skip_process:
+        with tempfile.TemporaryDirectory() as tmp:
+            rows = section_process(args.packets, args.repeat, Path(tmp))
+            lines += ["### 2. Whole process: `radiopose locate --method M`", ""]
+            lines += table(
+                rows,
+                {
+                    "wall_s": ".2f",
+                    "packets_per_s": ".0f",
+                    "ratio_vs_full": ".2f",
+                    "cpu_s": ".2f",
+                    "cpu_ratio_vs_full": ".2f",
+                    "peak_rss_mb": ".0f",
+                },
+            )
+            lines += ["### 3. Stages of a fresh process (CPU s; the process's wall s)", ""]
+            stages = section_stages(Path(tmp))
+            lines += table(stages, {k: ".3f" for k in stages[0]})
+    text = "\n".join(lines)
+    print(text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

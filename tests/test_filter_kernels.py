@@ -1,0 +1,231 @@
+"""The filter's compiled per-packet mechanics against plain numpy definitions:
+the σ median, the posterior moments, in-place resampling and the smoother's
+genealogy ring (growth, resampling, re-entered hypotheses, pickling).
+
+Seeds 4301-4309 are used here only.
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+
+from radiopose.filtering import kernels as K  # noqa: N812
+from radiopose.filtering.lineage import Lineage
+
+POSE = [K.X_M, K.Y_M, K.Z_M, K.AZIMUTH_RAD, K.PITCH_RAD, K.ROLL_RAD]
+
+
+def _particles(rng: np.random.Generator, n: int) -> np.ndarray:
+    S = np.zeros((n, K.N_COLUMNS))
+    S[:, K.X_M] = rng.uniform(0, 20, n)
+    S[:, K.Y_M] = rng.uniform(0, 20, n)
+    S[:, K.Z_M] = 1.0
+    S[:, K.VX_MPS] = rng.normal(0, 1, n)
+    S[:, K.VY_MPS] = rng.normal(0, 1, n)
+    S[:, K.AZIMUTH_RAD] = rng.uniform(0, 2 * np.pi, n)
+    S[:, K.RATE_RAD_S] = rng.normal(0, 1, n)
+    S[:, K.PITCH_RAD] = rng.choice([0.0, 0.3], n)
+    S[:, K.ROLL_RAD] = rng.choice([0.0, -0.2], n)
+    S[:, K.OFFSET_DB] = rng.normal(0, 2, n)
+    return S
+
+
+def _weights(rng: np.random.Generator, n: int) -> np.ndarray:
+    w = rng.exponential(1.0, n) ** 3
+    return w / w.sum()
+
+
+def _summary_numpy(rows: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """The moments as the filter computed them before they were compiled."""
+    x, y, z = (float(np.sum(w * rows[:, c])) for c in range(3))
+    return np.array(
+        [
+            x,
+            y,
+            z,
+            np.sum(w * np.cos(rows[:, 3])),
+            np.sum(w * np.sin(rows[:, 3])),
+            np.sum(w * rows[:, 4]),
+            np.sum(w * np.cos(rows[:, 5])),
+            np.sum(w * np.sin(rows[:, 5])),
+            np.sum(w * ((rows[:, 0] - x) ** 2 + (rows[:, 1] - y) ** 2)),
+        ]
+    )
+
+
+@pytest.mark.parametrize("seed", [4301, 4302, 4303])
+def test_weighted_median_equals_the_sorted_cumulative_definition(seed):
+    rng = np.random.default_rng(seed)
+    n, h = 501, 3
+    S = _particles(rng, n)
+    pred = rng.normal(-60, 3, (n, h))
+    tie = rng.random((n, h)) < 0.3
+    pred[tie] = np.round(pred[tie])  # ties
+    pred[rng.integers(0, n, 5), 1] = np.nan  # outside the survey
+    S[:, K.OFFSET_DB] = np.round(S[:, K.OFFSET_DB])
+    rss = np.array([-58.0, -61.0, -63.0])
+    w = _weights(rng, n)
+    w[rng.integers(0, n, 50)] = 0.0
+    w /= w.sum()
+    lim2 = 25.0
+    r2 = np.minimum((rss[None, :] - pred - S[:, K.OFFSET_DB, None]) ** 2, lim2)
+    r2 = np.nan_to_num(r2.mean(axis=1), nan=lim2)
+    order = np.argsort(r2)
+    want = r2[order[min(np.searchsorted(np.cumsum(w[order]), 0.5), n - 1)]]
+    assert K.weighted_median_sq_residual(S, pred, rss, w, lim2) == pytest.approx(want, abs=1e-12)
+
+
+def test_weighted_median_of_one_heavy_particle_is_its_value():
+    rng = np.random.default_rng(4304)
+    S = _particles(rng, 100)
+    pred = rng.normal(-60, 3, (100, 2))
+    rss = np.array([-60.0, -60.0])
+    w = np.full(100, 1e-6)
+    w[37] = 1.0
+    w /= w.sum()
+    e = rss - pred[37] - S[37, K.OFFSET_DB]
+    assert K.weighted_median_sq_residual(S, pred, rss, w, 1e9) == pytest.approx(np.mean(e**2))
+
+
+def test_posterior_moments_match_numpy():
+    rng = np.random.default_rng(4305)
+    S = _particles(rng, 777)
+    w = _weights(rng, 777)
+    rows = np.empty((777, K.POSE_ROW))
+    m = np.empty(11)
+    K.posterior_moments(S, w, rows, m)
+    np.testing.assert_allclose(m[:9], _summary_numpy(S[:, POSE], w), rtol=1e-12, atol=1e-12)
+    assert m[9] == pytest.approx(np.sum(w * S[:, K.OFFSET_DB]))
+    assert m[10] == pytest.approx(np.sum(w * w))
+    np.testing.assert_allclose(rows[:, 3], np.cos(S[:, K.AZIMUTH_RAD]))
+    np.testing.assert_allclose(rows[:, 7], np.sin(S[:, K.ROLL_RAD]), atol=1e-15)
+
+
+def test_resample_in_place_is_systematic_resampling():
+    rng = np.random.default_rng(4306)
+    S = _particles(rng, 300)
+    w = _weights(rng, 300)
+    idx_ref = K.systematic_resample(w, 0.37)
+    want = S[idx_ref]
+    idx = np.empty(300, np.int64)
+    K.resample_in_place(S, w, 0.37, np.empty_like(S), idx)
+    np.testing.assert_array_equal(idx, idx_ref)
+    np.testing.assert_array_equal(S, want)
+
+
+class _ListLineage:
+    """The genealogy as the filter kept it before the ring buffer: lists of arrays."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.history: list[np.ndarray] = []
+        self.ancestors: list[np.ndarray] = []
+
+    def push(self, t: float, S: np.ndarray) -> None:
+        self.times.append(t)
+        self.history.append(S[:, POSE].copy())
+        self.ancestors.append(np.arange(S.shape[0]))
+
+    def remap(self, idx: np.ndarray) -> None:
+        self.ancestors = [a[idx] for a in self.ancestors]
+
+    def inject(self, t_s, window_s, new, slots, donors) -> None:  # type: ignore[no-untyped-def]
+        m = new.shape[0]
+        for j in range(len(self.history)):
+            lag = t_s - self.times[j]
+            if lag > window_s:
+                self.ancestors[j][slots] = self.ancestors[j][donors]
+                continue
+            rows = new[:, POSE].copy()
+            rows[:, 0] -= new[:, K.VX_MPS] * lag
+            rows[:, 1] -= new[:, K.VY_MPS] * lag
+            rows[:, 3] -= new[:, K.RATE_RAD_S] * lag
+            base = self.history[j].shape[0]
+            self.history[j] = np.vstack([self.history[j], rows])
+            self.ancestors[j][slots] = base + np.arange(m)
+
+    def pop(self, w: np.ndarray) -> np.ndarray:
+        self.times.pop(0)
+        return _summary_numpy(self.history.pop(0)[self.ancestors.pop(0)], w)
+
+
+@pytest.mark.parametrize("seed", [4307, 4308])
+def test_lineage_ring_equals_the_list_genealogy(seed):
+    """Pushes past the capacity, resamplings, re-entered hypotheses (more rows
+    than the ring holds) and a pickle round trip give the moments of the
+    list-of-arrays genealogy."""
+    rng = np.random.default_rng(seed)
+    n, lag_packets = 64, 11
+    ring, ref = Lineage(n, capacity=4), _ListLineage()
+    S = _particles(rng, n)
+    rows, mom = np.empty((n, K.POSE_ROW)), np.empty(11)
+    got, want = [], []
+    for step in range(60):
+        t = 0.005 * step
+        S[:, K.X_M] += 0.01 * S[:, K.VX_MPS]
+        S[:, K.AZIMUTH_RAD] = (S[:, K.AZIMUTH_RAD] + 0.01) % (2 * np.pi)
+        w = _weights(rng, n)
+        K.posterior_moments(S, w, rows, mom)
+        ring.push(t, rows)
+        ref.push(t, S)
+        if step % 7 == 3:  # a re-entry of 20 hypotheses
+            new = _particles(rng, 20)
+            slots = rng.choice(n, 20, replace=False)
+            donors = rng.integers(0, n, 20)
+            S[slots] = new
+            ring.inject(t, 0.02, new, slots, donors)
+            ref.inject(t, 0.02, new, slots, donors)
+        if step == 30:
+            ring = pickle.loads(pickle.dumps(ring))
+        if ring.size > lag_packets:
+            m9 = np.empty(9)
+            ring.pop_moments(w, m9)
+            got.append(m9)
+            want.append(ref.pop(w))
+        if step % 3 == 0:
+            idx = K.systematic_resample(w, float(rng.uniform()))
+            S = S[idx]
+            ring.remap(idx)
+            ref.remap(idx)
+    assert ring.capacity > 4 and len(got) == 60 - lag_packets
+    np.testing.assert_allclose(np.array(got), np.array(want), rtol=1e-10, atol=1e-10)
+
+
+def test_lineage_pickle_keeps_only_the_live_packets():
+    ring = Lineage(1000)
+    rows = np.zeros((1000, K.POSE_ROW))
+    for k in range(3):
+        ring.push(float(k), rows)
+    m = np.empty(9)
+    ring.pop_moments(np.full(1000, 1e-3), m)
+    assert len(pickle.dumps(ring)) < 2 * (2 * 1000 * K.POSE_ROW * 8 + 2 * 1000 * 4)
+    back = pickle.loads(pickle.dumps(ring))
+    assert back.size == 2 and back.oldest_time_s() == 1.0 and not math.isnan(m[0])
+
+
+def test_filter_model_scores_on_one_thread_with_the_same_answers():
+    from dataclasses import replace
+
+    from radiopose.filtering import FilterModel
+    from radiopose.likelihood import candidate_space
+    from radiopose.likelihood.compiled import ShiftScorer
+    from radiopose.packets import group_packets
+    from radiopose.simulate import ScenarioConfig, simulate
+
+    sim = simulate(
+        replace(ScenarioConfig(), size_m=6.0, duration_s=0.05, min_receiver_spacing_m=1.5), 4309
+    )
+    space = candidate_space(sim.site, sim.site.devices[0].transmitter)
+    scorer = ShiftScorer(space, parallel=True)
+    model = FilterModel.build(sim.site, space, scorer)
+    assert model.scorer is not scorer and not model.scorer.parallel and scorer.parallel
+    assert model.scorer.posf is scorer.posf  # tables shared, not copied
+    for packet in group_packets(sim.packets)[:3]:
+        heard = space.heard(packet)
+        a, b = scorer.score_heard(heard, 50), model.scorer.score_heard(heard, 50)
+        np.testing.assert_array_equal(a.candidate_idx, b.candidate_idx)
+        np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
