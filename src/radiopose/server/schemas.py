@@ -79,8 +79,6 @@ class Estimate(BaseModel):
     pitch_deg: float
     roll_deg: float
     method: str
-    spoof_alarm_flag: int | None = None
-    """1 inside a raised spoofing alarm of the transmitter (docs/security.md), else 0."""
 
 
 class ReceiverIn(BaseModel):
