@@ -50,6 +50,7 @@ def _endpoints(tiny):  # type: ignore[no-untyped-def]
         ("POST", "/api/v1/reports", _batch(tiny, batch_id="auth"), {"rx1"}),
         ("GET", "/api/v1/transmitters", None, {"rx1", "rx2", "viewer", "admin"}),
         ("GET", "/api/v1/estimates", None, {"viewer", "admin"}),
+        ("GET", "/api/v1/alarms", None, {"viewer", "admin"}),
         ("GET", "/api/v1/site", None, {"viewer", "admin"}),
         ("GET", "/api/v1/patterns/rx1", None, {"viewer", "admin"}),
         ("GET", "/health", None, {"viewer", "admin"}),

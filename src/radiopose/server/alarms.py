@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from typing import Annotated, Any
 
 import numpy as np
-from fastapi import APIRouter, Depends, Query
+from fastapi import Depends, FastAPI, Query
 from pydantic import BaseModel
 
 from radiopose.packets import PacketObservation
@@ -35,6 +35,7 @@ from radiopose.security.detection import (
     DetectorConfig,
     pose_residuals_db,
 )
+from radiopose.server.schemas import Estimate
 from radiopose.site import Site
 
 
@@ -50,6 +51,13 @@ class Alarm(BaseModel):
     x_m: float
     y_m: float
     raised_s: float
+
+
+class FlaggedEstimate(Estimate):
+    """An estimate of ``GET /api/v1/estimates`` with its alarm flag."""
+
+    spoof_alarm_flag: int = 0
+    """1 inside a raised spoofing alarm of the transmitter, else 0."""
 
 
 class AlarmMonitor:
@@ -137,11 +145,10 @@ def flag_estimates(
     return out
 
 
-def router(db: Any, viewer: Callable[..., Any]) -> APIRouter:
-    """``GET /api/v1/alarms`` over ``db`` for the ``viewer`` dependency's roles."""
-    api = APIRouter()
+def add_routes(app: FastAPI, db: Any, viewer: Callable[..., Any]) -> None:
+    """Add ``GET /api/v1/alarms`` over ``db`` for the ``viewer`` dependency's roles."""
 
-    @api.get("/api/v1/alarms", response_model=list[Alarm], dependencies=[Depends(viewer)])
+    @app.get("/api/v1/alarms", response_model=list[Alarm], dependencies=[Depends(viewer)])
     def alarms(
         transmitter: Annotated[str | None, Query(max_length=64)] = None,
         since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
@@ -149,5 +156,3 @@ def router(db: Any, viewer: Callable[..., Any]) -> APIRouter:
     ) -> list[dict[str, Any]]:
         """Spoofing alarm events (``raised``/``cleared``) in time order."""
         return db.alarms(transmitter, since_s, limit=limit)
-
-    return api

@@ -51,8 +51,7 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 from radiopose.capture.records import canonical_transmitter, transmitter_id_problem
 from radiopose.errors import InputError
 from radiopose.server import sitestore
-from radiopose.server.alarms import flag_estimates
-from radiopose.server.alarms import router as alarms_router
+from radiopose.server.alarms import FlaggedEstimate, add_routes, flag_estimates
 from radiopose.server.auth import READ_ROLES, Principal, hash_token
 from radiopose.server.db import Database
 from radiopose.server.live import LiveConfig, LiveWorker
@@ -333,7 +332,9 @@ def create_app(
         return sorted(_known(db)[1])
 
     # ------------------------------------------------------------------ estimates
-    @app.get(f"{API}/estimates", response_model=list[Estimate], response_model_exclude_none=True)
+    @app.get(
+        f"{API}/estimates", response_model=list[FlaggedEstimate], response_model_exclude_none=True
+    )
     def estimates(
         who: Viewer,
         transmitter: Annotated[str | None, Query(max_length=64)] = None,
@@ -347,7 +348,7 @@ def create_app(
         rows = db.estimates(transmitter, since_s, limit=limit)
         return flag_estimates(rows, db.alarms(transmitter, limit=100_000)) if rows else rows
 
-    app.include_router(alarms_router(db, require(*sorted(READ_ROLES))))
+    add_routes(app, db, require(*sorted(READ_ROLES)))
 
     @app.get(f"{API}/stream")
     async def stream(

@@ -81,8 +81,6 @@ class Estimate(BaseModel):
     method: str
     position_std_m: float | None = None
     azimuth_std_deg: float | None = None
-    spoof_alarm_flag: int | None = None
-    """1 inside a raised spoofing alarm of the transmitter (docs/security.md), else 0."""
 
 
 class ReceiverIn(BaseModel):
