@@ -133,31 +133,39 @@ class _ListLineage:
     def remap(self, idx: np.ndarray) -> None:
         self.ancestors = [a[idx] for a in self.ancestors]
 
-    def inject(self, t_s, window_s, new, slots, donors) -> None:  # type: ignore[no-untyped-def]
+    def inject(self, t_s, window_s, new, slots, donors, inherit=None, box=None) -> None:  # type: ignore[no-untyped-def]
         m = new.shape[0]
+        same = np.ones(m, bool) if inherit is None else inherit
         for j in range(len(self.history)):
             lag = t_s - self.times[j]
-            if lag > window_s:
-                self.ancestors[j][slots] = self.ancestors[j][donors]
+            own = np.ones(m, dtype=bool) if lag <= window_s else ~same
+            if not own.all():
+                self.ancestors[j][slots[~own]] = self.ancestors[j][donors[~own]]
+            if not own.any():
                 continue
-            rows = new[:, POSE].copy()
-            rows[:, 0] -= new[:, K.VX_MPS] * lag
-            rows[:, 1] -= new[:, K.VY_MPS] * lag
-            rows[:, 3] -= new[:, K.RATE_RAD_S] * lag
+            mine = new[own]
+            rows = mine[:, POSE].copy()
+            rows[:, 0] -= mine[:, K.VX_MPS] * lag
+            rows[:, 1] -= mine[:, K.VY_MPS] * lag
+            rows[:, 3] -= mine[:, K.RATE_RAD_S] * lag
+            if box is not None:
+                rows[:, 0] = np.clip(rows[:, 0], box[0], box[1])
+                rows[:, 1] = np.clip(rows[:, 1], box[2], box[3])
             base = self.history[j].shape[0]
             self.history[j] = np.vstack([self.history[j], rows])
-            self.ancestors[j][slots] = base + np.arange(m)
+            self.ancestors[j][slots[own]] = base + np.arange(rows.shape[0])
 
     def pop(self, w: np.ndarray) -> np.ndarray:
         self.times.pop(0)
         return _summary_numpy(self.history.pop(0)[self.ancestors.pop(0)], w)
 
 
-@pytest.mark.parametrize("seed", [4307, 4308])
-def test_lineage_ring_equals_the_list_genealogy(seed):
+@pytest.mark.parametrize(("seed", "own_past"), [(4307, False), (4308, False), (4308, True)])
+def test_lineage_ring_equals_the_list_genealogy(seed, own_past):
     """Pushes past the capacity, resamplings, re-entered hypotheses (more rows
-    than the ring holds) and a pickle round trip give the moments of the
-    list-of-arrays genealogy."""
+    than the ring holds; with ``own_past`` some keep their own moved-back,
+    clipped pose before the window instead of their donor's past) and a pickle
+    round trip give the moments of the list-of-arrays genealogy."""
     rng = np.random.default_rng(seed)
     n, lag_packets = 64, 11
     ring, ref = Lineage(n, capacity=4), _ListLineage()
@@ -174,11 +182,15 @@ def test_lineage_ring_equals_the_list_genealogy(seed):
         ref.push(t, S)
         if step % 7 == 3:  # a re-entry of 20 hypotheses
             new = _particles(rng, 20)
+            new[:, K.VX_MPS] *= 100.0  # moved back out of the box: clipped
             slots = rng.choice(n, 20, replace=False)
             donors = rng.integers(0, n, 20)
             S[slots] = new
-            ring.inject(t, 0.02, new, slots, donors)
-            ref.inject(t, 0.02, new, slots, donors)
+            extra = {}
+            if own_past:
+                extra = {"inherit": rng.random(20) < 0.5, "box": np.array([0.0, 20.0, 0.0, 20.0])}
+            ring.inject(t, 0.02, new, slots, donors, extra.get("inherit"), extra.get("box"))
+            ref.inject(t, 0.02, new, slots, donors, **extra)
         if step == 30:
             ring = pickle.loads(pickle.dumps(ring))
         if ring.size > lag_packets:

@@ -36,28 +36,37 @@ def _remap(anc, out, live, idx):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True)
-def _inject(rows, n_rows, anc, live, lags_s, window_s, new, slots, donors):  # pragma: no cover
-    """Re-entered particles ``slots``: within the window, pose rows of ``new`` moved
-    back along their velocity and turn rate by each packet's lag; before it, the
-    ancestors of ``donors``."""
+def _inject(  # pragma: no cover - compiled
+    rows, n_rows, anc, live, lags_s, window_s, new, slots, donors, inherit, box, clip
+):
+    """Re-entered particles ``slots``: within the window, and before it where
+    ``inherit`` is false, pose rows of ``new`` moved back along their velocity
+    and turn rate by each packet's lag (positions clipped to ``box`` if
+    ``clip``); before the window where ``inherit`` is true, the ancestors of
+    ``donors`` (all read before any is written)."""
     m = slots.shape[0]
     tmp = np.empty(m, anc.dtype)
     for j in range(live.shape[0]):
         k = live[j]
         lag = lags_s[j]
-        if lag > window_s:
+        old = lag > window_s
+        if old:
             for q in range(m):
                 tmp[q] = anc[k, donors[q]]
-            for q in range(m):
-                anc[k, slots[q]] = tmp[q]
-            continue
-        base = n_rows[k]
+        r = n_rows[k]
         for q in range(m):
-            r = base + q
+            if old and inherit[q]:
+                anc[k, slots[q]] = tmp[q]
+                continue
+            x = new[q, K.X_M] - new[q, K.VX_MPS] * lag
+            y = new[q, K.Y_M] - new[q, K.VY_MPS] * lag
+            if clip:
+                x = min(max(x, box[0]), box[1])
+                y = min(max(y, box[2]), box[3])
             az = new[q, K.AZIMUTH_RAD] - new[q, K.RATE_RAD_S] * lag
             roll = new[q, K.ROLL_RAD]
-            rows[k, r, 0] = new[q, K.X_M] - new[q, K.VX_MPS] * lag
-            rows[k, r, 1] = new[q, K.Y_M] - new[q, K.VY_MPS] * lag
+            rows[k, r, 0] = x
+            rows[k, r, 1] = y
             rows[k, r, 2] = new[q, K.Z_M]
             rows[k, r, 3] = math.cos(az)
             rows[k, r, 4] = math.sin(az)
@@ -65,7 +74,8 @@ def _inject(rows, n_rows, anc, live, lags_s, window_s, new, slots, donors):  # p
             rows[k, r, 6] = 1.0 if roll == 0.0 else math.cos(roll)
             rows[k, r, 7] = 0.0 if roll == 0.0 else math.sin(roll)
             anc[k, slots[q]] = r
-        n_rows[k] = base + m
+            r += 1
+        n_rows[k] = r
 
 
 class Lineage:
@@ -134,22 +144,35 @@ class Lineage:
             self.anc, self._spare = self._spare, self.anc
 
     def inject(
-        self, t_s: float, window_s: float, new: FloatArray, slots: np.ndarray, donors: np.ndarray
+        self,
+        t_s: float,
+        window_s: float,
+        new: FloatArray,
+        slots: np.ndarray,
+        donors: np.ndarray,
+        inherit: np.ndarray | None = None,
+        box_m: FloatArray | None = None,
     ) -> None:
         """Give re-entered particles (rows ``new`` now in ``slots``) a past: within
         ``window_s`` their pose moved back along their velocity and turn rate;
-        before it, the past of the particle ``donors`` whose motion they copied."""
+        before it, the past of the particle ``donors`` whose motion they copied
+        — or, where ``inherit`` (bool per particle; default all) is false, their
+        own pose moved back as within the window. ``box_m`` = ``[x_lo, x_hi,
+        y_lo, y_hi]`` clips the moved-back positions (default: no clipping)."""
         if not self.size:
             return
+        m = new.shape[0]
         live = self._live()
         lags = t_s - self.times_s[live]
-        need = int(self.n_rows[live].max()) + new.shape[0]
+        need = int(self.n_rows[live].max()) + m
         if need > self.rows.shape[1]:
             self._grow(self.capacity, max(need, self.rows.shape[1] + self.n // 4))
             live = self._live()
         _inject(
             self.rows, self.n_rows, self.anc, live, lags, window_s,
             np.ascontiguousarray(new), np.asarray(slots, np.int64), np.asarray(donors, np.int64),
+            np.ones(m, np.bool_) if inherit is None else np.asarray(inherit, np.bool_),
+            np.zeros(4) if box_m is None else np.asarray(box_m, np.float64), box_m is not None,
         )  # fmt: skip
 
     def oldest_time_s(self) -> float:
