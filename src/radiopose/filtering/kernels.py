@@ -170,18 +170,32 @@ def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no co
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _inlier(u, log_eps):  # pragma: no cover - compiled
+    """Cost ``ρ(u) = −log(exp(−u²/2) + ε′)`` of a standardised residual ``u`` and
+    its inlier weight ``exp(−u²/2) / (exp(−u²/2) + ε′)`` (``log_eps = log ε′``)."""
+    g = -0.5 * u * u
+    m = max(g, log_eps)
+    lse = m + math.log(math.exp(g - m) + math.exp(log_eps - m))
+    return -lse, math.exp(g - lse)
+
+
 @numba.njit(cache=True)
-def measurement_update(S, pred, rss, sigma_db, huber_c, logw):  # pragma: no cover - compiled
+def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cover - compiled
     """Add each particle's log-likelihood of one packet to ``logw`` and update its
     power-offset belief in place (Rao-Blackwellised scalar Kalman filter).
 
-    With residuals ``e_q = rss_q − pred_q − b̄`` and offset belief
-    ``b ~ N(b̄, P)``, the marginal of ``e`` is ``N(0, Σ + P·11ᵀ)`` with
-    ``Σ = diag(σ²/w_q)``; Huber weights ``w_q = min(1, c σ / |e_q − ē|)``
-    (``ē`` the offset correction before weighting) make a receiver that is far
-    off for one packet count linearly instead of quadratically::
+    Each receiver's reading is an inlier, Gaussian in dB around the expected
+    RSS, or with a small probability an outlier spread over the plausible RSS
+    range: per receiver ``p(e) ∝ exp(−u²/2) + ε′``, ``u = (e − ē)/σ``, with
+    ``ε′ = ε √(2π) σ / ((1 − ε) U)`` (``log_eps = log ε′``; ε the outlier
+    probability, U the range in dB). A receiver far off costs at most
+    ``−log ε′`` whatever its size (a 15 dB error does not throw the track), and
+    it gets the inlier weight ``w_q = exp(−u²/2)/(exp(−u²/2) + ε′)`` in the
+    offset update. With residuals ``e_q = rss_q − pred_q − b̄``, offset belief
+    ``b ~ N(b̄, P)`` and ``ē`` the offset correction before weighting::
 
-        log L = −½ [Σ w e²/σ² − P (Σ w e/σ²)² / a] − ½ log a,   a = 1 + P Σ w/σ²
+        log L = −Σ ρ(u_q) + ½ P (Σ w e/σ²)² / a − ½ log a,   a = 1 + P Σ w/σ²
         b̄ ← b̄ + P (Σ w e/σ²) / a,   P ← P / a
 
     A particle whose expected RSS is NaN (outside the survey) gets ``−inf``.
@@ -203,30 +217,29 @@ def measurement_update(S, pred, rss, sigma_db, huber_c, logw):  # pragma: no cov
         ebar = p * sum_e / s2 / (1.0 + p * h / s2)
         sw = 0.0
         swe = 0.0
-        swee = 0.0
+        cost = 0.0
         for q in range(h):
-            u = abs(e[q] - ebar) / sigma_db
-            w = 1.0 if u <= huber_c else huber_c / u
+            rho, w = _inlier((e[q] - ebar) / sigma_db, log_eps)
+            cost += rho
             sw += w
             swe += w * e[q]
-            swee += w * e[q] * e[q]
         a = 1.0 + p * sw / s2
-        logw[i] += -0.5 * (swee / s2 - p * (swe / s2) ** 2 / a) - 0.5 * math.log(a)
+        logw[i] += -cost + 0.5 * p * (swe / s2) ** 2 / a - 0.5 * math.log(a)
         S[i, OFFSET_DB] = b + p * swe / s2 / a
         S[i, OFFSET_VAR_DB2] = p / a
 
 
 @numba.njit(cache=True)
-def fixed_offset_loglik(pred, rss, offset_db, sigma_db, huber_c, out):  # pragma: no cover
-    """Add the Huber log-likelihood of one packet at each row's fixed offset to ``out``."""
+def fixed_offset_loglik(pred, rss, offset_db, sigma_db, log_eps, out):  # pragma: no cover
+    """Add the log-likelihood of one packet at each row's fixed offset to ``out``
+    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN)."""
     n = pred.shape[0]
     h = rss.shape[0]
-    half_c2 = 0.5 * huber_c * huber_c
     for i in range(n):
         acc = 0.0
         for q in range(h):
-            u = abs(rss[q] - pred[i, q] - offset_db[i]) / sigma_db
-            acc += 0.5 * u * u if u <= huber_c else huber_c * u - half_c2
+            rho, _ = _inlier((rss[q] - pred[i, q] - offset_db[i]) / sigma_db, log_eps)
+            acc += rho
         out[i] -= acc if not math.isnan(acc) else np.inf
 
 
@@ -245,3 +258,70 @@ def systematic_resample(weights, u0):  # pragma: no cover - compiled
             c += weights[j]
         idx[i] = j
     return idx
+
+
+@numba.njit(cache=True)
+def log_sum_exp(logw):  # pragma: no cover - compiled
+    """``log Σ exp(logw)`` (``-inf`` for an empty or all ``-inf`` vector)."""
+    m = -np.inf
+    for v in logw:
+        if v > m:
+            m = v
+    if not math.isfinite(m):
+        return m
+    acc = 0.0
+    for v in logw:
+        acc += math.exp(v - m)
+    return m + math.log(acc)
+
+
+@numba.njit(cache=True, fastmath={"afn", "contract"})
+def pose_moments(S, w, cols):  # pragma: no cover - compiled
+    """Weighted moments of the pose columns ``cols`` = (x, y, z, azimuth, pitch, roll)
+    of ``S`` with normalised weights ``w``: ``[x̄, ȳ, z̄, Σw cos a, Σw sin a, pitch̄,
+    Σw cos r, Σw sin r, Σw ((x−x̄)² + (y−ȳ)²)]`` (angles in radians)."""
+    out = np.zeros(9)
+    n = S.shape[0]
+    for i in range(n):
+        wi = w[i]
+        out[0] += wi * S[i, cols[0]]
+        out[1] += wi * S[i, cols[1]]
+        out[2] += wi * S[i, cols[2]]
+        out[3] += wi * math.cos(S[i, cols[3]])
+        out[4] += wi * math.sin(S[i, cols[3]])
+        out[5] += wi * S[i, cols[4]]
+        out[6] += wi * math.cos(S[i, cols[5]])
+        out[7] += wi * math.sin(S[i, cols[5]])
+    for i in range(n):
+        dx = S[i, cols[0]] - out[0]
+        dy = S[i, cols[1]] - out[1]
+        out[8] += w[i] * (dx * dx + dy * dy)
+    return out
+
+
+@numba.njit(cache=True)
+def median_squared_residual(S, pred, rss, w, lim2, u0):  # pragma: no cover - compiled
+    """The posterior median over particles of the mean squared residual
+    ``(rss − pred − b)²`` (each term clipped at ``lim2``; a NaN row counts as
+    ``lim2``): the median of at most 256 particles drawn by systematic resampling
+    of the normalised weights ``w`` (one uniform ``u0``), which estimates the
+    ``w``-weighted median without sorting every particle."""
+    n = S.shape[0]
+    h = rss.shape[0]
+    m = min(n, 256)
+    r2 = np.empty(m)
+    c = w[0]
+    i = 0
+    for k in range(m):
+        u = (u0 + k) / m
+        while u > c and i < n - 1:
+            i += 1
+            c += w[i]
+        acc = 0.0
+        for q in range(h):
+            e = rss[q] - pred[i, q] - S[i, OFFSET_DB]
+            acc += min(e * e, lim2)
+        v = acc / h
+        r2[k] = lim2 if math.isnan(v) else v
+    r2.sort()
+    return r2[(m - 1) // 2]

@@ -59,6 +59,8 @@ from radiopose.site import Site
 from radiopose.units import FloatArray
 
 _LINEAGE_COLUMNS = [K.X_M, K.Y_M, K.Z_M, K.AZIMUTH_RAD, K.PITCH_RAD, K.ROLL_RAD]
+_POSE_COLUMNS = np.array(_LINEAGE_COLUMNS, dtype=np.int64)  # pose columns of a particle row
+_ROW_COLUMNS = np.arange(6, dtype=np.int64)  # pose columns of a lineage row
 
 
 @dataclass(frozen=True)
@@ -98,7 +100,12 @@ class FilterConfig:
     sigma_memory_packets
         Packets over which the σ estimate averages once settled.
     huber_c
-        Huber threshold, in σ: a receiver further off counts linearly.
+        Clip of the residuals that update the σ estimate, in units of 2σ.
+    outlier_probability, outlier_range_db
+        Prior probability that one receiver's reading is an outlier, spread
+        uniformly over ``outlier_range_db``: a receiver far off costs a bounded
+        amount and does not move the power offset (the likelihood is a
+        Gaussian-plus-uniform mixture per receiver).
     offset_prior_sd_db
         Prior standard deviation of the transmit-power offset around
         ``devices.csv``'s ``tx_power_dbm``, dB.
@@ -128,6 +135,8 @@ class FilterConfig:
     sigma_floor_db: float = 0.25
     sigma_memory_packets: int = 200
     huber_c: float = 2.5
+    outlier_probability: float = 0.05
+    outlier_range_db: float = 60.0
     offset_prior_sd_db: float = 6.0
     initial_offsets_db: tuple[float, ...] = (-9.0, -4.5, 0.0, 4.5, 9.0)
     reacquire_gap_s: float = 1.0
@@ -149,6 +158,10 @@ class FilterConfig:
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")
         if not 10 <= self.n_particles <= 1_000_000:
             raise InputError(f"filter setting n_particles = {self.n_particles!r} is out of range")
+        if not 0 < self.outlier_probability < 1 or not 0 < self.outlier_range_db < math.inf:
+            raise InputError(
+                "filter settings outlier_probability lies in (0, 1), outlier_range_db > 0"
+            )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
@@ -295,6 +308,13 @@ class ParticleFilter:
         self.lag_s = lag_s
         self._smoothed: list[tuple[object, FilterEstimate]] = []
 
+    def _log_eps(self, sigma_db: float) -> float:
+        """``log ε′`` of the per-receiver outlier mixture (:func:`kernels.measurement_update`)."""
+        eps = self.config.outlier_probability
+        return math.log(
+            eps * math.sqrt(2.0 * math.pi) * sigma_db / ((1.0 - eps) * self.config.outlier_range_db)
+        )
+
     def new_state(self, seed: int = 0) -> FilterState:
         return FilterState(
             rng=np.random.default_rng(seed), sigma2_db2=self.config.sigma_prior_db**2
@@ -370,15 +390,15 @@ class ParticleFilter:
         assert S is not None and st.log_weights is not None
         n = S.shape[0]
         n_rx = mod.receivers_m.shape[0]
-        acc = np.zeros(n_rx)
-        cnt = np.zeros(n_rx)
+        per_rx: list[list[float]] = [[] for _ in range(n_rx)]
         for _, hd, _ in st.window:
-            np.add.at(acc, hd.receiver_index, hd.rss_dbm)
-            np.add.at(cnt, hd.receiver_index, 1.0)
-        heard_rx = np.flatnonzero(cnt > 0)
+            for r, v in zip(hd.receiver_index.tolist(), hd.rss_dbm.tolist(), strict=True):
+                per_rx[r].append(v)
+        heard_rx = np.array([r for r in range(n_rx) if per_rx[r]], dtype=np.int64)
         if heard_rx.size < cfg.min_acquisition_receivers:
             return
-        mean = HeardRss(heard_rx.astype(np.int64), acc[heard_rx] / cnt[heard_rx])
+        # the window's median RSS per receiver: an outlying packet does not move it
+        mean = HeardRss(heard_rx, np.array([float(np.median(per_rx[r])) for r in heard_rx]))
         b = float(np.sum(w * S[:, K.OFFSET_DB]))
         var_b = float(np.sum(w * (S[:, K.OFFSET_VAR_DB2] + (S[:, K.OFFSET_DB] - b) ** 2)))
         sd_b = math.sqrt(var_b)
@@ -407,7 +427,7 @@ class ParticleFilter:
             back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
             back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
             pred = mod.expected(back, hd.receiver_index)
-            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, cfg.huber_c, ll)
+            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, self._log_eps(sigma), ll)
         evidence = sum(lz for _, _, lz in st.window)
         prior = (
             -0.5
@@ -415,7 +435,7 @@ class ParticleFilter:
             / cfg.offset_prior_sd_db**2
         )
         slots = st.rng.choice(n, size=m, replace=False)
-        lse = float(np.logaddexp.reduce(st.log_weights))
+        lse = float(K.log_sum_exp(st.log_weights))
         S[slots] = new
         st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
@@ -480,9 +500,9 @@ class ParticleFilter:
         assert S is not None and logw is not None
         pred = mod.expected(S, heard.receiver_index)
         sigma = math.sqrt(st.sigma2_db2)
-        lse0 = float(np.logaddexp.reduce(logw))
-        K.measurement_update(S, pred, heard.rss_dbm, sigma, cfg.huber_c, logw)
-        lse1 = float(np.logaddexp.reduce(logw))
+        lse0 = float(K.log_sum_exp(logw))
+        K.measurement_update(S, pred, heard.rss_dbm, sigma, self._log_eps(sigma), logw)
+        lse1 = float(K.log_sum_exp(logw))
         if not math.isfinite(lse1):  # every particle impossible: start again
             self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
             st.particles = None
@@ -515,10 +535,8 @@ class ParticleFilter:
         """EWMA of the posterior-median mean squared residual (clipped at 2c σ)."""
         cfg = self.config
         lim2 = (2.0 * cfg.huber_c) ** 2 * st.sigma2_db2
-        r2 = np.minimum((heard.rss_dbm[None, :] - pred - S[:, K.OFFSET_DB, None]) ** 2, lim2)
-        r2 = np.nan_to_num(r2.mean(axis=1), nan=lim2)
-        order = np.argsort(r2)
-        median = float(r2[order[min(np.searchsorted(np.cumsum(w[order]), 0.5), r2.size - 1)]])
+        u0 = float(st.rng.uniform())
+        median = float(K.median_squared_residual(S, pred, heard.rss_dbm, w, lim2, u0))
         h = heard.n_heard
         st.sigma_count += h
         a = max(h / (st.sigma_count + 20.0), h / (cfg.sigma_memory_packets * 4.0))
@@ -526,10 +544,7 @@ class ParticleFilter:
 
     def _estimate(self, st: FilterState, S: FloatArray, w: FloatArray) -> FilterEstimate:
         return _summary(
-            S[:, _LINEAGE_COLUMNS],
-            w,
-            float(np.sum(w * S[:, K.OFFSET_DB])),
-            math.sqrt(st.sigma2_db2),
+            S, _POSE_COLUMNS, w, float(np.dot(w, S[:, K.OFFSET_DB])), math.sqrt(st.sigma2_db2)
         )
 
     # ------------------------------------------------------------------ smoothing
@@ -538,7 +553,7 @@ class ParticleFilter:
         while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
             rows = st.history.pop(0)[st.ancestors.pop(0)]
             _, key, causal = st.pending.pop(0)
-            smooth = _summary(rows, w, causal.offset_db, causal.sigma_db)
+            smooth = _summary(rows, _ROW_COLUMNS, w, causal.offset_db, causal.sigma_db)
             # the genealogy collapses (few distinct ancestors), so its spread
             # understates the uncertainty: report the filter's own at that packet
             self._smoothed.append(
@@ -574,25 +589,19 @@ def _normalised(logw: FloatArray | None) -> FloatArray:
     return w / np.sum(w)
 
 
-def _summary(rows: FloatArray, w: FloatArray, offset_db: float, sigma_db: float) -> FilterEstimate:
-    """Weighted mean pose and spread of lineage rows ``(n, 6)``: x, y, z, azimuth,
-    pitch, roll (radians)."""
-    x = float(np.sum(w * rows[:, 0]))
-    y = float(np.sum(w * rows[:, 1]))
-    z = float(np.sum(w * rows[:, 2]))
-    c = float(np.sum(w * np.cos(rows[:, 3])))
-    s = float(np.sum(w * np.sin(rows[:, 3])))
+def _summary(
+    rows: FloatArray, cols: np.ndarray, w: FloatArray, offset_db: float, sigma_db: float
+) -> FilterEstimate:
+    """Weighted mean pose and spread of the pose columns ``cols`` of ``rows``: x, y, z,
+    azimuth, pitch, roll (radians)."""
+    x, y, z, c, s, pitch, cr, sr, var = K.pose_moments(rows, w, cols)
     r = min(math.hypot(c, s), 1.0)
     az_std = math.degrees(math.sqrt(-2.0 * math.log(r))) if r > 1e-12 else 180.0
-    pitch = math.degrees(float(np.sum(w * rows[:, 4])))
-    cr = float(np.sum(w * np.cos(rows[:, 5])))
-    sr = float(np.sum(w * np.sin(rows[:, 5])))
     roll = math.degrees(math.atan2(sr, cr)) % 360.0 if (cr or sr) else 0.0
-    var = float(np.sum(w * ((rows[:, 0] - x) ** 2 + (rows[:, 1] - y) ** 2)))
     return FilterEstimate(
-        (x, y, z),
-        (math.degrees(math.atan2(s, c)) % 360.0, pitch, roll),
-        math.sqrt(max(var, 0.0)),
+        (float(x), float(y), float(z)),
+        (math.degrees(math.atan2(s, c)) % 360.0, math.degrees(pitch), roll),
+        math.sqrt(max(float(var), 0.0)),
         az_std,
         offset_db,
         sigma_db,
