@@ -139,6 +139,11 @@ class FilterConfig:
     outlier_range_db: float = 60.0
     offset_prior_sd_db: float = 6.0
     initial_offsets_db: tuple[float, ...] = (-9.0, -4.5, 0.0, 4.5, 9.0)
+    offset_scan_db: tuple[float, ...] = (
+        3.0, -3.0, 6.0, -6.0, 9.0, -9.0, 1.5, -1.5, 4.5, -4.5, 7.5, -7.5, 12.0, -12.0,
+    )  # fmt: skip
+    offset_scans_per_reentry: int = 1
+    rest_fraction: float = 0.5
     reacquire_gap_s: float = 1.0
     min_acquisition_receivers: int = 3
 
@@ -280,6 +285,7 @@ class FilterState:
     sigma2_db2: float = 4.0
     sigma_count: int = 0
     offset_prior_db: float = 0.0
+    scan_index: int = 0
     window: deque = field(default_factory=deque)
     history: list = field(default_factory=list)
     ancestors: list = field(default_factory=list)
@@ -405,6 +411,14 @@ class ParticleFilter:
         offsets = [b] if sd_b < 1.5 else [b - sd_b, b, b + sd_b]
         if abs(b - st.offset_prior_db) > 1.0:
             offsets.append(st.offset_prior_db)
+        # the offset is a constant of the device: a wrong (pose, offset) lock is
+        # left only if the true offset is searched, so scan the prior's range
+        scan = cfg.offset_scan_db
+        for _ in range(min(cfg.offset_scans_per_reentry, len(scan))):
+            o = st.offset_prior_db + scan[st.scan_index % len(scan)]
+            st.scan_index += 1
+            if min(abs(o - v) for v in offsets) > 1.0:
+                offsets.append(o)
         m = max(1, round(cfg.reentry_fraction * n))
         drawn = self._draw(st, mean, m, offsets, len(st.window))
         if drawn is None:
@@ -414,6 +428,11 @@ class ParticleFilter:
         new[:, K.VX_MPS] = S[donors, K.VX_MPS]
         new[:, K.VY_MPS] = S[donors, K.VY_MPS]
         new[:, K.RATE_RAD_S] = S[donors, K.RATE_RAD_S]
+        # a donor's motion belongs to the filter's mode, which may be the wrong
+        # one: some hypotheses start at rest (the window's median pose is static)
+        rest = st.rng.random(m) < cfg.rest_fraction
+        new[rest, K.VX_MPS : K.VY_MPS + 1] = 0.0
+        new[rest, K.RATE_RAD_S] = 0.0
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
         # evidence of each hypothesis over the window (moved back along its velocity)

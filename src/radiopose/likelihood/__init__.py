@@ -39,6 +39,7 @@ from radiopose.likelihood.candidates import (
 )
 from radiopose.likelihood.memo import MemoScorer
 from radiopose.likelihood.numpy_kernel import TableScorer
+from radiopose.likelihood.power import best_power_mse_db2, profile_offset_db
 from radiopose.likelihood.reference import ReferenceScorer
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
@@ -91,10 +92,12 @@ __all__ = [
     "Scorer",
     "TableScorer",
     "TopK",
+    "best_power_mse_db2",
     "candidate_mse_db2",
     "candidate_space",
     "exact_mse_db2",
     "expected_rss_dbm",
     "make_scorer",
+    "profile_offset_db",
     "select_topk",
 ]
