@@ -78,11 +78,6 @@ def test_causal_variant_answers_every_packet(sim_half_db, scorer):
     assert run.orientation_error_deg.mean() < 6.0
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known gap (issue 15): with 4 receivers a free offset leaves a (pose, offset) "
-    "lock that the filter leaves only after 0.4 s or not at all (docs/filter.md)",
-)
 def test_unknown_transmit_power_is_estimated(sim_half_db, scorer):
     """+6 dB above the enrolled power: errors stay near the matched case; without
     the offset state (a prior of 0.01 dB) they do not."""

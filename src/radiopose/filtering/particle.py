@@ -19,21 +19,26 @@ One packet (:meth:`ParticleFilter.step`):
    limited only by the prior's support (``TrackerConfig``'s 10 m/s; twice its
    360°/s, so rotation beyond the paper's bound is tracked, not vetoed).
 2. **Weight** by the packet's likelihood: the expected RSS off the grid
-   (survey map and pattern bilinear), Gaussian in dB with an estimated σ and
-   Huber-robust per receiver, the power offset marginalised
+   (survey map and pattern bilinear), per receiver Gaussian in dB with an
+   estimated σ mixed with a uniform outlier term (a receiver 15 dB off costs a
+   bounded amount and does not move the offset), the power offset marginalised
    (:func:`~radiopose.filtering.kernels.measurement_update`). Any number of
    receivers informs the filter; a packet heard by one still counts.
 3. **Re-enter hypotheses** every ``reentry_interval_s``: the compiled kernel
    (:mod:`radiopose.likelihood`) scores the whole candidate grid against the
-   mean RSS of the last ``proposal_window_s`` (the exact joint MSE of a static
-   pose over the window), at the current offset belief and the prior's; a few
+   median RSS of the last ``proposal_window_s`` (per receiver), at the current
+   offset belief, the prior's and ``offset_scans_per_reentry`` offsets scanned
+   in turn over the prior's range, each candidate's offset then profiled out
+   (:func:`radiopose.likelihood.profile_offset_db`); a few
    particles are replaced by draws from that top-k, each weighted by its
    likelihood over the evidence window against the filter's own evidence over
    the same packets, times a jump prior ``jump_probability``. A wrong lock is
    thereby left as soon as the data over one window favour another mode by
    more than ``log(m / jump_probability)``.
-4. **σ** is estimated online from the posterior-median squared residual
-   (EWMA, started from ``sigma_prior_db``); no σ is told.
+4. **σ** is estimated online, the smaller of the fit's estimate (EWMA of the
+   posterior-median squared residual, started from ``sigma_prior_db``) and the
+   packets' own (median squared difference of a receiver's consecutive
+   readings): a wrong lock inflates the first, not the second. No σ is told.
 5. **Resample** (systematic) when the effective sample size falls below half.
 
 Estimates are the weighted mean position and circular mean azimuth, with the
@@ -54,7 +59,7 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
-from radiopose.likelihood import CandidateSpace, HeardRss, Scorer
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, profile_offset_db
 from radiopose.site import Site
 from radiopose.units import FloatArray
 
@@ -111,6 +116,21 @@ class FilterConfig:
         ``devices.csv``'s ``tx_power_dbm``, dB.
     initial_offsets_db
         Offsets at which the first packet's candidates are searched, dB.
+    offset_scan_db, offset_scans_per_reentry
+        Besides the offset belief (and the prior's centre), each re-entry
+        searches the grid at this many further offsets from the prior's
+        centre, taken in turn from ``offset_scan_db`` (dB): the offset is a
+        constant of the device, and a wrong (pose, offset) lock is left only
+        if the true offset is searched (docs/filter.md, "Unknown transmit power").
+    rest_fraction
+        Fraction of the re-entered hypotheses that start at rest (velocity and
+        turn rate 0) instead of with the motion of a particle of the filter
+        (which belongs to the filter's mode, perhaps the wrong one).
+    difference_memory, difference_max_dt_s
+        σ is also estimated from the packets alone: the median of the last
+        ``difference_memory`` squared differences of one receiver's readings at
+        most ``difference_max_dt_s`` apart; σ is the smaller of that and the
+        fit's estimate (``0`` switches this off).
     reacquire_gap_s
         Past this silence a device is acquired afresh (its offset and σ
         estimates are kept).
@@ -129,7 +149,7 @@ class FilterConfig:
     reentry_interval_s: float = 0.1
     reentry_fraction: float = 0.05
     proposal_window_s: float = 0.1
-    jump_probability: float = 0.01
+    jump_probability: float = 0.001
     k: int = 100
     sigma_prior_db: float = 2.0
     sigma_floor_db: float = 0.25
@@ -142,8 +162,10 @@ class FilterConfig:
     offset_scan_db: tuple[float, ...] = (
         3.0, -3.0, 6.0, -6.0, 9.0, -9.0, 1.5, -1.5, 4.5, -4.5, 7.5, -7.5, 12.0, -12.0,
     )  # fmt: skip
-    offset_scans_per_reentry: int = 1
+    offset_scans_per_reentry: int = 2
     rest_fraction: float = 0.5
+    difference_memory: int = 400
+    difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
     min_acquisition_receivers: int = 3
 
@@ -151,7 +173,7 @@ class FilterConfig:
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
-            "huber_c", "offset_prior_sd_db", "reacquire_gap_s",
+            "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -169,6 +191,14 @@ class FilterConfig:
             )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
+        if not 0 <= self.rest_fraction <= 1:
+            raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
+        if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
+            raise InputError(
+                "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
+            )
+        if not all(math.isfinite(v) for v in self.offset_scan_db):
+            raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
 
@@ -283,7 +313,12 @@ class FilterState:
     last_time_s: float | None = None
     reentry_time_s: float = -math.inf
     sigma2_db2: float = 4.0
+    fit2_db2: float = 4.0
     sigma_count: int = 0
+    last_rss_dbm: FloatArray | None = None
+    last_rss_time_s: FloatArray | None = None
+    diff2_db2: FloatArray | None = None
+    diff_count: int = 0
     offset_prior_db: float = 0.0
     scan_index: int = 0
     window: deque = field(default_factory=deque)
@@ -323,7 +358,9 @@ class ParticleFilter:
 
     def new_state(self, seed: int = 0) -> FilterState:
         return FilterState(
-            rng=np.random.default_rng(seed), sigma2_db2=self.config.sigma_prior_db**2
+            rng=np.random.default_rng(seed),
+            sigma2_db2=self.config.sigma_prior_db**2,
+            fit2_db2=self.config.sigma_prior_db**2,
         )
 
     # ------------------------------------------------------------------ proposals
@@ -350,12 +387,14 @@ class ParticleFilter:
         T[:, K.PITCH_RAD] = ori[:, 1]
         T[:, K.ROLL_RAD] = ori[:, 2]
         e = heard.rss_dbm[None, :] - mod.expected(T, heard.receiver_index)
-        # best offset per candidate over n_packets·h residuals, with the prior
-        prec = n_packets * heard.n_heard / st.sigma2_db2
-        p0 = 1.0 / cfg.offset_prior_sd_db**2
-        best = (prec * e.mean(axis=1) + p0 * st.offset_prior_db) / (prec + p0)
-        cost = 0.5 * n_packets * np.sum((e - best[:, None]) ** 2, axis=1) / st.sigma2_db2
-        cost += 0.5 * p0 * (best - st.offset_prior_db) ** 2
+        # each candidate's offset profiled out (n_packets·h readings, with the prior)
+        best, cost, prec = profile_offset_db(
+            e,
+            n_packets * heard.n_heard,
+            math.sqrt(st.sigma2_db2),
+            st.offset_prior_db,
+            cfg.offset_prior_sd_db,
+        )
         ok = np.isfinite(cost)
         if not ok.any():
             return None
@@ -455,31 +494,50 @@ class ParticleFilter:
         )
         slots = st.rng.choice(n, size=m, replace=False)
         lse = float(K.log_sum_exp(st.log_weights))
+        donor_rows = S[donors]
         S[slots] = new
         st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
-            self._inject_lineage(st, t_s, new, slots, donors)
+            self._inject_lineage(st, t_s, new, slots, donors, donor_rows)
 
     def _inject_lineage(
-        self, st: FilterState, t_s: float, new: FloatArray, slots: np.ndarray, donors: np.ndarray
+        self,
+        st: FilterState,
+        t_s: float,
+        new: FloatArray,
+        slots: np.ndarray,
+        donors: np.ndarray,
+        donor_rows: FloatArray,
     ) -> None:
         """Give re-entered particles a past for the smoother: within the evidence
         window their pose moved back along their velocity and turn rate; before
-        it, the past of the particle whose motion they copied."""
+        it, the past of the particle whose motion they copied if they lie in its
+        mode (within 1 m and 30°), else (a jump to another mode, which has no
+        genealogy in the filter) their own pose moved back as within the window."""
         m = new.shape[0]
+        d = donor_rows
+        dist = np.hypot(new[:, K.X_M] - d[:, K.X_M], new[:, K.Y_M] - d[:, K.Y_M])
+        turn = np.abs((new[:, K.AZIMUTH_RAD] - d[:, K.AZIMUTH_RAD] + np.pi) % (2 * np.pi) - np.pi)
+        same = (dist <= 1.0) & (turn <= math.radians(30.0))
         times = [p[0] for p in st.pending]
         for j in range(len(st.history)):
             lag = t_s - times[j]
-            if lag > self.config.proposal_window_s:
-                st.ancestors[j][slots] = st.ancestors[j][donors]
+            own = np.ones(m, dtype=bool) if lag <= self.config.proposal_window_s else ~same
+            if not own.all():
+                st.ancestors[j][slots[~own]] = st.ancestors[j][donors[~own]]
+            if not own.any():
                 continue
-            rows = new[:, _LINEAGE_COLUMNS].copy()
-            rows[:, 0] -= new[:, K.VX_MPS] * lag
-            rows[:, 1] -= new[:, K.VY_MPS] * lag
-            rows[:, 3] -= new[:, K.RATE_RAD_S] * lag
+            mine = new[own]
+            rows = mine[:, _LINEAGE_COLUMNS].copy()
+            rows[:, 0] -= mine[:, K.VX_MPS] * lag
+            rows[:, 1] -= mine[:, K.VY_MPS] * lag
+            rows[:, 3] -= mine[:, K.RATE_RAD_S] * lag
+            box = self.model.box_m
+            rows[:, 0] = np.clip(rows[:, 0], box[0], box[1])
+            rows[:, 1] = np.clip(rows[:, 1], box[2], box[3])
             base = st.history[j].shape[0]
             st.history[j] = np.vstack([st.history[j], rows])
-            st.ancestors[j][slots] = base + np.arange(m)
+            st.ancestors[j][slots[own]] = base + np.arange(rows.shape[0])
 
     # ------------------------------------------------------------------ step
     def step(
@@ -530,7 +588,7 @@ class ParticleFilter:
         while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
             st.window.popleft()
         w = _normalised(logw)
-        self._update_sigma(st, S, pred, heard, w)
+        self._update_sigma(st, S, pred, heard, w, t_s)
         if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
@@ -549,9 +607,25 @@ class ParticleFilter:
         return est
 
     def _update_sigma(
-        self, st: FilterState, S: FloatArray, pred: FloatArray, heard: HeardRss, w: FloatArray
+        self,
+        st: FilterState,
+        S: FloatArray,
+        pred: FloatArray,
+        heard: HeardRss,
+        w: FloatArray,
+        t_s: float,
     ) -> None:
-        """EWMA of the posterior-median mean squared residual (clipped at 2c σ)."""
+        """σ² = the smaller of two estimates (never below the floor):
+
+        * the fit: EWMA of the posterior-median mean squared residual (clipped
+          at 2c σ) — includes any misfit of the filter's pose, so a wrong lock
+          inflates it and would make itself cheap;
+        * the packets alone: ``median(d²) / (2 · 0.4549)`` over the last
+          ``difference_memory`` differences ``d`` of one receiver's readings at
+          most ``difference_max_dt_s`` apart (``d ~ N(0, 2σ²)`` when the pose
+          barely moves between them; 0.4549 is the median of χ²₁) — robust to
+          outliers, and only ever lowers σ (where the device's RSS changes fast
+          between packets it overestimates, and the fit is the smaller)."""
         cfg = self.config
         lim2 = (2.0 * cfg.huber_c) ** 2 * st.sigma2_db2
         u0 = float(st.rng.uniform())
@@ -559,7 +633,26 @@ class ParticleFilter:
         h = heard.n_heard
         st.sigma_count += h
         a = max(h / (st.sigma_count + 20.0), h / (cfg.sigma_memory_packets * 4.0))
-        st.sigma2_db2 = max((1.0 - a) * st.sigma2_db2 + a * median, cfg.sigma_floor_db**2)
+        st.fit2_db2 = max((1.0 - a) * st.fit2_db2 + a * median, cfg.sigma_floor_db**2)
+        sigma2 = st.fit2_db2
+        if cfg.difference_memory > 0:
+            if st.last_rss_dbm is None or st.last_rss_time_s is None or st.diff2_db2 is None:
+                n_rx = self.model.receivers_m.shape[0]
+                st.last_rss_dbm = np.zeros(n_rx)
+                st.last_rss_time_s = np.full(n_rx, -math.inf)
+                st.diff2_db2 = np.zeros(cfg.difference_memory)
+            idx = heard.receiver_index
+            gap = t_s - st.last_rss_time_s[idx]
+            ok = (gap > 0) & (gap <= cfg.difference_max_dt_s)
+            for d in heard.rss_dbm[ok] - st.last_rss_dbm[idx[ok]]:
+                st.diff2_db2[st.diff_count % cfg.difference_memory] = d * d
+                st.diff_count += 1
+            st.last_rss_dbm[idx] = heard.rss_dbm
+            st.last_rss_time_s[idx] = t_s
+            if st.diff_count >= 40:
+                used = st.diff2_db2[: min(st.diff_count, cfg.difference_memory)]
+                sigma2 = min(sigma2, float(np.median(used)) / (2.0 * 0.4549))
+        st.sigma2_db2 = max(sigma2, cfg.sigma_floor_db**2)
 
     def _estimate(self, st: FilterState, S: FloatArray, w: FloatArray) -> FilterEstimate:
         return _summary(
