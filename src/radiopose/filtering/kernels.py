@@ -204,18 +204,32 @@ def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no co
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _inlier(u, log_eps):  # pragma: no cover - compiled
+    """Cost ``ρ(u) = −log(exp(−u²/2) + ε′)`` of a standardised residual ``u`` and
+    its inlier weight ``exp(−u²/2) / (exp(−u²/2) + ε′)`` (``log_eps = log ε′``)."""
+    g = -0.5 * u * u
+    m = max(g, log_eps)
+    lse = m + math.log(math.exp(g - m) + math.exp(log_eps - m))
+    return -lse, math.exp(g - lse)
+
+
 @numba.njit(cache=True)
-def measurement_update(S, pred, rss, sigma_db, huber_c, logw):  # pragma: no cover - compiled
+def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cover - compiled
     """Add each particle's log-likelihood of one packet to ``logw`` and update its
     power-offset belief in place (Rao-Blackwellised scalar Kalman filter).
 
-    With residuals ``e_q = rss_q − pred_q − b̄`` and offset belief
-    ``b ~ N(b̄, P)``, the marginal of ``e`` is ``N(0, Σ + P·11ᵀ)`` with
-    ``Σ = diag(σ²/w_q)``; Huber weights ``w_q = min(1, c σ / |e_q − ē|)``
-    (``ē`` the offset correction before weighting) make a receiver that is far
-    off for one packet count linearly instead of quadratically::
+    Each receiver's reading is an inlier, Gaussian in dB around the expected
+    RSS, or with a small probability an outlier spread over the plausible RSS
+    range: per receiver ``p(e) ∝ exp(−u²/2) + ε′``, ``u = (e − ē)/σ``, with
+    ``ε′ = ε √(2π) σ / ((1 − ε) U)`` (``log_eps = log ε′``; ε the outlier
+    probability, U the range in dB). A receiver far off costs at most
+    ``−log ε′`` whatever its size (a 15 dB error does not throw the track), and
+    it gets the inlier weight ``w_q = exp(−u²/2)/(exp(−u²/2) + ε′)`` in the
+    offset update. With residuals ``e_q = rss_q − pred_q − b̄``, offset belief
+    ``b ~ N(b̄, P)`` and ``ē`` the offset correction before weighting::
 
-        log L = −½ [Σ w e²/σ² − P (Σ w e/σ²)² / a] − ½ log a,   a = 1 + P Σ w/σ²
+        log L = −Σ ρ(u_q) + ½ P (Σ w e/σ²)² / a − ½ log a,   a = 1 + P Σ w/σ²
         b̄ ← b̄ + P (Σ w e/σ²) / a,   P ← P / a
 
     A particle whose expected RSS is NaN (outside the survey) gets ``−inf``.
@@ -237,30 +251,29 @@ def measurement_update(S, pred, rss, sigma_db, huber_c, logw):  # pragma: no cov
         ebar = p * sum_e / s2 / (1.0 + p * h / s2)
         sw = 0.0
         swe = 0.0
-        swee = 0.0
+        cost = 0.0
         for q in range(h):
-            u = abs(e[q] - ebar) / sigma_db
-            w = 1.0 if u <= huber_c else huber_c / u
+            rho, w = _inlier((e[q] - ebar) / sigma_db, log_eps)
+            cost += rho
             sw += w
             swe += w * e[q]
-            swee += w * e[q] * e[q]
         a = 1.0 + p * sw / s2
-        logw[i] += -0.5 * (swee / s2 - p * (swe / s2) ** 2 / a) - 0.5 * math.log(a)
+        logw[i] += -cost + 0.5 * p * (swe / s2) ** 2 / a - 0.5 * math.log(a)
         S[i, OFFSET_DB] = b + p * swe / s2 / a
         S[i, OFFSET_VAR_DB2] = p / a
 
 
 @numba.njit(cache=True)
-def fixed_offset_loglik(pred, rss, offset_db, sigma_db, huber_c, out):  # pragma: no cover
-    """Add the Huber log-likelihood of one packet at each row's fixed offset to ``out``."""
+def fixed_offset_loglik(pred, rss, offset_db, sigma_db, log_eps, out):  # pragma: no cover
+    """Add the log-likelihood of one packet at each row's fixed offset to ``out``
+    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN)."""
     n = pred.shape[0]
     h = rss.shape[0]
-    half_c2 = 0.5 * huber_c * huber_c
     for i in range(n):
         acc = 0.0
         for q in range(h):
-            u = abs(rss[q] - pred[i, q] - offset_db[i]) / sigma_db
-            acc += 0.5 * u * u if u <= huber_c else huber_c * u - half_c2
+            rho, _ = _inlier((rss[q] - pred[i, q] - offset_db[i]) / sigma_db, log_eps)
+            acc += rho
         out[i] -= acc if not math.isnan(acc) else np.inf
 
 
@@ -358,66 +371,6 @@ def packet_update(  # pragma: no cover - compiled
     return lse0, top + math.log(total)
 
 
-@numba.njit(cache=True)
-def weighted_median_sq_residual(S, pred, rss, w, lim2):  # pragma: no cover - compiled
-    """The ``w``-weighted median over particles of the mean squared residual
-    ``mean_q min((rss_q − pred_q − b̄)², lim2)`` (a NaN row counts as ``lim2``):
-    the smallest value ``v`` with ``Σ_{r² ≤ v} w ≥ ½`` (the first value, in
-    increasing order, at which the cumulative weight reaches ½), found by a
-    weighted quickselect in ``O(n)`` instead of a sort."""
-    n = S.shape[0]
-    h = rss.shape[0]
-    r2 = np.empty(n)
-    ww = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for q in range(h):
-            e = rss[q] - pred[i, q] - S[i, OFFSET_DB]
-            acc += min(e * e, lim2)
-        v = acc / h
-        r2[i] = lim2 if math.isnan(v) else v
-        ww[i] = w[i]
-    lo = 0
-    hi = n  # the answer lies in r2[lo:hi]; the weight of the values below is `below`
-    below = 0.0
-    while hi - lo > 1:
-        pivot = r2[(lo + hi) // 2]
-        # three-way partition of [lo, hi): < pivot, == pivot, > pivot
-        lt = lo
-        gt = hi
-        i = lo
-        while i < gt:
-            if r2[i] < pivot:
-                r2[i], r2[lt] = r2[lt], r2[i]
-                ww[i], ww[lt] = ww[lt], ww[i]
-                lt += 1
-                i += 1
-            elif r2[i] > pivot:
-                gt -= 1
-                r2[i], r2[gt] = r2[gt], r2[i]
-                ww[i], ww[gt] = ww[gt], ww[i]
-            else:
-                i += 1
-        w_lt = 0.0
-        for k in range(lo, lt):
-            w_lt += ww[k]
-        w_eq = 0.0
-        for k in range(lt, gt):
-            w_eq += ww[k]
-        if below + w_lt >= 0.5:
-            hi = lt
-        elif below + w_lt + w_eq >= 0.5 or gt == hi:
-            return pivot
-        else:
-            below += w_lt + w_eq
-            lo = gt
-    return r2[lo]
-
-
-POSE_ROW = 8
-"""Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
-
-
 @numba.njit(cache=True, inline="always")
 def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
     """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
@@ -494,3 +447,31 @@ def resample_in_place(S, w, u0, scratch, idx):  # pragma: no cover - compiled
     scratch[:, :] = S
     for i in range(n):
         S[i, :] = scratch[idx[i], :]
+
+
+@numba.njit(cache=True)
+def median_squared_residual(S, pred, rss, w, lim2, u0):  # pragma: no cover - compiled
+    """The posterior median over particles of the mean squared residual
+    ``(rss − pred − b)²`` (each term clipped at ``lim2``; a NaN row counts as
+    ``lim2``): the median of at most 256 particles drawn by systematic resampling
+    of the normalised weights ``w`` (one uniform ``u0``), which estimates the
+    ``w``-weighted median without sorting every particle."""
+    n = S.shape[0]
+    h = rss.shape[0]
+    m = min(n, 256)
+    r2 = np.empty(m)
+    c = w[0]
+    i = 0
+    for k in range(m):
+        u = (u0 + k) / m
+        while u > c and i < n - 1:
+            i += 1
+            c += w[i]
+        acc = 0.0
+        for q in range(h):
+            e = rss[q] - pred[i, q] - S[i, OFFSET_DB]
+            acc += min(e * e, lim2)
+        v = acc / h
+        r2[k] = lim2 if math.isnan(v) else v
+    r2.sort()
+    return r2[(m - 1) // 2]

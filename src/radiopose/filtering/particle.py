@@ -19,21 +19,26 @@ One packet (:meth:`ParticleFilter.step`):
    limited only by the prior's support (``TrackerConfig``'s 10 m/s; twice its
    360°/s, so rotation beyond the paper's bound is tracked, not vetoed).
 2. **Weight** by the packet's likelihood: the expected RSS off the grid
-   (survey map and pattern bilinear), Gaussian in dB with an estimated σ and
-   Huber-robust per receiver, the power offset marginalised
+   (survey map and pattern bilinear), per receiver Gaussian in dB with an
+   estimated σ mixed with a uniform outlier term (a receiver 15 dB off costs a
+   bounded amount and does not move the offset), the power offset marginalised
    (:func:`~radiopose.filtering.kernels.measurement_update`). Any number of
    receivers informs the filter; a packet heard by one still counts.
 3. **Re-enter hypotheses** every ``reentry_interval_s``: the compiled kernel
    (:mod:`radiopose.likelihood`) scores the whole candidate grid against the
-   mean RSS of the last ``proposal_window_s`` (the exact joint MSE of a static
-   pose over the window), at the current offset belief and the prior's; a few
+   median RSS of the last ``proposal_window_s`` (per receiver), at the current
+   offset belief, the prior's and ``offset_scans_per_reentry`` offsets scanned
+   in turn over the prior's range, each candidate's offset then profiled out
+   (:func:`radiopose.likelihood.profile_offset_db`); a few
    particles are replaced by draws from that top-k, each weighted by its
    likelihood over the evidence window against the filter's own evidence over
    the same packets, times a jump prior ``jump_probability``. A wrong lock is
    thereby left as soon as the data over one window favour another mode by
    more than ``log(m / jump_probability)``.
-4. **σ** is estimated online from the posterior-median squared residual
-   (EWMA, started from ``sigma_prior_db``); no σ is told.
+4. **σ** is estimated online, the smaller of the fit's estimate (EWMA of the
+   posterior-median squared residual, started from ``sigma_prior_db``) and the
+   packets' own (median squared difference of a receiver's consecutive
+   readings): a wrong lock inflates the first, not the second. No σ is told.
 5. **Resample** (systematic) when the effective sample size falls below half.
 
 Estimates are the weighted mean position and circular mean azimuth, with the
@@ -55,7 +60,7 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.lineage import Lineage
-from radiopose.likelihood import CandidateSpace, HeardRss, Scorer
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, profile_offset_db
 from radiopose.site import Site
 from radiopose.units import FloatArray
 
@@ -99,12 +104,32 @@ class FilterConfig:
     sigma_memory_packets
         Packets over which the σ estimate averages once settled.
     huber_c
-        Huber threshold, in σ: a receiver further off counts linearly.
+        Clip of the residuals that update the σ estimate, in units of 2σ.
+    outlier_probability, outlier_range_db
+        Prior probability that one receiver's reading is an outlier, spread
+        uniformly over ``outlier_range_db``: a receiver far off costs a bounded
+        amount and does not move the power offset (the likelihood is a
+        Gaussian-plus-uniform mixture per receiver).
     offset_prior_sd_db
         Prior standard deviation of the transmit-power offset around
         ``devices.csv``'s ``tx_power_dbm``, dB.
     initial_offsets_db
         Offsets at which the first packet's candidates are searched, dB.
+    offset_scan_db, offset_scans_per_reentry
+        Besides the offset belief (and the prior's centre), each re-entry
+        searches the grid at this many further offsets from the prior's
+        centre, taken in turn from ``offset_scan_db`` (dB): the offset is a
+        constant of the device, and a wrong (pose, offset) lock is left only
+        if the true offset is searched (docs/filter.md, "Unknown transmit power").
+    rest_fraction
+        Fraction of the re-entered hypotheses that start at rest (velocity and
+        turn rate 0) instead of with the motion of a particle of the filter
+        (which belongs to the filter's mode, perhaps the wrong one).
+    difference_memory, difference_max_dt_s
+        σ is also estimated from the packets alone: the median of the last
+        ``difference_memory`` squared differences of one receiver's readings at
+        most ``difference_max_dt_s`` apart; σ is the smaller of that and the
+        fit's estimate (``0`` switches this off).
     reacquire_gap_s
         Past this silence a device is acquired afresh (its offset and σ
         estimates are kept).
@@ -123,14 +148,23 @@ class FilterConfig:
     reentry_interval_s: float = 0.1
     reentry_fraction: float = 0.05
     proposal_window_s: float = 0.1
-    jump_probability: float = 0.01
+    jump_probability: float = 0.001
     k: int = 100
     sigma_prior_db: float = 2.0
     sigma_floor_db: float = 0.25
     sigma_memory_packets: int = 200
     huber_c: float = 2.5
+    outlier_probability: float = 0.05
+    outlier_range_db: float = 60.0
     offset_prior_sd_db: float = 6.0
     initial_offsets_db: tuple[float, ...] = (-9.0, -4.5, 0.0, 4.5, 9.0)
+    offset_scan_db: tuple[float, ...] = (
+        3.0, -3.0, 6.0, -6.0, 9.0, -9.0, 1.5, -1.5, 4.5, -4.5, 7.5, -7.5, 12.0, -12.0,
+    )  # fmt: skip
+    offset_scans_per_reentry: int = 2
+    rest_fraction: float = 0.5
+    difference_memory: int = 400
+    difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
     min_acquisition_receivers: int = 3
 
@@ -138,7 +172,7 @@ class FilterConfig:
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
-            "huber_c", "offset_prior_sd_db", "reacquire_gap_s",
+            "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -150,8 +184,20 @@ class FilterConfig:
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")
         if not 10 <= self.n_particles <= 1_000_000:
             raise InputError(f"filter setting n_particles = {self.n_particles!r} is out of range")
+        if not 0 < self.outlier_probability < 1 or not 0 < self.outlier_range_db < math.inf:
+            raise InputError(
+                "filter settings outlier_probability lies in (0, 1), outlier_range_db > 0"
+            )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
+        if not 0 <= self.rest_fraction <= 1:
+            raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
+        if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
+            raise InputError(
+                "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
+            )
+        if not all(math.isfinite(v) for v in self.offset_scan_db):
+            raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
 
@@ -282,8 +328,14 @@ class FilterState:
     last_time_s: float | None = None
     reentry_time_s: float = -math.inf
     sigma2_db2: float = 4.0
+    fit2_db2: float = 4.0
     sigma_count: int = 0
+    last_rss_dbm: FloatArray | None = None
+    last_rss_time_s: FloatArray | None = None
+    diff2_db2: FloatArray | None = None
+    diff_count: int = 0
     offset_prior_db: float = 0.0
+    scan_index: int = 0
     window: deque = field(default_factory=deque)
     lineage: Lineage | None = None
     pending: deque = field(default_factory=deque)
@@ -321,9 +373,18 @@ class ParticleFilter:
         )
         self._work: _Work | None = None
 
+    def _log_eps(self, sigma_db: float) -> float:
+        """``log ε′`` of the per-receiver outlier mixture (:func:`kernels.measurement_update`)."""
+        eps = self.config.outlier_probability
+        return math.log(
+            eps * math.sqrt(2.0 * math.pi) * sigma_db / ((1.0 - eps) * self.config.outlier_range_db)
+        )
+
     def new_state(self, seed: int = 0) -> FilterState:
         return FilterState(
-            rng=np.random.default_rng(seed), sigma2_db2=self.config.sigma_prior_db**2
+            rng=np.random.default_rng(seed),
+            sigma2_db2=self.config.sigma_prior_db**2,
+            fit2_db2=self.config.sigma_prior_db**2,
         )
 
     # ------------------------------------------------------------------ proposals
@@ -350,12 +411,14 @@ class ParticleFilter:
         T[:, K.PITCH_RAD] = ori[:, 1]
         T[:, K.ROLL_RAD] = ori[:, 2]
         e = heard.rss_dbm[None, :] - mod.expected(T, heard.receiver_index)
-        # best offset per candidate over n_packets·h residuals, with the prior
-        prec = n_packets * heard.n_heard / st.sigma2_db2
-        p0 = 1.0 / cfg.offset_prior_sd_db**2
-        best = (prec * e.mean(axis=1) + p0 * st.offset_prior_db) / (prec + p0)
-        cost = 0.5 * n_packets * np.sum((e - best[:, None]) ** 2, axis=1) / st.sigma2_db2
-        cost += 0.5 * p0 * (best - st.offset_prior_db) ** 2
+        # each candidate's offset profiled out (n_packets·h readings, with the prior)
+        best, cost, prec = profile_offset_db(
+            e,
+            n_packets * heard.n_heard,
+            math.sqrt(st.sigma2_db2),
+            st.offset_prior_db,
+            cfg.offset_prior_sd_db,
+        )
         ok = np.isfinite(cost)
         if not ok.any():
             return None
@@ -396,21 +459,29 @@ class ParticleFilter:
         assert S is not None and st.log_weights is not None
         n = S.shape[0]
         n_rx = mod.receivers_m.shape[0]
-        acc = np.zeros(n_rx)
-        cnt = np.zeros(n_rx)
+        per_rx: list[list[float]] = [[] for _ in range(n_rx)]
         for _, hd, _ in st.window:
-            np.add.at(acc, hd.receiver_index, hd.rss_dbm)
-            np.add.at(cnt, hd.receiver_index, 1.0)
-        heard_rx = np.flatnonzero(cnt > 0)
+            for r, v in zip(hd.receiver_index.tolist(), hd.rss_dbm.tolist(), strict=True):
+                per_rx[r].append(v)
+        heard_rx = np.array([r for r in range(n_rx) if per_rx[r]], dtype=np.int64)
         if heard_rx.size < cfg.min_acquisition_receivers:
             return
-        mean = HeardRss(heard_rx.astype(np.int64), acc[heard_rx] / cnt[heard_rx])
+        # the window's median RSS per receiver: an outlying packet does not move it
+        mean = HeardRss(heard_rx, np.array([float(np.median(per_rx[r])) for r in heard_rx]))
         b = float(np.sum(w * S[:, K.OFFSET_DB]))
         var_b = float(np.sum(w * (S[:, K.OFFSET_VAR_DB2] + (S[:, K.OFFSET_DB] - b) ** 2)))
         sd_b = math.sqrt(var_b)
         offsets = [b] if sd_b < 1.5 else [b - sd_b, b, b + sd_b]
         if abs(b - st.offset_prior_db) > 1.0:
             offsets.append(st.offset_prior_db)
+        # the offset is a constant of the device: a wrong (pose, offset) lock is
+        # left only if the true offset is searched, so scan the prior's range
+        scan = cfg.offset_scan_db
+        for _ in range(min(cfg.offset_scans_per_reentry, len(scan))):
+            o = st.offset_prior_db + scan[st.scan_index % len(scan)]
+            st.scan_index += 1
+            if min(abs(o - v) for v in offsets) > 1.0:
+                offsets.append(o)
         m = max(1, round(cfg.reentry_fraction * n))
         drawn = self._draw(st, mean, m, offsets, len(st.window))
         if drawn is None:
@@ -420,6 +491,11 @@ class ParticleFilter:
         new[:, K.VX_MPS] = S[donors, K.VX_MPS]
         new[:, K.VY_MPS] = S[donors, K.VY_MPS]
         new[:, K.RATE_RAD_S] = S[donors, K.RATE_RAD_S]
+        # a donor's motion belongs to the filter's mode, which may be the wrong
+        # one: some hypotheses start at rest (the window's median pose is static)
+        rest = st.rng.random(m) < cfg.rest_fraction
+        new[rest, K.VX_MPS : K.VY_MPS + 1] = 0.0
+        new[rest, K.RATE_RAD_S] = 0.0
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
         # evidence of each hypothesis over the window (moved back along its velocity)
@@ -433,7 +509,7 @@ class ParticleFilter:
             back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
             back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
             pred = mod.expected(back, hd.receiver_index)
-            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, cfg.huber_c, ll)
+            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, self._log_eps(sigma), ll)
         evidence = sum(lz for _, _, lz in st.window)
         prior = (
             -0.5
@@ -441,20 +517,37 @@ class ParticleFilter:
             / cfg.offset_prior_sd_db**2
         )
         slots = st.rng.choice(n, size=m, replace=False)
-        lse = float(np.logaddexp.reduce(st.log_weights))
+        lse = float(K.log_sum_exp(st.log_weights))
+        donor_rows = S[donors]
         S[slots] = new
         st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
-            self._inject_lineage(st, t_s, new, slots, donors)
+            self._inject_lineage(st, t_s, new, slots, donors, donor_rows)
 
     def _inject_lineage(
-        self, st: FilterState, t_s: float, new: FloatArray, slots: np.ndarray, donors: np.ndarray
+        self,
+        st: FilterState,
+        t_s: float,
+        new: FloatArray,
+        slots: np.ndarray,
+        donors: np.ndarray,
+        donor_rows: FloatArray,
     ) -> None:
         """Give re-entered particles a past for the smoother: within the evidence
         window their pose moved back along their velocity and turn rate; before
-        it, the past of the particle whose motion they copied."""
-        if st.lineage is not None:
-            st.lineage.inject(t_s, self.config.proposal_window_s, new, slots, donors)
+        it, the past of the particle whose motion they copied if they lie in its
+        mode (within 1 m and 30°), else (a jump to another mode, which has no
+        genealogy in the filter) their own pose moved back as within the window."""
+        if st.lineage is None:
+            return
+        d = donor_rows
+        dist = np.hypot(new[:, K.X_M] - d[:, K.X_M], new[:, K.Y_M] - d[:, K.Y_M])
+        turn = np.abs((new[:, K.AZIMUTH_RAD] - d[:, K.AZIMUTH_RAD] + np.pi) % (2 * np.pi) - np.pi)
+        same = (dist <= 1.0) & (turn <= math.radians(30.0))
+        st.lineage.inject(
+            t_s, self.config.proposal_window_s, new, slots, donors, inherit=same,
+            box_m=self.model.box_m,
+        )  # fmt: skip
 
     # ------------------------------------------------------------------ step
     def step(
@@ -506,7 +599,7 @@ class ParticleFilter:
         while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
             st.window.popleft()
         w = work.w
-        self._update_sigma(st, S, pred, heard, w)
+        self._update_sigma(st, S, pred, heard, w, t_s)
         if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
@@ -528,8 +621,9 @@ class ParticleFilter:
         return est
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
-        """The scalar that :func:`kernels.measurement_update` takes after σ."""
-        return self.config.huber_c
+        """The scalar that :func:`kernels.measurement_update` takes after σ:
+        ``log ε′`` of the per-receiver outlier mixture."""
+        return self._log_eps(sigma_db)
 
     def _buffers(self, n: int) -> _Work:
         """Work arrays for ``n`` particles (reused from packet to packet)."""
@@ -538,16 +632,52 @@ class ParticleFilter:
         return self._work
 
     def _update_sigma(
-        self, st: FilterState, S: FloatArray, pred: FloatArray, heard: HeardRss, w: FloatArray
+        self,
+        st: FilterState,
+        S: FloatArray,
+        pred: FloatArray,
+        heard: HeardRss,
+        w: FloatArray,
+        t_s: float,
     ) -> None:
-        """EWMA of the posterior-median mean squared residual (clipped at 2c σ)."""
+        """σ² = the smaller of two estimates (never below the floor):
+
+        * the fit: EWMA of the posterior-median mean squared residual (clipped
+          at 2c σ) — includes any misfit of the filter's pose, so a wrong lock
+          inflates it and would make itself cheap;
+        * the packets alone: ``median(d²) / (2 · 0.4549)`` over the last
+          ``difference_memory`` differences ``d`` of one receiver's readings at
+          most ``difference_max_dt_s`` apart (``d ~ N(0, 2σ²)`` when the pose
+          barely moves between them; 0.4549 is the median of χ²₁) — robust to
+          outliers, and only ever lowers σ (where the device's RSS changes fast
+          between packets it overestimates, and the fit is the smaller)."""
         cfg = self.config
         lim2 = (2.0 * cfg.huber_c) ** 2 * st.sigma2_db2
-        median = float(K.weighted_median_sq_residual(S, pred, heard.rss_dbm, w, lim2))
+        u0 = float(st.rng.uniform())
+        median = float(K.median_squared_residual(S, pred, heard.rss_dbm, w, lim2, u0))
         h = heard.n_heard
         st.sigma_count += h
         a = max(h / (st.sigma_count + 20.0), h / (cfg.sigma_memory_packets * 4.0))
-        st.sigma2_db2 = max((1.0 - a) * st.sigma2_db2 + a * median, cfg.sigma_floor_db**2)
+        st.fit2_db2 = max((1.0 - a) * st.fit2_db2 + a * median, cfg.sigma_floor_db**2)
+        sigma2 = st.fit2_db2
+        if cfg.difference_memory > 0:
+            if st.last_rss_dbm is None or st.last_rss_time_s is None or st.diff2_db2 is None:
+                n_rx = self.model.receivers_m.shape[0]
+                st.last_rss_dbm = np.zeros(n_rx)
+                st.last_rss_time_s = np.full(n_rx, -math.inf)
+                st.diff2_db2 = np.zeros(cfg.difference_memory)
+            idx = heard.receiver_index
+            gap = t_s - st.last_rss_time_s[idx]
+            ok = (gap > 0) & (gap <= cfg.difference_max_dt_s)
+            for d in heard.rss_dbm[ok] - st.last_rss_dbm[idx[ok]]:
+                st.diff2_db2[st.diff_count % cfg.difference_memory] = d * d
+                st.diff_count += 1
+            st.last_rss_dbm[idx] = heard.rss_dbm
+            st.last_rss_time_s[idx] = t_s
+            if st.diff_count >= 40:
+                used = st.diff2_db2[: min(st.diff_count, cfg.difference_memory)]
+                sigma2 = min(sigma2, float(np.median(used)) / (2.0 * 0.4549))
+        st.sigma2_db2 = max(sigma2, cfg.sigma_floor_db**2)
 
     # ------------------------------------------------------------------ smoothing
     def _emit(self, st: FilterState, w: FloatArray, upto_s: float | None) -> None:

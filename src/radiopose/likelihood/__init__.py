@@ -42,6 +42,7 @@ from radiopose.likelihood.candidates import (
 from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.memo import MemoScorer
 from radiopose.likelihood.numpy_kernel import TableScorer
+from radiopose.likelihood.power import best_power_mse_db2, profile_offset_db
 from radiopose.likelihood.reference import ReferenceScorer
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.packets import PacketObservation
@@ -117,10 +118,12 @@ __all__ = [
     "ScorerBase",
     "TableScorer",
     "TopK",
+    "best_power_mse_db2",
     "candidate_mse_db2",
     "candidate_space",
     "exact_mse_db2",
     "expected_rss_dbm",
     "make_scorer",
+    "profile_offset_db",
     "select_topk",
 ]

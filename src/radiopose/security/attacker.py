@@ -56,6 +56,7 @@ from scipy.spatial import cKDTree
 
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
 from radiopose.likelihood.numpy_kernel import TableScorer, build_table
+from radiopose.likelihood.power import best_power_mse_db2
 from radiopose.patterns.pattern import Pattern
 from radiopose.units import FloatArray, angle_diff_deg
 
@@ -88,30 +89,6 @@ class AttackerModel:
 
 
 # ----------------------------------------------------------------------------- kernels
-def best_power_offset_db(residual_db: FloatArray, power_range_db: float) -> FloatArray:
-    """Optimal power offset ``δ* = clip(mean_r e_r, −Δ, Δ)`` (dB) of ``(n, h)`` residuals."""
-    e = np.asarray(residual_db, dtype=np.float64)
-    return np.clip(e.mean(axis=-1), -power_range_db, power_range_db)
-
-
-def best_power_mse_db2(
-    residual_db: FloatArray, power_range_db: float
-) -> tuple[FloatArray, FloatArray]:
-    """``min_{|δ|≤Δ} mean_r (e_r − δ)²`` and its ``δ*`` for ``(n, h)`` residuals.
-
-    Returns
-    -------
-    mse_db2
-        ``(n,)`` the minimum, dB².
-    offset_db
-        ``(n,)`` the minimiser ``δ*``, dB.
-    """
-    e = np.asarray(residual_db, dtype=np.float64)
-    off = best_power_offset_db(e, power_range_db)
-    d = e - off[..., None]
-    return np.mean(d * d, axis=-1), off
-
-
 def exact_best_power_mse_db2(
     space: CandidateSpace, rss_dbm: FloatArray, candidate_idx: IntArray, power_range_db: float
 ) -> tuple[FloatArray, FloatArray]:
