@@ -371,6 +371,10 @@ def packet_update(  # pragma: no cover - compiled
     return lse0, top + math.log(total)
 
 
+POSE_ROW = 8
+"""Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
+
+
 @numba.njit(cache=True, inline="always")
 def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
     """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
