@@ -124,7 +124,8 @@ class FilterConfig:
     rest_fraction
         Fraction of the re-entered hypotheses that start at rest (velocity and
         turn rate 0) instead of with the motion of a particle of the filter
-        (which belongs to the filter's mode, perhaps the wrong one).
+        (which belongs to the filter's mode, perhaps the wrong one); only when
+        the evidence window holds several packets.
     difference_memory, difference_max_dt_s
         σ is also estimated from the packets alone: the median of the last
         ``difference_memory`` squared differences of one receiver's readings at
@@ -492,8 +493,9 @@ class ParticleFilter:
         new[:, K.VY_MPS] = S[donors, K.VY_MPS]
         new[:, K.RATE_RAD_S] = S[donors, K.RATE_RAD_S]
         # a donor's motion belongs to the filter's mode, which may be the wrong
-        # one: some hypotheses start at rest (the window's median pose is static)
-        rest = st.rng.random(m) < cfg.rest_fraction
+        # one: some hypotheses start at rest (the median pose of a window of
+        # several packets is a static one; with one packet it says nothing of rest)
+        rest = (st.rng.random(m) < cfg.rest_fraction) & (len(st.window) > 1)
         new[rest, K.VX_MPS : K.VY_MPS + 1] = 0.0
         new[rest, K.RATE_RAD_S] = 0.0
         new[:, K.OFFSET_DB] = off
