@@ -285,8 +285,8 @@ def run_demo_pipeline(
     ax = plots.plot_orientation_error(
         {
             m: (runs[m].estimates.timestamp_s, runs[m].orientation_error_deg)
-            for m in METHODS
-            if m not in POSITION_ONLY_METHODS
+            for m in runs
+            if METHODS[m].estimates_orientation
         }
     )
     written.append(_save(ax.figure, out / "orientation_error.png"))
