@@ -278,11 +278,10 @@ def fixed_offset_loglik(pred, rss, offset_db, sigma_db, log_eps, out):  # pragma
 
 
 @numba.njit(cache=True)
-def systematic_resample(weights, u0):  # pragma: no cover - compiled
-    """Systematic resampling: ``n`` ancestor indices for normalised ``weights``,
-    one uniform draw ``u0`` in ``[0, 1)``."""
+def systematic_indices_into(weights, u0, idx):  # pragma: no cover - compiled
+    """Systematic resampling: ``n`` ancestor indices for normalised ``weights``
+    into ``idx``, one uniform draw ``u0`` in ``[0, 1)``."""
     n = weights.shape[0]
-    idx = np.empty(n, np.int64)
     c = weights[0]
     j = 0
     for i in range(n):
@@ -291,6 +290,14 @@ def systematic_resample(weights, u0):  # pragma: no cover - compiled
             j += 1
             c += weights[j]
         idx[i] = j
+
+
+@numba.njit(cache=True)
+def systematic_resample(weights, u0):  # pragma: no cover - compiled
+    """Systematic resampling: ``n`` ancestor indices for normalised ``weights``,
+    one uniform draw ``u0`` in ``[0, 1)``."""
+    idx = np.empty(weights.shape[0], np.int64)
+    systematic_indices_into(weights, u0, idx)
     return idx
 
 
@@ -440,14 +447,7 @@ def resample_in_place(S, w, u0, scratch, idx):  # pragma: no cover - compiled
     """Systematic resampling of the rows of ``S`` in place (``scratch`` a
     same-shaped work array); the ancestor indices go to ``idx``."""
     n = S.shape[0]
-    c = w[0]
-    j = 0
-    for i in range(n):
-        u = (u0 + i) / n
-        while u > c and j < n - 1:
-            j += 1
-            c += w[j]
-        idx[i] = j
+    systematic_indices_into(w, u0, idx)
     scratch[:, :] = S
     for i in range(n):
         S[i, :] = scratch[idx[i], :]

@@ -8,13 +8,12 @@ and last position matter).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from radiopose.baselines import LmsLocator
 from radiopose.likelihood import HeardRss
 from radiopose.tracker.paper import TrackState, advance
-from radiopose.tracker.protocol import Device, Evidence, Outcome, Step
-from radiopose.tracker.reasons import SKIP_OUT_OF_ORDER, SKIP_TOO_FEW_RECEIVERS
+from radiopose.tracker.protocol import Device, Evidence, Outcome, Step, guard
 
 
 @dataclass(frozen=True)
@@ -38,10 +37,9 @@ class LmsMethod:
     def step(
         self, device: Device, state: TrackState, heard: HeardRss, t_s: float, packet_id: str
     ) -> Step:
-        if state.last_time_s is not None and t_s < state.last_time_s:
-            return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
-        if heard.n_heard < device.config.min_receivers:
-            return Step(replace(state, last_time_s=t_s), Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        skip = guard(state, heard, t_s, device.config.min_receivers)
+        if skip is not None:
+            return skip
         locator = device.shared.get("lms")
         if locator is None:
             locator = device.shared["lms"] = LmsLocator.for_site(device.site)

@@ -38,16 +38,14 @@ from radiopose.clustering import (
 from radiopose.likelihood import CandidateSpace, HeardRss, TopK
 from radiopose.motion import PERIODIC_AXES
 from radiopose.tracker.config import TrackerConfig
-from radiopose.tracker.protocol import Device, Evidence, Outcome, Step
+from radiopose.tracker.protocol import Device, Evidence, Outcome, Step, guard
 from radiopose.tracker.reasons import (
     SKIP_ACQUIRING,
     SKIP_MOVEMENT_MODEL,
     SKIP_NO_CANDIDATES,
     SKIP_NO_ORIENTATION_CLUSTER,
     SKIP_NO_POSITION_CLUSTER,
-    SKIP_OUT_OF_ORDER,
     SKIP_ROTATION_MODEL,
-    SKIP_TOO_FEW_RECEIVERS,
 )
 from radiopose.units import FloatArray
 
@@ -351,10 +349,9 @@ class PaperMethod:
     def step(
         self, device: Device, state: TrackState, heard: HeardRss, t_s: float, packet_id: str
     ) -> Step:
-        if state.last_time_s is not None and t_s < state.last_time_s:
-            return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
-        if heard.n_heard < device.config.min_receivers:
-            return Step(replace(state, last_time_s=t_s), Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        skip = guard(state, heard, t_s, device.config.min_receivers)
+        if skip is not None:
+            return skip
         top = self.score(device, heard, t_s, state)
         cand = Candidates.from_topk(device.space, top)
         new, out = track_step(self, cand, t_s, state, device.config)

@@ -27,13 +27,14 @@ A method declares:
 from __future__ import annotations
 
 from collections.abc import MutableMapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Protocol, runtime_checkable
 
 from radiopose.likelihood import CandidateSpace, HeardRss, Scorer
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
+from radiopose.tracker.reasons import SKIP_OUT_OF_ORDER, SKIP_TOO_FEW_RECEIVERS
 
 
 class Evidence(Enum):
@@ -189,6 +190,17 @@ class Method(Protocol):
     def flush(self, device: Device, state: Any) -> tuple[Delayed, ...]:
         """Emit every estimate held back (lagged methods; others return ``()``)."""
         ...
+
+
+def guard(state: Any, heard: HeardRss, t_s: float, min_receivers: int) -> Step | None:
+    """The skips every :class:`~radiopose.tracker.paper.TrackState` method shares:
+    a packet before the previous one (state unchanged) or heard by fewer than
+    ``min_receivers`` (the time advances); ``None`` when the packet is usable."""
+    if state.last_time_s is not None and t_s < state.last_time_s:
+        return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
+    if heard.n_heard < min_receivers:
+        return Step(replace(state, last_time_s=t_s), Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+    return None
 
 
 def needs_scorer(method: Method) -> bool:
