@@ -256,7 +256,9 @@ SHIPPED_FILTER_SETTINGS: tuple[tuple[str, float], ...] = (
     ("sigma_prior_db", 5.0),
     ("sigma_floor_db", 5.0),
     ("offset_prior_sd_db", 1.0),
-    ("accel_noise_mps2", 0.1),
+    ("accel_noise_mps2", 0.2),
+    ("outlier_probability", 0.3),
+    ("outlier_range_db", 20.0),
 )
 """The ``filter`` settings ``radiopose import tetam`` writes into ``site/tracker.toml``:
 the candidate that leave-one-track-out chose for most tracks (docs/real-data.md).
