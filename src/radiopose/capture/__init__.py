@@ -20,10 +20,10 @@ from radiopose.capture.records import (
     read_capture_csv,
     read_pcap,
 )
+from radiopose.capture.streaming import StreamingMatcher
 from radiopose.capture.sync import (
     ClockModel,
     MatchCounts,
-    StreamingMatcher,
     SyncConfig,
     SyncReport,
     estimate_clocks,

@@ -50,7 +50,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from radiopose.capture.records import FrameRecords
-from radiopose.capture.sync import ClockModel, StreamingMatcher, SyncConfig, estimate_clocks
+from radiopose.capture.streaming import StreamingMatcher
+from radiopose.capture.sync import ClockModel, SyncConfig, estimate_clocks
 from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.server.db import Database, StoredBatch
 from radiopose.server.sitestore import build_site
