@@ -109,11 +109,14 @@ class MovementModel:
 
 
 def axis_change_deg(orientations_deg: FloatArray, previous_deg: FloatArray) -> FloatArray:
-    """Absolute per-axis change ``(m, 3)`` in degrees (wrapped on periodic axes)."""
+    """Absolute per-axis change ``(m, 3)`` in degrees (wrapped on periodic axes).
+
+    ``previous_deg`` is one orientation ``(3,)`` or one per row ``(m, 3)``.
+    """
     o = np.asarray(orientations_deg, dtype=np.float64).reshape(-1, 3)
-    prev = np.asarray(previous_deg, dtype=np.float64).reshape(3)
-    out = np.abs(o - prev[None, :])
+    prev = np.asarray(previous_deg, dtype=np.float64).reshape(-1, 3)
+    out = np.abs(o - prev)
     for axis, periodic in enumerate(PERIODIC_AXES):
         if periodic:
-            out[:, axis] = np.abs(angle_diff_deg(o[:, axis], prev[axis]))
+            out[:, axis] = np.abs(angle_diff_deg(o[:, axis], prev[:, axis]))
     return out

@@ -17,12 +17,18 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
 
-def _axes(ax: Axes | None, figsize: tuple[float, float] = (6.0, 6.0)) -> Axes:
+def axes_or_new(
+    ax: Axes | None,
+    figsize: tuple[float, float] = (6.0, 6.0),
+    layout: str | None = "constrained",
+) -> Axes:
+    """``ax``, or the Axes of a new figure of ``figsize`` inches (the one helper
+    behind every plot function's ``ax=None``)."""
     if ax is not None:
         return ax
     import matplotlib.pyplot as plt
 
-    _, new = plt.subplots(figsize=figsize, layout="constrained")
+    _, new = plt.subplots(figsize=figsize, layout=layout)
     return new
 
 
@@ -71,7 +77,7 @@ def plot_scene(
 ) -> Axes:
     """The site from above: area, survey points, receivers with their facing,
     and (optionally) the true trajectory with orientation arrows."""
-    ax = _axes(ax)
+    ax = axes_or_new(ax)
     a = site.area
     from matplotlib.patches import Rectangle
 
@@ -108,7 +114,7 @@ def plot_scene(
 
 def plot_survey_map(site: Site, receiver_id: str, ax: Axes | None = None) -> Axes:
     """Interpolated channel map ``M_r`` (dB) of one receiver over the candidate grid."""
-    ax = _axes(ax, (6.5, 5.5))
+    ax = axes_or_new(ax, (6.5, 5.5))
     smap = site.survey_map
     i = smap.receiver_index(receiver_id)
     x, y = smap.x_m, smap.y_m

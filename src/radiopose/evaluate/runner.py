@@ -36,31 +36,24 @@ import math
 import os
 import time
 from collections.abc import Callable, Iterable, Sequence
-from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from radiopose.errors import InputError, RadioposeError
+from radiopose.errors import InputError
 from radiopose.evaluate.experiments import KERNEL_AUTO, Experiment, format_value
+from radiopose.parallel import WORKER_ENV as WORKER_ENV  # re-exported: the old path
+from radiopose.parallel import connect_scheduler as connect_scheduler  # re-exported
+from radiopose.parallel import default_workers, run_on_dask
 from radiopose.simulate import ScenarioConfig
 from radiopose.tracker import METHODS, TrackerConfig, needs_scorer
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
-    from distributed import Client
 
     from radiopose.likelihood import CandidateSpace, Scorer
-
-WORKER_ENV: dict[str, str] = {
-    "NUMBA_NUM_THREADS": "1",
-    "OMP_NUM_THREADS": "1",
-    "OPENBLAS_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-}
-"""Environment of local Dask workers: one thread each (one worker per core)."""
 
 DESCRIPTOR_COLUMNS: tuple[str, ...] = (
     "noise_db",
@@ -204,7 +197,7 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     -------
     One row per method (columns: :func:`columns_for`).
     """
-    from radiopose.evaluate.demo import run_methods
+    from radiopose.evaluate.method_runs import run_methods
     from radiopose.evaluate.scoring import error_stats
     from radiopose.likelihood import MemoScorer, candidate_space
     from radiopose.packets import group_packets
@@ -391,14 +384,6 @@ class EvaluationRun:
     scheduler: str
 
 
-def default_workers() -> int:
-    """Cores available to this process."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
-
-
 def _describe(task: RunTask) -> str:
     return f"{task.experiment} [{task.condition}] run {task.run} (seed {task.seed})"
 
@@ -468,79 +453,18 @@ def run_experiments(
             record(task, run_task(task))
         used, where = 0, "serial"
     else:
-        used, where = _run_dask(pending, record, scheduler, workers)
+        used = run_on_dask(
+            run_task,
+            pending,
+            record,
+            scheduler=scheduler,
+            workers=workers,
+            key=lambda t: f"radiopose-run-{t.key}",
+            describe=_describe,
+        )
+        where = "local" if scheduler is None else scheduler
     results = collect(out, experiments, tasks)
     return EvaluationRun(results, total, n_resumed, time.perf_counter() - t0, used, where)
-
-
-def connect_scheduler(stack: ExitStack, scheduler: str) -> Client:
-    """A Dask client of the existing scheduler at ``scheduler``, closed with ``stack``.
-
-    Raises
-    ------
-    InputError
-        The scheduler cannot be reached within 10 s (one line).
-    """
-    from distributed import Client
-
-    try:
-        return stack.enter_context(Client(scheduler, timeout="10s"))
-    except (OSError, TimeoutError, ValueError) as exc:
-        raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
-
-
-def _run_dask(
-    pending: list[RunTask],
-    record: Callable[[RunTask, list[dict[str, Any]]], None],
-    scheduler: str | None,
-    workers: int,
-) -> tuple[int, str]:
-    try:
-        from distributed import Client, LocalCluster, as_completed
-    except ImportError:
-        raise RadioposeError(
-            "dask.distributed is not installed: pip install 'radiopose[eval]', or use "
-            "--workers 0 to run in this process"
-        ) from None
-    import logging
-
-    with ExitStack() as stack:
-        if scheduler is not None:
-            client = connect_scheduler(stack, scheduler)
-            used = len(client.scheduler_info(n_workers=-1).get("workers", {}))
-            where = scheduler
-        else:
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=workers,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=":0",  # a free port: never clash with another cluster
-                    silence_logs=logging.ERROR,
-                    env=dict(WORKER_ENV),
-                )
-            )
-            client = stack.enter_context(Client(cluster))
-            used, where = workers, "local"
-        if not pending:
-            return used, where
-        futures = {
-            client.submit(run_task, t, key=f"radiopose-run-{t.key}", pure=False): t for t in pending
-        }
-        try:
-            for fut in as_completed(futures):
-                task = futures[fut]
-                try:
-                    rows = fut.result()
-                except Exception as exc:
-                    raise RadioposeError(
-                        f"{_describe(task)} failed: {type(exc).__name__}: {exc}"
-                    ) from exc
-                record(task, rows)
-                fut.release()
-        finally:
-            client.cancel(list(futures))
-    return used, where
 
 
 # ----------------------------------------------------------------------------- results

@@ -18,6 +18,8 @@ the fast scorers both call it, so their values agree bit for bit.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,28 +139,50 @@ class CandidateSpace:
         InputError
             A receiver not in the site, or one receiver twice in the packet.
         """
-        idx = []
-        for k, rid in enumerate(packet.receiver_ids):
-            try:
-                i = self.receiver_ids.index(rid)
-            except ValueError:
-                raise InputError(
-                    f"packet {packet.packet_id!r}: receiver {rid!r} is not in the site",
-                    line=packet.line_of(k),
-                    column="receiver_id",
-                ) from None
-            if i in idx:
-                first = packet.line_of(idx.index(i))
-                raise InputError(
-                    f"packet {packet.packet_id!r}: receiver {rid!r} appears more than once "
-                    f"(first on line {first})",
-                    line=packet.line_of(k),
-                    column="receiver_id",
-                )
-            idx.append(i)
+        idx = receiver_indices(packet, self.receiver_ids)
         ridx = np.asarray(idx, dtype=np.int64)
         order = np.argsort(ridx)
         return HeardRss(ridx[order], np.asarray(packet.rss_dbm, dtype=np.float64)[order])
+
+
+def receiver_indices(
+    packet: PacketObservation,
+    receiver_ids: Sequence[str],
+    path: str | os.PathLike[str] | None = None,
+) -> list[int]:
+    """Site indices of a packet's receivers, in the packet's row order: the one receiver check.
+
+    Used per packet by :meth:`CandidateSpace.heard` (streaming) and for a whole
+    ``packets.csv`` by the batch tracker (which passes the file's ``path``).
+
+    Raises
+    ------
+    InputError
+        A receiver not in ``receiver_ids``, or two rows of the packet for one
+        receiver (file line and column ``receiver_id``).
+    """
+    index = {rid: i for i, rid in enumerate(receiver_ids)}
+    seen: dict[int, int] = {}
+    for k, rid in enumerate(packet.receiver_ids):
+        i = index.get(rid)
+        if i is None:
+            raise InputError(
+                f"packet {packet.packet_id!r}: receiver {rid!r} is not in the site "
+                f"(site receivers: {', '.join(receiver_ids)})",
+                path=path,
+                line=packet.line_of(k),
+                column="receiver_id",
+            )
+        if i in seen:
+            raise InputError(
+                f"packet {packet.packet_id!r} of {packet.transmitter} has two rows for "
+                f"receiver {rid!r} (the first on line {packet.line_of(seen[i])})",
+                path=path,
+                line=packet.line_of(k),
+                column="receiver_id",
+            )
+        seen[i] = k
+    return list(seen)
 
 
 def candidate_space(site: Site, transmitter: str) -> CandidateSpace:

@@ -57,8 +57,10 @@ from scipy.spatial import cKDTree
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
 from radiopose.likelihood.numpy_kernel import TableScorer, build_table
 from radiopose.likelihood.power import best_power_mse_db2
+from radiopose.motion import axis_change_deg
 from radiopose.patterns.pattern import Pattern
-from radiopose.units import FloatArray, angle_diff_deg
+from radiopose.tracker.config import TrackerConfig
+from radiopose.units import FloatArray
 
 IntArray = NDArray[np.int64]
 _EPS32 = float(np.finfo(np.float32).eps)
@@ -340,18 +342,27 @@ class MotionLimits:
     Attributes
     ----------
     max_speed_mps, max_rotation_deg, rotation_period_s
-        The system's movement and rotation models (10 m/s; 180° per 0.5 s).
+        The system's movement and rotation models; the defaults are
+        :class:`~radiopose.tracker.TrackerConfig`'s (10 m/s; 180° per 0.5 s),
+        :meth:`of` takes them from a given configuration.
     scale
         Fraction of those bounds the attacker keeps to (1, or 0.1 as in the paper).
     max_silence_s
         Longest silence between two spoofed packets; ``None`` = ``rotation_period_s / 2``.
     """
 
-    max_speed_mps: float = 10.0
-    max_rotation_deg: float = 180.0
-    rotation_period_s: float = 0.5
+    max_speed_mps: float = TrackerConfig.max_speed_mps
+    max_rotation_deg: float = TrackerConfig.max_rotation_deg
+    rotation_period_s: float = TrackerConfig.rotation_period_s
     scale: float = 1.0
     max_silence_s: float | None = None
+
+    @classmethod
+    def of(cls, config: TrackerConfig, scale: float = 1.0) -> MotionLimits:
+        """The limits of the tracker configured by ``config``, scaled by ``scale``."""
+        return cls(
+            config.max_speed_mps, config.max_rotation_deg, config.rotation_period_s, scale=scale
+        )
 
     @property
     def silence_s(self) -> float:
@@ -364,14 +375,6 @@ class MotionLimits:
     @property
     def rate_deg_s(self) -> float:
         return self.scale * self.max_rotation_deg / self.rotation_period_s
-
-
-def _rotation_change_deg(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Largest per-axis change ``(n,)`` between orientation rows ``a``, ``b`` ``(n, 3)``."""
-    az = np.abs(angle_diff_deg(a[:, 0], b[:, 0]))
-    pitch = np.abs(a[:, 1] - b[:, 1])
-    roll = np.abs(angle_diff_deg(a[:, 2], b[:, 2]))
-    return np.maximum(az, np.maximum(pitch, roll))
 
 
 @dataclass(frozen=True, eq=False)
@@ -482,7 +485,7 @@ class PathSearch:
                     b = np.concatenate([np.asarray(x, np.int64) for x in near if len(x)])
                     dt = t_s - wt[b]
                     good = (np.linalg.norm(p[a] - wp[b], axis=1) <= lim.speed_mps * dt + 1e-9) & (
-                        _rotation_change_deg(o[a], wo[b]) <= lim.rate_deg_s * dt + 1e-9
+                        axis_change_deg(o[a], wo[b]).max(axis=1) <= lim.rate_deg_s * dt + 1e-9
                     )
                     a, b = a[good], b[good]
                     ok[a] = True

@@ -305,12 +305,8 @@ def _path_run(config: SpoofConfig, run: int, end_to_end: bool) -> dict[str, list
     scorer = system_scorer(space)
     t, pos, ori = target_path(config, rng)
     snapped = snap_to_grid(space, pos, ori[:, 0])
-    lim = config.tracker
     searches = {
-        s: PathSearch(
-            MotionLimits(lim.max_speed_mps, lim.max_rotation_deg, lim.rotation_period_s, scale=s)
-        )
-        for s in config.limit_scales
+        s: PathSearch(MotionLimits.of(config.tracker, scale=s)) for s in config.limit_scales
     }
     cache: dict[int, MatchResult] = {}
     for i in range(t.size):

@@ -19,14 +19,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 
+from radiopose.plot_site import axes_or_new
 from radiopose.security.experiments import Row
 from radiopose.security.report import PAPER
-
-
-def _axes(ax: Axes | None, size: tuple[float, float] = (5.0, 4.0)) -> Axes:
-    if ax is None:
-        _, ax = plt.subplots(figsize=size)
-    return ax
 
 
 def _receivers(ax: Axes, sites: list[Row], run: int) -> None:
@@ -50,7 +45,7 @@ def _plot_xy(ax: Axes, rows: list[Row], prefix: str, fmt: str, **style: Any) -> 
 
 def plot_match_probability(summary: list[Row], ax: Axes | None = None) -> Axes:
     """Bars of P(at least one match) per experiment with 95 % CIs, the paper's beside them."""
-    ax = _axes(ax)
+    ax = axes_or_new(ax, (5.0, 4.0), layout=None)
     rows = [r for r in summary if r["metric"] == "p_at_least_one_match"]
     x = np.arange(len(rows))
     ours = [r["value"] for r in rows]
@@ -71,7 +66,7 @@ def plot_match_example(
     example: list[Row], sites: list[Row], experiment: str = "match", ax: Axes | None = None
 ) -> Axes:
     """The example target (most matching positions in run 0) and its matching poses."""
-    ax = _axes(ax, (5.0, 5.0))
+    ax = axes_or_new(ax, (5.0, 5.0), layout=None)
     rows = [r for r in example if r["experiment"] == experiment]
     _receivers(ax, sites, 0)
     if rows:
@@ -111,7 +106,7 @@ def plot_match_example(
 
 def plot_path_failure(paths: list[Row], ax: Axes | None = None) -> Axes:
     """Packets until the path attack failed, one marker per run, per limit scale."""
-    ax = _axes(ax)
+    ax = axes_or_new(ax, (5.0, 4.0), layout=None)
     scales = sorted({r["limit_scale"] for r in paths}, reverse=True)
     for i, s in enumerate(scales):
         v = np.array([r["packets_until_failure"] for r in paths if r["limit_scale"] == s])
@@ -133,7 +128,7 @@ def plot_end_to_end(
 
     ``run=None`` picks the run with the most spoofed packets.
     """
-    ax = _axes(ax, (5.5, 5.0))
+    ax = axes_or_new(ax, (5.5, 5.0), layout=None)
     attack = [r for r in trace if r["source"] == "attack"]
     if run is None:
         runs = sorted({r["run"] for r in trace})

@@ -2,40 +2,26 @@
 
 :func:`map_runs` runs ``run_experiment(experiment, run, config)`` for every
 task — serially for ``workers=0``, otherwise on the same kind of Dask cluster as
-the evaluation sweeps (:mod:`radiopose.evaluate.runner`): a local cluster of
-single-threaded worker processes with the evaluation's worker environment
-(``NUMBA_NUM_THREADS=1`` …), or an existing scheduler (``scheduler=``). Without
+the evaluation sweeps, through the one runner both use
+(:func:`radiopose.parallel.run_on_dask`): a local cluster of single-threaded
+worker processes (``NUMBA_NUM_THREADS=1`` …), or an existing scheduler
+(``scheduler=``). Without
 ``dask.distributed`` installed it falls back to a local process pool. Results do
 not depend on the number of workers: every run is seeded by its index.
 """
 
 from __future__ import annotations
 
-import logging
+import functools
 import multiprocessing
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from contextlib import ExitStack
 
 from radiopose.errors import InputError, RadioposeError
+from radiopose.parallel import default_workers as default_workers  # re-exported: CLI
+from radiopose.parallel import run_on_dask
 from radiopose.security.experiments import RunOutput, SpoofConfig, run_experiment
-
-
-def default_workers() -> int:
-    """Worker processes by default: the usable cores."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return max(1, os.cpu_count() or 1)
-
-
-def _worker_env() -> dict[str, str]:
-    try:
-        from radiopose.evaluate.runner import WORKER_ENV
-    except ImportError:  # pragma: no cover - evaluation runner absent
-        return {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    return dict(WORKER_ENV)
 
 
 def map_runs(
@@ -108,49 +94,22 @@ def _run_dask(
     record: Callable[[RunOutput], None],
     scheduler: str | None,
 ) -> str:
-    from distributed import Client, LocalCluster
-    from distributed import as_completed as dask_completed
+    n = min(workers, len(tasks))
+    run_on_dask(
+        functools.partial(_run_task, config=config),
+        tasks,
+        lambda _task, res: record(res),
+        scheduler=scheduler,
+        workers=n,
+        key=lambda task: f"radiopose-spoof-{task[0]}-{task[1]}",
+        describe=lambda task: f"spoof {task[0]} run {task[1]}",
+        dashboard_address=None,
+    )
+    return scheduler if scheduler is not None else f"dask local ({n} workers)"
 
-    from radiopose.evaluate.runner import connect_scheduler
 
-    with ExitStack() as stack:
-        if scheduler is not None:
-            client = connect_scheduler(stack, scheduler)
-            where = scheduler
-        else:
-            n = min(workers, len(tasks))
-            cluster = stack.enter_context(
-                LocalCluster(
-                    n_workers=n,
-                    threads_per_worker=1,
-                    processes=True,
-                    dashboard_address=None,
-                    silence_logs=logging.ERROR,
-                    env=_worker_env(),
-                )
-            )
-            client = stack.enter_context(Client(cluster))
-            where = f"dask local ({n} workers)"
-        futures = {
-            client.submit(
-                run_experiment, exp, run, config, pure=False, key=f"radiopose-spoof-{exp}-{run}"
-            ): (exp, run)
-            for exp, run in tasks
-        }
-        try:
-            for fut in dask_completed(futures):
-                try:
-                    res = fut.result()
-                except Exception as exc:
-                    exp, run = futures[fut]
-                    raise RadioposeError(
-                        f"spoof {exp} run {run} failed: {type(exc).__name__}: {exc}"
-                    ) from exc
-                record(res)
-                fut.release()
-        finally:
-            client.cancel(list(futures))
-    return where
+def _run_task(task: tuple[str, int], config: SpoofConfig) -> RunOutput:
+    return run_experiment(task[0], task[1], config)
 
 
 class RunStore:

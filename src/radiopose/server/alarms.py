@@ -22,11 +22,10 @@ each transmitter's detector learns its references again (``warmup_s``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from typing import Annotated, Any
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
-from fastapi import Depends, FastAPI, Query
 from pydantic import BaseModel
 
 from radiopose.packets import PacketObservation
@@ -143,16 +142,3 @@ def flag_estimates(
         flag = any(a <= t < b for a, b in spans.get(r["transmitter"].lower(), ()))
         out.append({**r, "spoof_alarm_flag": int(flag)})
     return out
-
-
-def add_routes(app: FastAPI, db: Any, viewer: Callable[..., Any]) -> None:
-    """Add ``GET /api/v1/alarms`` over ``db`` for the ``viewer`` dependency's roles."""
-
-    @app.get("/api/v1/alarms", response_model=list[Alarm], dependencies=[Depends(viewer)])
-    def alarms(
-        transmitter: Annotated[str | None, Query(max_length=64)] = None,
-        since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
-        limit: Annotated[int, Query(ge=1, le=100_000)] = 1_000,
-    ) -> list[dict[str, Any]]:
-        """Spoofing alarm events (``raised``/``cleared``) in time order."""
-        return db.alarms(transmitter, since_s, limit=limit)

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates, PoseEstimate
 from radiopose.likelihood import Scorer
+from radiopose.likelihood.candidates import receiver_indices
 from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
@@ -77,31 +78,10 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
         raise InputError(
             "no packets (the file has a header but no rows)", path=packets.path, line=2
         )
-    known = set(site.receiver_ids)
-    for i, rid in enumerate(packets.receiver_id):
-        if rid not in known:
-            line = None if packets.lines is None else int(packets.lines[i])
-            raise InputError(
-                f"receiver {rid!r} is not in the site (site receivers: "
-                f"{', '.join(site.receiver_ids)})",
-                path=packets.path,
-                line=line,
-                column="receiver_id",
-            )
     obs = group_packets(packets)
     last: dict[str, tuple[float, str]] = {}
     for o in obs:
-        seen: dict[str, int] = {}
-        for k, rid in enumerate(o.receiver_ids):
-            if rid in seen:
-                raise InputError(
-                    f"packet {o.packet_id!r} of {o.transmitter} has two rows for receiver "
-                    f"{rid!r} (the first on line {o.line_of(seen[rid])})",
-                    path=packets.path,
-                    line=o.line_of(k),
-                    column="receiver_id",
-                )
-            seen[rid] = k
+        receiver_indices(o, site.receiver_ids, packets.path)
         key = o.transmitter.lower()
         prev = last.get(key)
         if prev is not None and o.timestamp_s < prev[0]:

@@ -1,0 +1,27 @@
+"""The server's API routes, one module per area.
+
+:mod:`.reports` (receivers post frames), :mod:`.estimates` (estimates, alarms,
+the event stream), :mod:`.site` (site, patterns, health) and :mod:`.admin`
+(site edits). Each module's endpoints are plain functions whose dependencies
+(database, roles) come from :mod:`radiopose.server.deps`; its ``add_routes``
+adds them to :func:`radiopose.server.app.create_app`'s router. They are added
+to the app's own router rather than through ``include_router``, whose nested
+route objects (FastAPI >= 0.16x) would hide each route's path from
+``app.routes`` and skip the app's dependency overrides.
+"""
+
+from collections.abc import Callable
+
+from fastapi import APIRouter
+
+from radiopose.server.routers import admin, estimates, reports, site
+
+ADD_ROUTES: tuple[Callable[[APIRouter], None], ...] = (
+    reports.add_routes,
+    estimates.add_routes,
+    site.add_routes,
+    admin.add_routes,
+)
+"""Every area's ``add_routes``, in the order the app adds them."""
+
+__all__ = ["ADD_ROUTES"]

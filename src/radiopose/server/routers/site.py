@@ -1,0 +1,100 @@
+"""The site and the server's health: ``GET /api/v1/site``, ``/patterns/{name}``, ``/health``."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from fastapi import APIRouter, HTTPException
+from fastapi.responses import PlainTextResponse
+
+from radiopose.server import sitestore
+from radiopose.server.db import Database
+from radiopose.server.deps import API, DB, Viewer
+from radiopose.server.schemas import Area, DeviceOut, Health, ReceiverHealth, ReceiverOut, SiteOut
+
+
+def add_routes(router: APIRouter) -> None:
+    """Add this module's routes to ``router`` (the app's own, so they stay flat)."""
+    router.add_api_route(f"{API}/site", site, methods=["GET"], response_model=SiteOut)
+    router.add_api_route(
+        f"{API}/patterns/{{name}}", pattern, methods=["GET"], response_class=PlainTextResponse
+    )
+    router.add_api_route("/health", health, methods=["GET"], response_model=Health)
+
+
+def site(who: Viewer, db: DB) -> SiteOut:
+    """The site: area, receivers with their orientation, devices, pattern names."""
+    return site_out(db)
+
+
+def pattern(name: str, who: Viewer, db: DB) -> str:
+    """A pattern's CSV."""
+    csv = db.site_rows()["patterns"].get(name)
+    if csv is None:
+        raise HTTPException(404, f"unknown pattern {name!r}")
+    return csv
+
+
+def health(who: Viewer, db: DB) -> Health:
+    """Per receiver: last report, frames/s, clock offset and drift; pipeline backlog."""
+    return health_of(db)
+
+
+def site_out(db: Database) -> SiteOut:
+    """The stored site as the API shows it (also the answer of every admin edit)."""
+    parts = db.site_rows()
+    site = sitestore.build_site(parts)
+    # each schema's fields are read from the same-named attributes of the site's objects
+    return SiteOut(
+        name=site.name,
+        version=db.site_version(),
+        area=Area.model_validate(site.area, from_attributes=True),
+        receivers=[ReceiverOut.model_validate(r, from_attributes=True) for r in site.receivers],
+        devices=[DeviceOut.model_validate(d, from_attributes=True) for d in site.devices],
+        patterns=sorted(site.patterns),
+    )
+
+
+def health_of(db: Database) -> Health:
+    """Per receiver activity and clock, the pipeline's backlog and latency, now."""
+    now = time.time()
+    activity = db.receiver_activity(10.0)
+    summaries = db.summaries()
+    clocks: dict[str, dict[str, Any]] = {}
+    for s in summaries.values():
+        clocks.update(s.get("clocks", {}))
+    ids = list(db.known_ids()[0])
+    ids += sorted(set(activity) - set(ids))
+    receivers = []
+    for rid in ids:
+        a = activity.get(rid)
+        c = clocks.get(rid)
+        estimated = c is not None and c.get("method") != "none"
+        receivers.append(
+            ReceiverHealth(
+                receiver_id=rid,
+                last_report_s=None if a is None else a["last_report_s"],
+                seconds_since_report=None if a is None else max(0.0, now - a["last_report_s"]),
+                frames_per_s=0.0 if a is None else a["frames_per_s"],
+                clock_offset_s=c["offset_s"] if estimated else None,
+                clock_drift_ppm=c["drift_ppm"] if estimated else None,
+                clock_method=None if c is None else c.get("method"),
+            )
+        )
+    last = db.last_batch_id()
+    cursor = min((s["cursor_batch"] for s in summaries.values()), default=0)
+    lat = db.recent_latencies_s(1_000)
+    pct = lambda q: float(np.percentile(lat, q)) if lat else None  # noqa: E731
+    return Health(
+        status="ok",
+        site_version=db.site_version(),
+        batches_stored=last,
+        backlog_batches=max(0, last - cursor),
+        partitions={
+            k: {kk: v for kk, v in s.items() if kk != "clocks"} for k, s in summaries.items()
+        },
+        receivers=receivers,
+        latency_s={"p50": pct(50), "p95": pct(95), "n": float(len(lat))},
+    )
