@@ -30,7 +30,8 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from radiopose.estimates import Estimates
-from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
+from radiopose.likelihood.candidates import CandidateSpace, HeardRss
+from radiopose.likelihood.maps import position_mse_db2
 from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.packets import PacketObservation
 from radiopose.plot_site import orientation_arrows
@@ -50,9 +51,10 @@ def mse_map_db2(
 
     ``receiver_id=None`` combines every receiver that heard the packet; a
     receiver id uses that receiver alone (its squared error). With ``table``
-    (a :class:`~radiopose.likelihood.TableScorer` of the same space, or the
-    compiled scorer, which offers ``position_mse_db2``) the map is read from its
-    float32 tables — fast; otherwise computed exactly in float64.
+    (a scorer of the same space that offers ``position_mse_db2``: the
+    :class:`~radiopose.likelihood.TableScorer` or the compiled scorer) the map is
+    read from its float32 tables — fast; otherwise computed exactly in float64
+    (:func:`radiopose.likelihood.maps.position_mse_db2` either way).
     """
     heard = space.heard(packet)
     if receiver_id is not None:
@@ -61,30 +63,8 @@ def mse_map_db2(
         if not sel.any():
             raise ValueError(f"receiver {receiver_id!r} did not hear packet {packet.packet_id!r}")
         heard = HeardRss(heard.receiver_index[sel], heard.rss_dbm[sel])
-    n_pos, n_o = space.n_positions, space.n_orientations
     xs = np.unique(space.positions_m[:, 0])
-    if table is not None and table.supports_position_mse:  # the compiled scorer's tables
-        return np.asarray(table.position_mse_db2(heard), np.float64).reshape(xs.size, -1)
-    if table is not None:
-        acc = np.zeros(space.n_candidates, dtype=np.float32)
-        for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
-            d = np.float32(rss - table.centre_db[r]) - table.table[:, r]
-            acc += d * d
-        per_pos = (acc / heard.n_heard).reshape(n_pos, n_o).min(axis=1).astype(np.float64)
-        per_pos[~np.all(table.valid[:, heard.receiver_index], axis=1)] = np.inf
-        return per_pos.reshape(xs.size, -1)
-    best = np.full(n_pos, np.inf)
-    chunk = max(1, 1_000_000 // max(n_o * space.n_receivers, 1))
-    for start in range(0, n_pos, chunk):
-        stop = min(start + chunk, n_pos)
-        pos = np.repeat(np.arange(start, stop), n_o)
-        ori = np.tile(np.arange(n_o), stop - start)
-        exp = expected_rss_dbm(space, pos, ori)
-        acc = np.zeros(pos.size)
-        for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
-            acc += (rss - exp[:, r]) ** 2
-        best[start:stop] = (acc / heard.n_heard).reshape(-1, n_o).min(axis=1)
-    return best.reshape(xs.size, -1)
+    return position_mse_db2(space, heard, table).reshape(xs.size, -1)
 
 
 def plot_mse_map(
