@@ -69,6 +69,17 @@ _CAPTURE_MAGICS = frozenset(
 )
 
 
+def default_spool_dir() -> Path:
+    """The receiver agent's default spool: ``$XDG_DATA_HOME/radiopose/spool``.
+
+    ``XDG_DATA_HOME`` defaults to ``~/.local/share`` (the XDG base directory
+    rules), so the spool never depends on the directory the agent starts in.
+    """
+    base = os.environ.get("XDG_DATA_HOME") or ""
+    root = Path(base) if Path(base).is_absolute() else Path.home() / ".local" / "share"
+    return root / "radiopose" / "spool"
+
+
 @dataclass(frozen=True)
 class AgentConfig:
     """Settings of a receiver agent.
@@ -82,7 +93,8 @@ class AgentConfig:
     receiver_id
         The receiver this agent reports for.
     spool_dir
-        Where undelivered batches are kept (one subdirectory per receiver).
+        Where undelivered batches are kept (one subdirectory per receiver);
+        default :func:`default_spool_dir`, a per-user data directory.
     batch_interval_s
         Batching period, seconds.
     max_batch_frames
@@ -98,7 +110,7 @@ class AgentConfig:
     server_url: str
     token: str
     receiver_id: str
-    spool_dir: Path = Path("radiopose-spool")
+    spool_dir: Path = field(default_factory=default_spool_dir)
     batch_interval_s: float = 0.1
     max_batch_frames: int = 2_000
     max_queue_batches: int = 50

@@ -189,8 +189,14 @@ def receiver(
         str | None, typer.Option(help="Capture live from this monitor-mode interface.")
     ] = None,
     spool: Annotated[
-        Path, typer.Option(help="Directory for batches the server has not acknowledged.")
-    ] = Path("radiopose-spool"),
+        Path | None,
+        typer.Option(
+            help="Directory for batches the server has not acknowledged; default: a "
+            "per-user data directory, $XDG_DATA_HOME/radiopose/spool "
+            "(~/.local/share/radiopose/spool when XDG_DATA_HOME is unset).",
+            show_default=False,
+        ),
+    ] = None,
     batch_ms: Annotated[float, typer.Option("--batch-ms", help="Batching period, ms.")] = 100.0,
     quiet: Annotated[bool, typer.Option("-q", "--quiet", help="No summary line.")] = False,
 ) -> None:
@@ -210,13 +216,20 @@ def receiver(
             AgentConfig,
             ReceiverAgent,
             capture_interface,
+            default_spool_dir,
             replay_frames,
             run_replay,
         )
 
         frames = replay_frames(replay, id) if replay is not None else None
         agent = ReceiverAgent(
-            AgentConfig(server, token, id, spool_dir=spool, batch_interval_s=batch_ms / 1000.0)
+            AgentConfig(
+                server,
+                token,
+                id,
+                spool_dir=default_spool_dir() if spool is None else spool,
+                batch_interval_s=batch_ms / 1000.0,
+            )
         )
     except ModuleNotFoundError as exc:
         raise InputError(

@@ -45,13 +45,13 @@ from radiopose.likelihood.numpy_kernel import TableScorer
 from radiopose.likelihood.power import best_power_mse_db2, profile_offset_db
 from radiopose.likelihood.reference import ReferenceScorer
 from radiopose.likelihood.topk import TopK, select_topk
-from radiopose.packets import PacketObservation
 
 
 class Scorer(Protocol):
     """What the tracker needs from a scorer.
 
-    Every scorer offers ``score_heard``/``score_topk``. The optional features
+    Every scorer offers ``score_heard`` (and, for interactive use, ``score_topk``
+    from :class:`~radiopose.likelihood.capabilities.ScorerBase`). The optional features
     are declared, not probed (:mod:`~radiopose.likelihood.capabilities`):
     ``supports_window`` says whether :meth:`score_window` works (the compiled
     scorer; the tracker's bounded search needs it), ``supports_position_mse``
@@ -66,8 +66,6 @@ class Scorer(Protocol):
     supports_position_mse: bool
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK: ...
-
-    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK: ...
 
     def score_window(
         self,

@@ -1,6 +1,8 @@
 """What a scorer offers beyond the top-k of a packet, declared, not probed.
 
-Every scorer has ``score_heard``/``score_topk``. Two further features exist
+Every scorer has ``score_heard`` (the tracker's call). :meth:`ScorerBase.score_topk`
+(a packet in, its top-k out) is a convenience for interactive use and the
+tests; nothing in the pipeline calls it. Two further features exist
 only in some; a scorer declares them with a class attribute and callers read
 the attribute (never ``hasattr``):
 
@@ -18,8 +20,9 @@ from typing import ClassVar
 
 import numpy as np
 
-from radiopose.likelihood.candidates import HeardRss
+from radiopose.likelihood.candidates import CandidateSpace, HeardRss
 from radiopose.likelihood.topk import TopK
+from radiopose.packets import PacketObservation
 
 
 class ScorerBase:
@@ -30,6 +33,16 @@ class ScorerBase:
     """Whether :meth:`score_window` is offered."""
     supports_position_mse: ClassVar[bool] = False
     """Whether :meth:`position_mse_db2` is offered."""
+
+    space: CandidateSpace
+
+    def score_heard(self, heard: HeardRss, k: int) -> TopK:
+        """Top-k candidates of the receivers that heard one packet (best first)."""
+        raise NotImplementedError(f"scorer {self.name!r} has no score_heard")
+
+    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
+        """Top-k candidates of one packet (best first); not used by the pipeline."""
+        return self.score_heard(self.space.heard(packet), k)
 
     def score_window(
         self,

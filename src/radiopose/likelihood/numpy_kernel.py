@@ -47,7 +47,6 @@ from radiopose.likelihood.candidates import (
 )
 from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.topk import TopK, select_topk
-from radiopose.packets import PacketObservation
 
 _EPS32 = float(np.finfo(np.float32).eps)
 
@@ -178,7 +177,3 @@ class TableScorer(ScorerBase):
             shortlist = np.flatnonzero(np.isfinite(v))
         mse = exact_mse_db2(s, heard, shortlist)
         return select_topk(shortlist, mse, k)
-
-    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
-        """Top-k candidates of one packet (best first)."""
-        return self.score_heard(self.space.heard(packet), k)

@@ -16,7 +16,6 @@ import numpy as np
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
 from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.topk import TopK, merge_topk, select_topk
-from radiopose.packets import PacketObservation
 
 
 class ReferenceScorer(ScorerBase):
@@ -48,7 +47,3 @@ class ReferenceScorer(ScorerBase):
             mse = exact_mse_db2(s, heard, cand)
             best = merge_topk(best, select_topk(cand, mse, k), k)
         return best
-
-    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
-        """Top-k candidates of one packet (best first)."""
-        return self.score_heard(self.space.heard(packet), k)

@@ -226,7 +226,7 @@ def _grid_count(step_deg: float, span_deg: float, what: str, field: str) -> int:
             f"(at most {most} steps over {span_deg:g} deg)",
             column=field,
         )
-    n = grid_steps(step_deg, span_deg)
+    n = grid_steps(span_deg, step_deg)
     if n is None:
         raise InputError(f"{what} {step_deg:g} deg does not divide {span_deg:g}", column=field)
     return n

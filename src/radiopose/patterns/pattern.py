@@ -43,8 +43,11 @@ MAX_POLAR_ANGLES = 1801
 """Most grid polar angles (``180 / MIN_GRID_STEP_DEG + 1``)."""
 
 
-def grid_steps(step_deg: float, span_deg: float) -> int | None:
+def grid_steps(span_deg: float, step_deg: float) -> int | None:
     """Steps of ``step_deg`` in ``span_deg`` if it divides it (``None`` if not), unchecked size.
+
+    Span first, like :func:`radiopose.site.grid_steps` (which also reports an
+    inexact fit instead of ``None``).
 
     Computed from the numbers only (nothing is allocated), so a huge count is
     returned as is for the caller to reject against :data:`MIN_GRID_STEP_DEG`.

@@ -306,7 +306,8 @@ def acquiring(state: TrackState, t_s: float, config: TrackerConfig) -> bool:
 class _Grid:
     """A device's grid facts for bounded search."""
 
-    cell_m: float  # half the candidate grid's cell diagonal
+    half_diagonal_m: float
+    """Half the candidate grid's cell diagonal, metres (the slack of the movement bound)."""
     n_azimuth: int
 
 
@@ -376,7 +377,7 @@ class PaperMethod:
             move = cfg.movement_model
             if dt <= move.max_gap_s:
                 d = np.linalg.norm(space.positions_m - np.asarray(state.position_m), axis=1)
-                positions = np.flatnonzero(d <= move.allowed_m(dt) + grid.cell_m)
+                positions = np.flatnonzero(d <= move.allowed_m(dt) + grid.half_diagonal_m)
         lo_deg, span_deg = 0.0, 360.0
         if self.bounds_orientation and state.orientation_deg is not None:
             dt = t_s - float(state.orientation_time_s)  # type: ignore[arg-type]
