@@ -50,3 +50,22 @@ class InputError(RadioposeError):
         if column is not None:
             where += (", " if where else "") + f"column '{column}'"
         super().__init__(f"{where}: {self.reason}" if where else self.reason)
+
+
+def unreadable(path: str | PathLike[str], exc: OSError, expected: str = "a file") -> InputError:
+    """The one-line :class:`InputError` for a file that cannot be opened or read.
+
+    Parameters
+    ----------
+    path
+        The file.
+    exc
+        The error of opening or reading it.
+    expected
+        What the file should have been, for the directory case (``"a CSV file"``).
+    """
+    if isinstance(exc, FileNotFoundError):
+        return InputError("file not found", path=path)
+    if isinstance(exc, IsADirectoryError):
+        return InputError(f"is a directory, expected {expected}", path=path)
+    return InputError(f"cannot read: {exc.strerror}", path=path)

@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, unreadable
 
 
 @dataclass(frozen=True)
@@ -86,12 +86,8 @@ class Table:
 def _open_text(path: Path) -> io.TextIOWrapper:
     try:
         return open(path, newline="", encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError("file not found", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a CSV file", path=path) from None
     except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", path=path) from None
+        raise unreadable(path, exc, "a CSV file") from None
 
 
 # Plain ASCII decimal numbers only: Python's float()/int() would also take

@@ -55,7 +55,7 @@ from radiopose.capture.radiotap import (
     RadiotapError,
     fast_decode,
 )
-from radiopose.errors import InputError
+from radiopose.errors import InputError, unreadable
 
 __all__ = ["hashed_bytes", "read_pcap"]
 
@@ -140,12 +140,8 @@ def read_pcap(
     rid = receiver_id_from_path(p) if receiver_id is None else receiver_id
     try:
         fh = open(p, "rb", buffering=1 << 20)  # noqa: SIM115
-    except FileNotFoundError:
-        raise InputError("file not found", path=p) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a capture file", path=p) from None
     except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", path=p) from None
+        raise unreadable(p, exc, "a capture file") from None
     with fh:
         return _decode_stream(fh, p, rid, progress)
 

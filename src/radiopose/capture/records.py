@@ -43,7 +43,7 @@ from radiopose.capture.pcapfile import (
     is_pcap_start,
     iter_raw_records,
 )
-from radiopose.errors import InputError
+from radiopose.errors import InputError, unreadable
 
 __all__ = [
     "CSV_CAPTURE_COLUMNS",
@@ -87,12 +87,8 @@ def read_capture(
     try:
         with open(p, "rb") as fh:
             head = fh.read(4)
-    except FileNotFoundError:
-        raise InputError("file not found", path=p) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a capture file", path=p) from None
     except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", path=p) from None
+        raise unreadable(p, exc, "a capture file") from None
     if not head:
         raise InputError("empty file, expected a pcap, pcapng or CSV capture", path=p)
     if is_pcap_start(head):

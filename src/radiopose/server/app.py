@@ -50,9 +50,10 @@ from radiopose.errors import InputError
 from radiopose.server import sitestore
 from radiopose.server.db import Database
 from radiopose.server.deps import API, Admin, AnyRole, ReceiverRole, Viewer, require
-from radiopose.server.live import LiveConfig, LiveWorker
+from radiopose.server.live import LiveConfig
 from radiopose.server.middleware import DRAIN_CAP_BYTES, BodyLimit
 from radiopose.server.routers import ADD_ROUTES
+from radiopose.server.worker import LiveWorker
 
 __all__ = [
     "API",
@@ -110,7 +111,7 @@ def create_app(
     run_pipeline
         Start the live pipeline with the app (off: API only, e.g. extra API processes).
     pipeline_mode
-        ``"thread"`` or ``"process"`` (see :class:`~radiopose.server.live.LiveWorker`).
+        ``"thread"`` or ``"process"`` (see :class:`~radiopose.server.worker.LiveWorker`).
     """
 
     @asynccontextmanager

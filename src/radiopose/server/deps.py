@@ -15,7 +15,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from radiopose.server.auth import READ_ROLES, Principal, hash_token
 from radiopose.server.db import Database
-from radiopose.server.live import LiveWorker
+from radiopose.server.worker import LiveWorker
 
 API = "/api/v1"
 """Path prefix of version 1 of the API."""

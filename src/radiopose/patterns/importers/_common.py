@@ -10,7 +10,7 @@ import math
 import os
 from pathlib import Path
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, unreadable
 from radiopose.patterns.pattern import Pattern
 
 DBD_TO_DBI = 2.15
@@ -26,14 +26,10 @@ def _stem(path: str | os.PathLike[str]) -> str:
 def _read_text(path: Path) -> str:
     try:
         return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError("file not found", path=path) from None
-    except IsADirectoryError:
-        raise InputError("is a directory, expected a file", path=path) from None
     except UnicodeDecodeError as exc:
         raise InputError(f"not UTF-8 text ({exc.reason})", path=path) from None
     except OSError as exc:
-        raise InputError(f"cannot read: {exc.strerror}", path=path) from None
+        raise unreadable(path, exc, "a file") from None
 
 
 # Largest |value| of a gain, attenuation or directivity in any imported file, dB:

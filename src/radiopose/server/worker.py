@@ -1,0 +1,117 @@
+"""Where the live pipeline runs: :class:`LiveWorker`, a thread or a child process.
+
+The pipeline itself (:class:`~radiopose.server.live.LivePipeline`) is a
+plain object stepped over the database; this module only keeps it stepping,
+restarts it from its last checkpoint after an error and stops it with the
+server.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+from radiopose.server.db import Database
+from radiopose.server.live import LiveConfig, LivePipeline
+
+__all__ = ["LiveWorker"]
+
+log = logging.getLogger("radiopose.server.live")  # the pipeline's own logger
+
+
+class LiveWorker:
+    """Runs a :class:`~radiopose.server.live.LivePipeline` until :meth:`stop`, in a thread or a
+    child process.
+
+    ``mode="process"`` (what ``radiopose serve`` uses) runs the pipeline in a
+    child process with its own database connection, so tracking never
+    competes with the API for the interpreter lock; the child exits when its
+    parent dies (even by ``kill -9``). ``mode="thread"`` keeps it in this
+    process (tests). ``wake()`` (called after a batch is stored) cuts the
+    polling delay. Any error is logged and the pipeline restarts from its
+    last checkpoint.
+    """
+
+    def __init__(
+        self, db: Database, config: LiveConfig | None = None, mode: str = "thread"
+    ) -> None:
+        if mode not in ("thread", "process"):
+            raise ValueError(f"mode must be 'thread' or 'process', got {mode!r}")
+        self.db = db
+        self.config = config or LiveConfig()
+        self.mode = mode
+        self.pipeline: LivePipeline | None = None
+        if mode == "process":
+            import multiprocessing
+
+            ctx = multiprocessing.get_context("spawn")
+            self._stop: Any = ctx.Event()
+            self._wake: Any = ctx.Event()
+            self._runner: Any = ctx.Process(
+                target=_process_main,
+                args=(db.url, self.config, self._stop, self._wake),
+                name="radiopose-live",
+                daemon=True,
+            )
+        else:
+            self._stop = threading.Event()
+            self._wake = threading.Event()
+            self._runner = threading.Thread(target=self._run, name="radiopose-live", daemon=True)
+
+    def start(self) -> None:
+        self._runner.start()
+
+    def wake(self) -> None:
+        self._wake.set()
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        self._stop.set()
+        self._wake.set()
+        if self._runner.ident is not None:
+            self._runner.join(timeout_s)
+        if self.mode == "process" and self._runner.is_alive():
+            self._runner.terminate()
+            self._runner.join(timeout_s)
+
+    def _run(self) -> None:
+        _loop(self.db, self.config, self._stop, self._wake, self)
+
+
+def _loop(
+    db: Database, config: LiveConfig, stop: Any, wake: Any, holder: LiveWorker | None = None
+) -> None:
+    import os
+
+    parent = os.getppid()
+    pipeline: LivePipeline | None = None
+    while not stop.is_set():
+        if holder is None and os.getppid() != parent:  # the server died: so do we
+            return
+        try:
+            if pipeline is None:
+                pipeline = LivePipeline(db, config)
+                if holder is not None:
+                    holder.pipeline = pipeline
+            n = pipeline.step()
+        except Exception:
+            log.exception("live pipeline step failed; resuming from the last checkpoint")
+            pipeline = None
+            stop.wait(1.0)
+            continue
+        if n == 0:
+            wake.wait(config.poll_s)
+            wake.clear()
+
+
+def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
+    from radiopose.server.jsonlog import configure_logging
+
+    configure_logging("info")
+    db = Database(url, create=False)
+    try:
+        _loop(db, config, stop, wake)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        db.close()
