@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -57,6 +58,9 @@ from numpy.typing import NDArray
 from radiopose.capture.records import Capture, FrameRecords, ReceiverStats
 from radiopose.errors import InputError
 from radiopose.packets import Packets
+
+if TYPE_CHECKING:
+    from radiopose.capture.streaming import StreamingMatcher as StreamingMatcher  # lazily, below
 
 __all__ = [
     "ClockModel",

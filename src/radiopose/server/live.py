@@ -57,6 +57,7 @@ from radiopose.server.sitestore import build_site
 
 if TYPE_CHECKING:  # the tracker (and scikit-learn) load with the first site, not at import
     from radiopose.estimates import PoseEstimate
+    from radiopose.server.worker import LiveWorker as LiveWorker  # lazily re-exported below
     from radiopose.site import Site
     from radiopose.tracker import Tracker, TrackerConfig
 
