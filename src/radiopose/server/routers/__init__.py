@@ -5,9 +5,10 @@ the event stream), :mod:`.site` (site, patterns, health) and :mod:`.admin`
 (site edits). Each module's endpoints are plain functions whose dependencies
 (database, roles) come from :mod:`radiopose.server.deps`; its ``add_routes``
 adds them to :func:`radiopose.server.app.create_app`'s router. They are added
-to the app's own router rather than through ``include_router``, whose nested
-route objects (FastAPI >= 0.16x) would hide each route's path from
-``app.routes`` and skip the app's dependency overrides.
+to the app's own router rather than through ``include_router``: FastAPI
+0.165 keeps an included router as one nested route object, so ``app.routes``
+would no longer list each route with its path (the server's tests walk it to
+check that every route needs a token).
 """
 
 from collections.abc import Callable
