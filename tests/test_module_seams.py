@@ -108,3 +108,24 @@ def test_default_spool_is_per_user(monkeypatch: pytest.MonkeyPatch, tmp_path: Pa
     assert default_spool_dir() == tmp_path / "home" / ".local" / "share" / "radiopose" / "spool"
     monkeypatch.setenv("XDG_DATA_HOME", "relative/dir")  # not absolute: ignored (XDG rules)
     assert default_spool_dir() == tmp_path / "home" / ".local" / "share" / "radiopose" / "spool"
+
+
+def test_replay_reads_any_pcap_as_the_named_receiver(tmp_path: Path) -> None:
+    """The agent's replay takes a pcap as its own receiver's, whatever the file name
+    (one magic-number check: :func:`radiopose.capture.pcapfile.is_pcap_start`)."""
+    from radiopose.capture.pcapfile import is_pcap_start
+    from radiopose.capture.records import read_pcap
+    from radiopose.capture.writer import write_receiver_pcaps
+    from radiopose.receiver import replay_frames
+
+    tx = "02:00:00:00:00:07"
+    rows = [("1", 2.0, tx, "rx1", -55.0), ("2", 1.0, tx, "rx1", -56.0)]
+    sim = write_receiver_pcaps(rows, tmp_path, rng=np.random.default_rng(7), epoch_s=10.0)
+    path = sim.paths["rx1"]
+    assert is_pcap_start(path.read_bytes()[:4])
+    frames = replay_frames(path, "other-name")
+    assert set(frames.receiver_id) == {"other-name"}
+    expected = read_pcap(path, "other-name").frames.time_ordered()
+    np.testing.assert_array_equal(frames.timestamp_ns, expected.timestamp_ns)
+    assert list(frames.rss_dbm) == list(expected.rss_dbm)
+    assert not is_pcap_start(b"rece")  # a CSV capture's header

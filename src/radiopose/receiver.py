@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from radiopose.capture.pcapfile import is_pcap_start
 from radiopose.capture.records import FrameRecords, read_capture, read_pcap
 from radiopose.errors import InputError
 
@@ -58,15 +59,6 @@ log = logging.getLogger("radiopose.receiver")
 REPORTS_PATH = "/api/v1/reports"
 TRANSMITTERS_PATH = "/api/v1/transmitters"
 _RETRYABLE = frozenset({408, 425, 429, 500, 502, 503, 504})
-_CAPTURE_MAGICS = frozenset(
-    {
-        b"\x0a\x0d\x0d\x0a",  # pcapng
-        b"\xd4\xc3\xb2\xa1",
-        b"\xa1\xb2\xc3\xd4",  # pcap µs
-        b"\x4d\x3c\xb2\xa1",
-        b"\xa1\xb2\x3c\x4d",  # pcap ns
-    }
-)
 
 
 def default_spool_dir() -> Path:
@@ -453,7 +445,7 @@ def replay_frames(path: str | os.PathLike[str], receiver_id: str) -> FrameRecord
         raise InputError("file not found", path=p)
     with open(p, "rb") as fh:
         head = fh.read(4)
-    if head in _CAPTURE_MAGICS:
+    if is_pcap_start(head):
         frames = read_pcap(p, receiver_id).frames
     else:
         cap = read_capture(p)
