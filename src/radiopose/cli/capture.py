@@ -88,7 +88,7 @@ def sync(
     """
     from radiopose.capture.records import read_capture
     from radiopose.capture.sync import SyncConfig, synchronise
-    from radiopose.errors import InputError
+    from radiopose.errors import InputError, unreadable
     from radiopose.packets import write_packets_csv
 
     if not (tolerance_ms > 0 and tolerance_ms < 60_000):
@@ -104,10 +104,8 @@ def sync(
     for p in captures:
         try:
             sizes[p] = os.stat(p).st_size
-        except FileNotFoundError:
-            raise InputError("file not found", path=p) from None
         except OSError as exc:
-            raise InputError(f"cannot read: {exc.strerror}", path=p) from None
+            raise unreadable(p, exc) from None
 
     caps = []
     if sum(sizes.values()) >= _PROGRESS_MIN_BYTES:
