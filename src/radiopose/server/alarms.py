@@ -16,8 +16,12 @@ GET      /api/v1/alarms                      viewer, admin
 ``GET /api/v1/estimates`` marks each estimate that falls inside a raised alarm
 with ``spoof_alarm_flag = 1`` (:func:`flag_estimates`).
 
-The detectors' state is not part of the pipeline checkpoint: after a restart
-each transmitter's detector learns its references again (``warmup_s``).
+The detectors' state is part of the pipeline checkpoint
+(``PipelineState.alarm_detectors`` in :mod:`radiopose.server.live`, the same
+dictionary the monitor updates): after a restart each transmitter's detector
+resumes with its reference variance, CUSUM and alarm state instead of warming
+up again (``warmup_s``), and an alarm raised before the restart is not raised
+twice.
 """
 
 from __future__ import annotations
@@ -69,13 +73,22 @@ class AlarmMonitor:
         The site (its survey map and devices give the expected RSS).
     config
         Detector parameters.
+    detectors
+        The per-transmitter detectors (lower-case address), updated in place: pass
+        the dictionary that is checkpointed (the live pipeline's state) so a restart
+        resumes them; a new one if ``None``.
     """
 
-    def __init__(self, site: Site, config: DetectorConfig | None = None) -> None:
+    def __init__(
+        self,
+        site: Site,
+        config: DetectorConfig | None = None,
+        detectors: dict[str, ConsistencyDetector] | None = None,
+    ) -> None:
         self.site = site
         self.config = config or DetectorConfig()
         self._models: dict[str, Any] = {}
-        self._detectors: dict[str, ConsistencyDetector] = {}
+        self._detectors: dict[str, ConsistencyDetector] = {} if detectors is None else detectors
         self._rx = {r: i for i, r in enumerate(site.receiver_ids)}
 
     def _model(self, transmitter: str) -> Any:
@@ -106,8 +119,10 @@ class AlarmMonitor:
         det = self._detectors.get(key)
         if det is None:
             det = self._detectors[key] = ConsistencyDetector(self.config)
-        elif det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
-            det.reset()  # the tracker re-acquires after a silence
+        else:
+            det.config = self.config  # a checkpointed detector takes today's settings
+            if det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
+                det.reset()  # the tracker re-acquires after a silence
         before = det.alarm
         score, alarm = det.update(obs.timestamp_s, res)
         if alarm == before:
