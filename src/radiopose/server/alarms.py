@@ -2,7 +2,8 @@
 
 The live pipeline hands every ``filter`` estimate to an :class:`AlarmMonitor`,
 which keeps one :class:`~radiopose.security.detection.ConsistencyDetector` per
-transmitter (the residuals of the packet at the estimate's pose) and returns an
+transmitter (fed the packet's RSS, or with ``signal = "residual"`` its residuals
+at the estimate's pose) and returns an
 event when a transmitter's alarm switches on (``raised``) or off
 (``cleared``). Events are stored in the ``alarms`` table
 (:meth:`radiopose.server.db.Database.add_alarms`) and served by:
@@ -115,7 +116,11 @@ class AlarmMonitor:
         for r, v in zip(obs.receiver_ids, obs.rss_dbm, strict=True):
             if r in self._rx:
                 rss[self._rx[r]] = v
-        res = pose_residuals_db(self._model(obs.transmitter), position_m, orientation_deg, rss)[0]
+        if self.config.signal == "rss":
+            values = rss
+        else:
+            model = self._model(obs.transmitter)
+            values = pose_residuals_db(model, position_m, orientation_deg, rss)[0]
         det = self._detectors.get(key)
         if det is None:
             det = self._detectors[key] = ConsistencyDetector(self.config)
@@ -124,7 +129,7 @@ class AlarmMonitor:
             if det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
                 det.reset()  # the tracker re-acquires after a silence
         before = det.alarm
-        score, alarm = det.update(obs.timestamp_s, res)
+        score, alarm = det.update(obs.timestamp_s, values)
         if alarm == before:
             return None
         return {
