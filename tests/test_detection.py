@@ -208,3 +208,23 @@ def test_spoof_detect_cli_writes_the_contract_table(tmp_path: Path, monkeypatch,
     assert lines[0] == ",".join(DETECTION_COLUMNS)
     assert [ln.split(",")[0] for ln in lines[1:]] == list(CONTRACT_ATTACKS)
     assert (out / "roc.csv").exists()
+
+
+def test_the_silent_attacker_sends_only_what_it_matches(site: SiteModel) -> None:
+    """``silent`` is the ``fixed`` attacker minus the packets it cannot match: with an
+    unbounded tolerance it is the ``fixed`` stream, with none it never sends."""
+    streams = {}
+    for name, attack, rms in (
+        ("fixed", "fixed", 1.0),
+        ("all", "silent", 1e9),
+        ("none", "silent", 0.0),
+        ("some", "silent", 1.0),
+    ):
+        rng = np.random.default_rng([SEED, 9])
+        streams[name] = attack_stream(site, attack, 1.0, AttackConfig(match_rms_db=rms), rng)
+    fixed, every, none, some = (streams[k] for k in ("fixed", "all", "none", "some"))
+    np.testing.assert_array_equal(every.t_s, fixed.t_s)
+    np.testing.assert_array_equal(every.rss_dbm, fixed.rss_dbm)
+    assert not np.any(none.t_s >= none.t_attack_s)
+    assert np.all(none.t_s == fixed.t_s[fixed.t_s < fixed.t_attack_s])
+    assert set(some.t_s.tolist()) <= set(fixed.t_s.tolist())

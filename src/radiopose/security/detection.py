@@ -1,25 +1,26 @@
 """Spoofing detection beside the Bayesian tracker (issue 19, ``docs/security.md``).
 
-The detector reads the RSS residuals at the tracker's own pose: for receiver
-``r`` at packet ``t``, ``e_r(t) = RSS_r(t) − E_r(x̂_t)``, with ``E_r`` the
-system's expected RSS (survey map, enrolled pattern and power,
-:meth:`radiopose.filtering.FilterModel.expected`) at the filter's estimated
-pose ``x̂_t``. It tests their *change from one packet to the next*,
-``Δe_r(t) = e_r(t) − e_r(t−1)``: a single real device moves and turns little
-between two packets, so for it ``Δe`` is the noise of two packets (variance
-``2σ²``) even where the tracker is off the true pose (a wrong lock, rotation
-beyond the motion prior: its mismatch changes slowly). Two senders with one
-address (a clone beside the genuine device), or one transmitter whose power
-follows someone else's recording (replay), make ``Δe`` jump from packet to
-packet. (The differences were chosen over the residuals themselves after the
-latter gave false alarms on genuine tracks the filter had lost; measured in
-``docs/security.md``.)
+The detector tests the *change from one packet to the next* of what each
+receiver ``r`` measures of one transmitter address, ``Δy_r(t) = y_r(t) −
+y_r(t−1)``. By default (``signal = "rss"``) ``y`` is the packet's RSS itself: a
+single real device moves and turns little between two packets (5 ms), so for
+it ``Δy`` is the noise of two packets (variance ``2σ²``) plus a small, slowly
+varying term of its motion — whatever the tracker makes of it. Two senders
+with one address (a clone beside the genuine device), or one transmitter whose
+power follows someone else's recording (replay), make ``Δy`` jump from packet
+to packet. With ``signal = "residual"`` ``y`` is the residual at the tracker's
+own pose, ``e_r(t) = RSS_r(t) − E_r(x̂_t)`` (``E_r``: the system's expected
+RSS, survey map and enrolled pattern, :meth:`radiopose.filtering.FilterModel.expected`):
+the first design, kept selectable; its genuine tracks score higher because
+the filter's own pose jitter from packet to packet enters ``Δe`` (measured in
+``docs/security.md``: up to 42 nats on genuine traffic where the RSS changes
+stay under 13).
 
-Per packet, against a reference variance ``v`` of ``Δe`` learned while the
+Per packet, against a reference variance ``v`` of ``Δy`` learned while the
 detector is quiet, it adds the log-likelihood ratio of "variance inflated
 ``k``-fold" against "as before" (a Gaussian variance CUSUM, Page 1954)::
 
-    z_r² = min(Δe_r² / v, c²)                            (clipped at c)
+    z_r² = min(Δy_r² / v, c²)                            (clipped at c)
     ℓ_t  = Σ_r [ ½ z_r² (1 − 1/k) − ½ ln k ]
     C_t  = min(max(0, C_{t−1} + ℓ_t + g_t), 2 h)
 
@@ -31,8 +32,8 @@ does not pause where an attacker must. The alarm is on while ``C_t ≥ h``
 during the first ``warmup_s`` of a track the score is 0 (the reference is being
 learned).
 
-:func:`score_track` is the pure batch form; :class:`ConsistencyDetector` the
-streaming one (live server); both give the same numbers.
+:func:`score_track` is the batch form (compiled); :class:`ConsistencyDetector`
+the streaming one (live server); both give the same numbers.
 """
 
 from __future__ import annotations
