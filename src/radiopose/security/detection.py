@@ -93,7 +93,7 @@ class DetectorConfig:
     """
 
     inflation: float = 1.5
-    threshold_nats: float = 25.0
+    threshold_nats: float = 16.0
     clip_sigma: float = 2.0
     reference_s: float = 5.0
     warmup_s: float = 1.0
