@@ -65,7 +65,9 @@ def test_locate_filter_writes_score_and_alarm_as_trailing_columns(
     assert SCORE_COLUMN not in out2.read_text().splitlines()[0]
 
 
-def test_alarm_monitor_raises_on_a_clone_elsewhere(small) -> None:
+@pytest.mark.parametrize("signal", ["rss", "residual"])
+def test_alarm_monitor_raises_on_a_clone_elsewhere(small, signal: str) -> None:
+    from radiopose.security.detection import DetectorConfig
     from radiopose.server.alarms import AlarmMonitor
 
     _, sim = small
@@ -73,7 +75,7 @@ def test_alarm_monitor_raises_on_a_clone_elsewhere(small) -> None:
     tx = site.devices[0].transmitter
     ids = site.receiver_ids
     rng = np.random.default_rng(SEED)
-    mon = AlarmMonitor(site)
+    mon = AlarmMonitor(site, DetectorConfig(signal=signal))
     pose_p, pose_o = (2.0, 3.0, sim.config.z_m), (40.0, 0.0, 0.0)
     from radiopose.security.detection import pose_residuals_db
 

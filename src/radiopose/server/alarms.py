@@ -120,7 +120,8 @@ class AlarmMonitor:
             values = rss
         else:
             model = self._model(obs.transmitter)
-            values = pose_residuals_db(model, position_m, orientation_deg, rss)[0]
+            pose = np.asarray(position_m, np.float64), np.asarray(orientation_deg, np.float64)
+            values = pose_residuals_db(model, *pose, rss)[0]
         det = self._detectors.get(key)
         if det is None:
             det = self._detectors[key] = ConsistencyDetector(self.config)
