@@ -228,3 +228,20 @@ def test_the_silent_attacker_sends_only_what_it_matches(site: SiteModel) -> None
     assert not np.any(none.t_s >= none.t_attack_s)
     assert np.all(none.t_s == fixed.t_s[fixed.t_s < fixed.t_attack_s])
     assert set(some.t_s.tolist()) <= set(fixed.t_s.tolist())
+
+
+def test_the_gap_test_flags_a_silent_attacker_that_waits(site: SiteModel) -> None:
+    """A ``silent`` attacker that stays quiet for 0.34 s mid-attack: the shipped
+    detector (gap test off) misses it, the gap test flags it at the first packet
+    after the silence, and neither flags the genuine prefix."""
+    rng = np.random.default_rng([SEED, 11])
+    stream = attack_stream(site, "silent", 1.0, AttackConfig(), rng)
+    t = stream.t_s
+    attacker = t >= stream.t_attack_s
+    gaps = np.diff(t)
+    longest = int(np.argmax(gaps))
+    assert gaps[longest] > 0.3 and attacker[longest]  # the silence is the attacker's
+    assert not score_track(t, stream.rss_dbm, DetectorConfig()).alarm.any()
+    flagged = score_track(t, stream.rss_dbm, DetectorConfig(gap_nats=10.0)).alarm
+    assert not flagged[~attacker].any()
+    assert np.flatnonzero(flagged)[0] == longest + 1
