@@ -1,9 +1,10 @@
-"""The spoofing detector (issue 19): analytic CUSUM behaviour, each attack on a
-seeded scenario through the real filter, a genuine fast-rotating track left
-alone, ``spoof detect``'s table, ``locate``'s trailing columns and the alarms API.
+"""The spoofing detector (issue 19): analytic CUSUM behaviour, the compiled and
+streaming scorers, each attack on a seeded scenario (the residual signal through
+the real filter), the silent attacker and the gap test, a genuine fast-rotating
+track left alone and ``spoof detect``'s table.
 
-Seeds 4240–4249 are this file's own (not the tuning seeds 7000–7011 nor the
-held-out 1000–1009).
+Seeds 4240–4249 are this file's own (not the tuning seeds from 7000 nor the
+held-out ones: 1000–1009, and 20000+ for the detector).
 """
 
 from __future__ import annotations
