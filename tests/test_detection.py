@@ -1,9 +1,10 @@
-"""The spoofing detector (issue 19): analytic CUSUM behaviour, each attack on a
-seeded scenario through the real filter, a genuine fast-rotating track left
-alone, ``spoof detect``'s table, ``locate``'s trailing columns and the alarms API.
+"""The spoofing detector (issue 19): analytic CUSUM behaviour, the compiled and
+streaming scorers, each attack on a seeded scenario (the residual signal through
+the real filter), the silent attacker and the gap test, a genuine fast-rotating
+track left alone and ``spoof detect``'s table.
 
-Seeds 4240–4249 are this file's own (not the tuning seeds 7000–7011 nor the
-held-out 1000–1009).
+Seeds 4240–4249 are this file's own (not the tuning seeds from 7000 nor the
+held-out ones: 1000–1009, and 20000+ for the detector).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from radiopose.security.attacks import (
     scenario_for,
 )
 from radiopose.security.detect_experiment import (
+    CONTRACT_ATTACKS,
     DETECTION_COLUMNS,
     DetectPlan,
     Track,
@@ -34,6 +36,7 @@ from radiopose.security.detect_experiment import (
 from radiopose.security.detection import (
     ConsistencyDetector,
     DetectorConfig,
+    _score_track_streaming,
     score_track,
 )
 from radiopose.simulate.trajectories import MotionConfig
@@ -77,9 +80,23 @@ def test_streaming_and_batch_forms_agree_and_config_is_checked() -> None:
     det = ConsistencyDetector()
     stream = [det.update(float(a), b)[0] for a, b in zip(t, res, strict=True)]
     np.testing.assert_allclose(batch.score_nats, stream)
+    # the compiled batch form against the streaming one: resets, gaps, the gap test
+    t2 = t.copy()
+    t2[300:] += 0.4
+    new = np.zeros(t.size, bool)
+    new[200] = True
+    res2 = res * np.where(np.arange(t.size) > 350, 3.0, 1.0)[:, None]
+    cfg = DetectorConfig(gap_nats=5.0, warmup_s=0.5, threshold_nats=10.0)
+    fast = score_track(t2, res2, cfg, new)
+    slow = _score_track_streaming(t2, res2, cfg, new)
+    np.testing.assert_array_equal(fast.score_nats, slow.score_nats)
+    np.testing.assert_array_equal(fast.alarm, slow.alarm)
+    assert fast.alarm.any() and not fast.alarm.all()
     with pytest.raises(InputError, match="inflation"):
         DetectorConfig(inflation=1.0)
-    with pytest.raises(InputError, match="residual rows"):
+    with pytest.raises(InputError, match="signal"):
+        DetectorConfig(signal="pose")
+    with pytest.raises(InputError, match="value rows"):
         score_track(t, res[:-1])
 
 
@@ -89,11 +106,12 @@ def site() -> SiteModel:
     return SiteModel.build(scenario_for(1.0), SEED)
 
 
-def _first_alarm_after_attack(site: SiteModel, attack: str) -> float:
+def _first_alarm_after_attack(
+    site: SiteModel, attack: str, config: DetectorConfig | None = None
+) -> float:
     rng = np.random.default_rng([SEED, ATTACKS.index(attack)])
     stream = attack_stream(site, attack, 1.0, AttackConfig(), rng)
-    res, _, new = filter_residuals(site, stream, SEED)
-    out = score_track(stream.t_s, res, DetectorConfig(), new)
+    out = score_track(stream.t_s, stream.rss_dbm, config or DetectorConfig())
     before = stream.t_s < stream.t_attack_s
     assert not out.alarm[before].any(), "false alarm on the genuine prefix"
     hits = np.flatnonzero(out.alarm & ~before)
@@ -123,11 +141,23 @@ def test_each_attack_is_detected_within_half_a_second(site: SiteModel, attack: s
 def test_without_the_detector_the_attack_goes_unflagged(site: SiteModel) -> None:
     """The detector is what flags: the same residuals with an unreachable threshold
     (the detector in effect removed) give no alarm."""
-    rng = np.random.default_rng([SEED, 0])
-    stream = attack_stream(site, "fixed", 1.0, AttackConfig(), rng)
+    rng = np.random.default_rng([SEED, ATTACKS.index("clone")])
+    stream = attack_stream(site, "clone", 1.0, AttackConfig(), rng)
+    on = score_track(stream.t_s, stream.rss_dbm, DetectorConfig())
+    off = score_track(stream.t_s, stream.rss_dbm, DetectorConfig(threshold_nats=1e12))
+    assert on.alarm.any() and not off.alarm.any()
+
+
+def test_the_residual_signal_still_detects_a_clone_through_the_filter(site: SiteModel) -> None:
+    """The first design (residual changes at the filter's pose) is kept selectable."""
+    rng = np.random.default_rng([SEED, ATTACKS.index("clone")])
+    stream = attack_stream(site, "clone", 1.0, AttackConfig(), rng)
     res, _, new = filter_residuals(site, stream, SEED)
-    off = score_track(stream.t_s, res, DetectorConfig(threshold_nats=1e12), new)
-    assert not off.alarm.any()
+    out = score_track(stream.t_s, res, DetectorConfig(signal="residual"), new)
+    before = stream.t_s < stream.t_attack_s
+    assert not out.alarm[before].any()
+    hits = np.flatnonzero(out.alarm & ~before)
+    assert hits.size and stream.t_s[hits[0]] - stream.t_attack_s <= 0.5
 
 
 def test_genuine_fast_bounded_rotation_is_not_flagged() -> None:
@@ -138,8 +168,7 @@ def test_genuine_fast_bounded_rotation_is_not_flagged() -> None:
     )
     site = SiteModel.build(scenario, SEED + 3)
     stream = genuine_stream(site, 10.0, 1.0, np.random.default_rng(SEED + 3))
-    res, _, new = filter_residuals(site, stream, SEED + 3)
-    out = score_track(stream.t_s, res, DetectorConfig(), new)
+    out = score_track(stream.t_s, stream.rss_dbm, DetectorConfig())
     assert not out.alarm.any()
 
 
@@ -149,7 +178,7 @@ def _track(kind: str, t_attack_s: float, alarm_at_s: float | None) -> Track:
     res = np.random.default_rng(SEED + 4).normal(0.0, 1.0, (t.size, 4))
     if alarm_at_s is not None:  # residual changes 5 times larger from then on
         res[t >= alarm_at_s] *= 5.0
-    return Track(kind, 1.0, 0, t, res, res, np.zeros(t.size, bool), t_attack_s)
+    return Track(kind, 1.0, 0, t, res, res, np.zeros(t.size, bool), t_attack_s, res)
 
 
 def test_detection_rows_count_detections_delays_and_false_alarms() -> None:
@@ -178,5 +207,42 @@ def test_spoof_detect_cli_writes_the_contract_table(tmp_path: Path, monkeypatch,
     assert code == 0, capsys.readouterr().err
     lines = (out / "detection.csv").read_text().splitlines()
     assert lines[0] == ",".join(DETECTION_COLUMNS)
-    assert [ln.split(",")[0] for ln in lines[1:]] == list(ATTACKS)
+    assert [ln.split(",")[0] for ln in lines[1:]] == list(CONTRACT_ATTACKS)
     assert (out / "roc.csv").exists()
+
+
+def test_the_silent_attacker_sends_only_what_it_matches(site: SiteModel) -> None:
+    """``silent`` is the ``fixed`` attacker minus the packets it cannot match: with an
+    unbounded tolerance it is the ``fixed`` stream, with none it never sends."""
+    streams = {}
+    for name, attack, rms in (
+        ("fixed", "fixed", 1.0),
+        ("all", "silent", 1e9),
+        ("none", "silent", 0.0),
+        ("some", "silent", 1.0),
+    ):
+        rng = np.random.default_rng([SEED, 9])
+        streams[name] = attack_stream(site, attack, 1.0, AttackConfig(match_rms_db=rms), rng)
+    fixed, every, none, some = (streams[k] for k in ("fixed", "all", "none", "some"))
+    np.testing.assert_array_equal(every.t_s, fixed.t_s)
+    np.testing.assert_array_equal(every.rss_dbm, fixed.rss_dbm)
+    assert not np.any(none.t_s >= none.t_attack_s)
+    assert np.all(none.t_s == fixed.t_s[fixed.t_s < fixed.t_attack_s])
+    assert set(some.t_s.tolist()) <= set(fixed.t_s.tolist())
+
+
+def test_the_gap_test_flags_a_silent_attacker_that_waits(site: SiteModel) -> None:
+    """A ``silent`` attacker that stays quiet for 0.34 s mid-attack: the shipped
+    detector (gap test off) misses it, the gap test flags it at the first packet
+    after the silence, and neither flags the genuine prefix."""
+    rng = np.random.default_rng([SEED, 11])
+    stream = attack_stream(site, "silent", 1.0, AttackConfig(), rng)
+    t = stream.t_s
+    attacker = t >= stream.t_attack_s
+    gaps = np.diff(t)
+    longest = int(np.argmax(gaps))
+    assert gaps[longest] > 0.3 and attacker[longest]  # the silence is the attacker's
+    assert not score_track(t, stream.rss_dbm, DetectorConfig()).alarm.any()
+    flagged = score_track(t, stream.rss_dbm, DetectorConfig(gap_nats=10.0)).alarm
+    assert not flagged[~attacker].any()
+    assert np.flatnonzero(flagged)[0] == longest + 1

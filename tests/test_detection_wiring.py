@@ -65,7 +65,9 @@ def test_locate_filter_writes_score_and_alarm_as_trailing_columns(
     assert SCORE_COLUMN not in out2.read_text().splitlines()[0]
 
 
-def test_alarm_monitor_raises_on_a_clone_elsewhere(small) -> None:
+@pytest.mark.parametrize("signal", ["rss", "residual"])
+def test_alarm_monitor_raises_on_a_clone_elsewhere(small, signal: str) -> None:
+    from radiopose.security.detection import DetectorConfig
     from radiopose.server.alarms import AlarmMonitor
 
     _, sim = small
@@ -73,7 +75,7 @@ def test_alarm_monitor_raises_on_a_clone_elsewhere(small) -> None:
     tx = site.devices[0].transmitter
     ids = site.receiver_ids
     rng = np.random.default_rng(SEED)
-    mon = AlarmMonitor(site)
+    mon = AlarmMonitor(site, DetectorConfig(signal=signal))
     pose_p, pose_o = (2.0, 3.0, sim.config.z_m), (40.0, 0.0, 0.0)
     from radiopose.security.detection import pose_residuals_db
 
@@ -198,3 +200,61 @@ def test_live_filter_pipeline_stores_alarm_events(
         flagged = srv.client(viewer).get("/api/v1/estimates").json()
         assert any(e["spoof_alarm_flag"] == 1 for e in flagged)
     db.close()
+
+
+def _store_frames(db, trace, per_batch: int = 40) -> int:  # type: ignore[no-untyped-def]
+    """Every receiver's frames as batches, receivers interleaved in time; how many."""
+    n = 0
+    chunks = {r: list(range(0, len(trace.frames[r]), per_batch)) for r in trace.frames}
+    for i in range(max(len(c) for c in chunks.values())):
+        for r in sorted(trace.frames):
+            if i < len(chunks[r]):
+                f = trace.frames[r].take(slice(chunks[r][i], chunks[r][i] + per_batch))
+                rows = list(zip(f.timestamp_ns.tolist(), f.frame_sha256, f.transmitter,
+                                f.rss_dbm.tolist(), strict=True))  # fmt: skip
+                db.store_batch(r, f"{r}-{i}", rows)
+                n += 1
+    return n
+
+
+def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeypatch) -> None:  # noqa: F811
+    """A pipeline restarted from its checkpoint half-way ends with the same detector
+    state and the same alarm events as one that never stopped (hair-trigger
+    detector, so genuine traffic raises and clears alarms all along)."""
+    from radiopose.security.detection import DetectorConfig
+    from radiopose.server import alarms
+    from radiopose.server.app import import_site_dir
+    from radiopose.server.db import Database
+    from radiopose.server.live import LivePipeline
+    from server_support import fast_live
+
+    monkeypatch.setattr(
+        alarms, "DetectorConfig", lambda: DetectorConfig(threshold_nats=0.5, warmup_s=0.0)
+    )
+    cfg = fast_live(
+        method="filter", live_lag_s=0.0, batches_per_step=4, checkpoint_s=0.0, idle_flush_s=1e6
+    )
+
+    def run(name: str, restart: bool):  # type: ignore[no-untyped-def]
+        db = Database(f"sqlite:///{tmp_path / name}")
+        import_site_dir(db, tiny.site_dir)
+        n = _store_frames(db, tiny, per_batch=10)
+        p = LivePipeline(db, cfg)
+        while p.state.cursor < n:
+            if restart and p.state.cursor >= n // 2:
+                p, restart = LivePipeline(db, cfg), False  # a restart: the checkpoint
+                assert p.alarm_monitor is None and p.state.cursor >= n // 2
+            p.step()
+        events = [(e["packet_id"], e["state"], e["score_nats"]) for e in db.alarms()]
+        db.close()
+        return p, events
+
+    straight, events = run("a.db", False)
+    restarted, events_restarted = run("b.db", True)
+    assert len(events) >= 2  # the hair trigger fires on genuine traffic
+    assert events_restarted == events
+    det, det_r = straight.state.alarm_detectors, restarted.state.alarm_detectors
+    assert list(det) == list(det_r) == [tiny.transmitter.lower()]
+    a, b = det[tiny.transmitter.lower()], det_r[tiny.transmitter.lower()]
+    assert (a.n, a.var_db2, a.cusum_nats, a.alarm) == (b.n, b.var_db2, b.cusum_nats, b.alarm)
+    assert restarted.alarm_monitor._detectors is det_r

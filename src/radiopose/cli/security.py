@@ -198,8 +198,8 @@ def spoof(
 def _spoof_detect(
     out: Path, quick: bool, runs: int | None, seed: int, workers: int | None, quiet: bool
 ) -> None:
-    """``radiopose spoof detect``: attacks and genuine traffic through the filter and the
-    detector; writes ``DIR/detection.csv`` and ``DIR/roc.csv`` (docs/security.md)."""
+    """``radiopose spoof detect``: attacks and genuine traffic through the detector;
+    writes ``DIR/detection.csv`` and ``DIR/roc.csv`` (docs/security.md)."""
     from dataclasses import replace
 
     from radiopose.errors import InputError
@@ -222,7 +222,7 @@ def _spoof_detect(
         plan = replace(plan, attack_runs=runs)
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
-    n_tasks = len(plan.sigmas_db) * (4 * plan.attack_runs + plan.genuine_chunks)
+    n_tasks = len(plan.sigmas_db) * (len(plan.attacks) * plan.attack_runs + plan.genuine_chunks)
     done = [0]
 
     def finished(track: object) -> None:

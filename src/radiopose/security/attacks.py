@@ -21,6 +21,13 @@ and then hands the transmitter address to an attacker at ``t_attack_s``:
     The ``fixed`` attacker, spoofing a walk of its own (it shows the victim
     elsewhere), sending while the genuine device keeps sending: two devices
     with one address, packets interleaved.
+``silent``
+    The ``fixed`` attacker that transmits only the packets it can match: where
+    its planned pose and best power give an expected RSS within
+    ``match_rms_db`` (RMS over receivers, the system's model) of the spoofed
+    pose's, silent otherwise — the strongest attacker of the paper analysis
+    (experiment 3: it sends only when it matches, ``docs/security.md``). Its
+    evidence is its silences.
 ``replay``
     A recorder ``min_distance_m`` or more from the victim captures the victim's
     packets during the prefix; from its own fixed pose the attacker replays them
@@ -28,8 +35,8 @@ and then hands the transmitter address to an attacker at ``t_attack_s``:
     at the recorder, relative to its mean) — one transmitter, so every receiver
     sees the attacker's position.
 
-Every attacker sends with the genuine device's cadence (no silent gaps: the
-hardest case for a gap test). Packets are generated with the simulator's
+Every attacker but ``silent`` sends with the genuine device's cadence (no
+silent gaps: the hardest case for a gap test). Packets are generated with the simulator's
 channel (log-distance path loss, both antennas' patterns), not with the survey
 map the attacker planned with.
 """
@@ -47,8 +54,8 @@ from radiopose.simulate import ScenarioConfig, Simulation, link_rss_dbm, simulat
 from radiopose.simulate.trajectories import MotionConfig, rotation_path, straight_path
 from radiopose.units import FloatArray, wrap_deg
 
-ATTACKS: tuple[str, ...] = ("fixed", "moving", "clone", "replay")
-"""Attack names, in the issue's order."""
+ATTACKS: tuple[str, ...] = ("fixed", "moving", "clone", "replay", "silent")
+"""Attack names, in the issue's order (``silent``: the paper analysis's strongest)."""
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,9 @@ class AttackConfig:
         The attacker's physical bounds (the tracker's: 10 m/s, 360°/s).
     position_step_m
         Grid of positions the ``fixed`` attacker chooses from, metres.
+    match_rms_db
+        The ``silent`` attacker sends a packet only if its expected RSS lies within
+        this RMS of the spoofed pose's, dB.
     """
 
     scenario: ScenarioConfig = field(default_factory=lambda: ScenarioConfig(duration_s=0.005))
@@ -81,6 +91,7 @@ class AttackConfig:
     max_speed_mps: float = 10.0
     max_rate_dps: float = 360.0
     position_step_m: float = 0.5
+    match_rms_db: float = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -345,6 +356,19 @@ def attack_stream(
         a_pos = np.repeat(p0[None, :], n_att, axis=0)
     a_ori = np.column_stack([a_az, zeros, zeros])
     a_rss = site.rss_dbm(a_pos, a_ori, a_off, noise_db, rng)
+    if attack == "silent":  # only the packets it matches within match_rms_db
+        mse, _ = _mismatch_db2(site.expected_dbm(a_pos, a_az), target, cfg.power_range_db)
+        send = np.nan_to_num(mse, nan=np.inf) <= cfg.match_rms_db**2
+        keep = np.concatenate([np.ones(n_pre, bool), send])
+        src = np.concatenate([np.zeros(n_pre, np.int8), np.ones(n_att, np.int8)])
+        return PacketStream(
+            t[keep],
+            np.vstack([genuine_rss[:n_pre], a_rss])[keep],
+            src[keep],
+            np.vstack([pos[:n_pre], a_pos])[keep],
+            np.vstack([ori[:n_pre], a_ori])[keep],
+            t_attack,
+        )
     if attack == "clone":  # both send: the attacker between the genuine packets
         t_all = np.concatenate([t, t[n_pre:] + 0.5 * dt])
         rss_all = np.vstack([genuine_rss, a_rss])

@@ -2,15 +2,15 @@
 
 Tasks (each a pure function of its arguments, spread over processes):
 
-* **attack runs** — :func:`radiopose.security.attacks.attack_stream` through
-  the causal particle filter (``radiopose.filtering``, the tracker's settings);
-  the residuals at its estimates are kept;
+* **attack runs** — :func:`radiopose.security.attacks.attack_stream`;
 * **genuine chunks** — the genuine device alone for ``chunk_s`` (linear,
-  periodic and beyond-the-bound ``fast`` rotation in turn), the same way.
+  periodic and beyond-the-bound ``fast`` rotation in turn).
 
-The detector (:mod:`radiopose.security.detection`) is then applied in the
-parent to every stored residual track, so thresholds can be swept without
-running the filter again. Per ``(attack, σ)``:
+Each keeps its packets' RSS; with ``run_filter`` also the residuals at the
+causal particle filter's estimates (``radiopose.filtering``, the tracker's
+settings). The detector (:mod:`radiopose.security.detection`) is then applied
+in the parent to every stored track, so thresholds can be swept without
+simulating again. Per ``(attack, σ)``:
 
 ``detection_probability``
     fraction of runs whose alarm is on at some packet within ``window_s``
@@ -59,6 +59,8 @@ DETECTION_COLUMNS = (
     "false_alarms_per_hour",
 )
 ROTATIONS = ("linear", "periodic", "fast")
+CONTRACT_ATTACKS = ("fixed", "moving", "clone", "replay")
+"""The attacks of ``detection.csv`` (the contract); ``silent`` is the script's."""
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,12 @@ class DetectPlan:
         the site of seed ``seed + j`` (their motion and noise from other streams).
     window_s
         An alarm within this long after the attack start counts as a detection.
+    attacks
+        The attacks simulated (names of :data:`radiopose.security.attacks.ATTACKS`).
+    run_filter
+        Also run the causal filter over every stream and keep the residuals at
+        its estimates (what ``signal = "residual"`` and the level analysis
+        need; the shipped detector, ``signal = "rss"``, reads the packets only).
     """
 
     sigmas_db: tuple[float, ...] = (0.5, 1.0, 2.0, 3.0)
@@ -88,6 +96,8 @@ class DetectPlan:
     chunk_s: float = 60.0
     seed: int = 20_000
     window_s: float = 0.5
+    run_filter: bool = False
+    attacks: tuple[str, ...] = CONTRACT_ATTACKS
 
     @classmethod
     def quick(cls, seed: int = 20_000) -> DetectPlan:
@@ -97,7 +107,8 @@ class DetectPlan:
 
 @dataclass(frozen=True, eq=False)
 class Track:
-    """Residuals of one stream through the filter."""
+    """One stream: its packets' RSS and, if the filter ran, the residuals at its
+    estimates (``nan`` otherwise)."""
 
     kind: str  # an attack name or "genuine"
     sigma_db: float
@@ -107,6 +118,15 @@ class Track:
     innovations_db: FloatArray
     new_track: np.ndarray
     t_attack_s: float
+    rss_dbm: FloatArray | None = None
+
+    def values(self, signal: str) -> FloatArray:
+        """The detector's input for ``signal`` (``"rss"`` or ``"residual"``)."""
+        if signal == "rss":
+            if self.rss_dbm is None:
+                raise ValueError("this track kept no RSS")
+            return self.rss_dbm
+        return self.residuals_db
 
 
 def filter_residuals(
@@ -163,13 +183,19 @@ def run_task(task: tuple[str, float, int], plan: DetectPlan) -> Track:
         site = SiteModel.build(scenario_for(sigma), seed)
         rng = np.random.default_rng([seed, round(sigma * 1000), 2 + ATTACKS.index(kind)])
         stream = attack_stream(site, kind, sigma, AttackConfig(), rng)
-    res, inn, new = filter_residuals(site, stream, seed)
-    return Track(kind, sigma, run, stream.t_s, res, inn, new, stream.t_attack_s)
+    if plan.run_filter:
+        res, inn, new = filter_residuals(site, stream, seed)
+    else:
+        res = inn = np.full(stream.rss_dbm.shape, np.nan)
+        new = np.concatenate([[True], np.diff(stream.t_s) > 1.0])  # the tracker's re-entry
+    return Track(kind, sigma, run, stream.t_s, res, inn, new, stream.t_attack_s, stream.rss_dbm)
 
 
 def plan_tasks(plan: DetectPlan) -> list[tuple[str, float, int]]:
     """Every task of ``plan``: attack runs first, then genuine chunks (longest last)."""
-    tasks = [(a, s, r) for s in plan.sigmas_db for a in ATTACKS for r in range(plan.attack_runs)]
+    tasks = [
+        (a, s, r) for s in plan.sigmas_db for a in plan.attacks for r in range(plan.attack_runs)
+    ]
     tasks += [("genuine", s, c) for s in plan.sigmas_db for c in range(plan.genuine_chunks)]
     return tasks
 
@@ -220,23 +246,27 @@ class TrackOutcome:
     false_alarms: int
     detected: bool
     delay_s: float
+    attacked: bool = True  # the attacker sent a packet (a ``silent`` one may not)
 
 
 def evaluate_track(track: Track, config: DetectorConfig, window_s: float) -> TrackOutcome:
     """Apply the detector to one stored track."""
-    res = score_track(track.t_s, track.residuals_db, config, track.new_track)
+    res = score_track(track.t_s, track.values(config.signal), config, track.new_track)
     onsets = res.alarm_onsets()
     t = track.t_s
     before = t < track.t_attack_s
     genuine_s = float(t[before][-1] - t[0]) if before.any() else 0.0
     false_alarms = int(np.sum(before[onsets])) if onsets.size else 0
     detected, delay = False, math.nan
+    attacked = bool(np.any(t >= track.t_attack_s))
     if math.isfinite(track.t_attack_s):
         inside = np.flatnonzero((t >= track.t_attack_s) & (t <= track.t_attack_s + window_s))
         hit = inside[res.alarm[inside]]
         if hit.size:
             detected, delay = True, float(t[hit[0]] - track.t_attack_s)
-    return TrackOutcome(track.kind, track.sigma_db, genuine_s, false_alarms, detected, delay)
+    return TrackOutcome(
+        track.kind, track.sigma_db, genuine_s, false_alarms, detected, delay, attacked
+    )
 
 
 def detection_rows(
@@ -251,7 +281,8 @@ def detection_rows(
         fa = sum(o.false_alarms for o in at)
         fa_rate = fa / hours if hours > 0 else math.nan
         for attack in ATTACKS:
-            runs = [o for o in at if o.kind == attack]
+            # runs in which the attacker sent nothing (``silent`` found no match) do not count
+            runs = [o for o in at if o.kind == attack and o.attacked]
             if not runs:
                 continue
             delays = [o.delay_s for o in runs if o.detected]

@@ -2,7 +2,8 @@
 
 The live pipeline hands every ``filter`` estimate to an :class:`AlarmMonitor`,
 which keeps one :class:`~radiopose.security.detection.ConsistencyDetector` per
-transmitter (the residuals of the packet at the estimate's pose) and returns an
+transmitter (fed the packet's RSS, or with ``signal = "residual"`` its residuals
+at the estimate's pose) and returns an
 event when a transmitter's alarm switches on (``raised``) or off
 (``cleared``). Events are stored in the ``alarms`` table
 (:meth:`radiopose.server.db.Database.add_alarms`) and served by:
@@ -16,8 +17,12 @@ GET      /api/v1/alarms                      viewer, admin
 ``GET /api/v1/estimates`` marks each estimate that falls inside a raised alarm
 with ``spoof_alarm_flag = 1`` (:func:`flag_estimates`).
 
-The detectors' state is not part of the pipeline checkpoint: after a restart
-each transmitter's detector learns its references again (``warmup_s``).
+The detectors' state is part of the pipeline checkpoint
+(``PipelineState.alarm_detectors`` in :mod:`radiopose.server.live`, the same
+dictionary the monitor updates): after a restart each transmitter's detector
+resumes with its reference variance, CUSUM and alarm state instead of warming
+up again (``warmup_s``), and an alarm raised before the restart is not raised
+twice.
 """
 
 from __future__ import annotations
@@ -68,13 +73,22 @@ class AlarmMonitor:
         The site (its survey map and devices give the expected RSS).
     config
         Detector parameters.
+    detectors
+        The per-transmitter detectors (lower-case address), updated in place: pass
+        the dictionary that is checkpointed (the live pipeline's state) so a restart
+        resumes them; a new one if ``None``.
     """
 
-    def __init__(self, site: Site, config: DetectorConfig | None = None) -> None:
+    def __init__(
+        self,
+        site: Site,
+        config: DetectorConfig | None = None,
+        detectors: dict[str, ConsistencyDetector] | None = None,
+    ) -> None:
         self.site = site
         self.config = config or DetectorConfig()
         self._models: dict[str, Any] = {}
-        self._detectors: dict[str, ConsistencyDetector] = {}
+        self._detectors: dict[str, ConsistencyDetector] = {} if detectors is None else detectors
         self._rx = {r: i for i, r in enumerate(site.receiver_ids)}
 
     def _model(self, transmitter: str) -> Any:
@@ -101,14 +115,21 @@ class AlarmMonitor:
         for r, v in zip(obs.receiver_ids, obs.rss_dbm, strict=True):
             if r in self._rx:
                 rss[self._rx[r]] = v
-        res = pose_residuals_db(self._model(obs.transmitter), position_m, orientation_deg, rss)[0]
+        if self.config.signal == "rss":
+            values = rss
+        else:
+            model = self._model(obs.transmitter)
+            pose = np.asarray(position_m, np.float64), np.asarray(orientation_deg, np.float64)
+            values = pose_residuals_db(model, *pose, rss)[0]
         det = self._detectors.get(key)
         if det is None:
             det = self._detectors[key] = ConsistencyDetector(self.config)
-        elif det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
-            det.reset()  # the tracker re-acquires after a silence
+        else:
+            det.config = self.config  # a checkpointed detector takes today's settings
+            if det.last_s is not None and obs.timestamp_s - det.last_s > 1.0:
+                det.reset()  # the tracker re-acquires after a silence
         before = det.alarm
-        score, alarm = det.update(obs.timestamp_s, res)
+        score, alarm = det.update(obs.timestamp_s, values)
         if alarm == before:
             return None
         return {

@@ -180,6 +180,9 @@ class PipelineState:
         arrival time)`` of recent batches, for latency.
     counts
         Running counters (frames, packets, estimates, late frames, ...).
+    alarm_detectors
+        Spoofing detector per transmitter (``filter`` only,
+        :class:`radiopose.server.alarms.AlarmMonitor`), so a restart resumes them.
     """
 
     cursor: int = 0
@@ -193,6 +196,7 @@ class PipelineState:
     counts: dict[str, int] = field(default_factory=dict)
     last_batch_wall_s: float = 0.0
     flushed: bool = True
+    alarm_detectors: dict[str, Any] = field(default_factory=dict)
 
 
 def _frames(rows: list[tuple[str, int, str, str, float]]) -> FrameRecords:
@@ -263,7 +267,10 @@ class LivePipeline:
         if self.config.method_name == "filter":  # spoofing alarms beside the filter (issue 19)
             from radiopose.server.alarms import AlarmMonitor
 
-            self.alarm_monitor = AlarmMonitor(self.site)
+            # the detectors live in the checkpointed state (a checkpoint written before
+            # they were added has none: they start afresh)
+            detectors = self.state.__dict__.setdefault("alarm_detectors", {})
+            self.alarm_monitor = AlarmMonitor(self.site, detectors=detectors)
         out: list[dict[str, Any]] = []
         receivers = self.site.receiver_ids
         st = self.state
