@@ -403,7 +403,8 @@ def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, 
         return a.number("z_m", required=True, **lim), (None, None, None)
     if a.has("z_m"):
         raise a.error(
-            given[0], "give either z_m (one candidate height) or z_min_m, z_max_m, z_step_m, not both"
+            given[0],
+            "give either z_m (one candidate height) or z_min_m, z_max_m, z_step_m, not both",
         )
     for k in _HEIGHT_KEYS:
         if k not in given:
