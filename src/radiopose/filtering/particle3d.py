@@ -91,6 +91,11 @@ class Pose3dConfig:
     reentry_interval_s
         How often coarse hypotheses re-enter (replaces the 2-D default: a
         coarse scoring costs more than the 2-D kernel's).
+    proposal_window_s
+        The re-entry's evidence window (replaces the 2-D default): one packet
+        of six receivers leaves a one-parameter family of poses that fit it
+        (six readings, six pose angles and coordinates plus the offset), so
+        hypotheses are compared over a longer stretch of motion.
     refine_steps
         Rounds of tempered resampling after drawing.
     max_table_entries
@@ -108,6 +113,7 @@ class Pose3dConfig:
     acquisition_k: int = 2000
     acquisition_tilts: int = 4
     reentry_interval_s: float = 0.5
+    proposal_window_s: float = 0.5
     refine_steps: int = 6
     max_table_entries: int = 20_000_000
 
@@ -491,6 +497,7 @@ class ParticleFilter3d(ParticleFilter):
             config,
             n_particles=self.pose3d.n_particles,
             reentry_interval_s=self.pose3d.reentry_interval_s,
+            proposal_window_s=self.pose3d.proposal_window_s,
         )
         super().__init__(model, cfg, lag_s)
         self.model3d = model
