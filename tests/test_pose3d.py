@@ -23,7 +23,8 @@ from radiopose.filtering.particle3d import (
 )
 from radiopose.geometry import relative_rotation_angle_deg
 from radiopose.likelihood import HeardRss, candidate_space
-from radiopose.packets import group_packets
+from radiopose.packets import Packets, Truth, group_packets
+from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.simulate.channel import link_rss_dbm
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.survey_height import build_height_model
@@ -192,11 +193,11 @@ def test_height_model_reproduces_the_channel(clean_sim):
 
 
 # ----------------------------------------------------------------------------- the filter
-def run_filter(sim, pose3d: Pose3dConfig, model=None, seed: int = 3):
+def run_filter(sim, pose3d: Pose3dConfig, model=None, seed: int = 3, config=None):
     site = sim.site
     space = candidate_space(site, site.devices[0].transmitter)
     model = model or FilterModel3d.build3d(site, space, pose3d)
-    pf = ParticleFilter3d(model, FilterConfig(), None, pose3d)
+    pf = ParticleFilter3d(model, config or FilterConfig(), None, pose3d)
     st = pf.new_state(seed)
     ids = list(site.receiver_ids)
     out = []
@@ -205,43 +206,80 @@ def run_filter(sim, pose3d: Pose3dConfig, model=None, seed: int = 3):
         out.append(pf.step(st, o.timestamp_s, HeardRss(idx, np.asarray(o.rss_dbm, float))))
     pos = np.array([e.position_m for e in out])
     ori = np.array([e.orientation_deg for e in out])
-    half = len(out) // 2  # after the first half second
+    half = len(out) // 2  # the second half
     pe = np.linalg.norm(pos - sim.truth.position_m, axis=1)[half:]
     oe = relative_rotation_angle_deg(ori, sim.truth.orientation_deg)[half:]
     return float(pe.mean()), float(oe.mean())
 
 
+def static_scene(seed: int, **changes):
+    """A noise-free scene with the phone held still at the walk's first pose
+    (8 receivers, 4 on the ceiling, 0.5 s): one pose to recover."""
+    sim = simulate_handheld(replace(SMALL, n_receivers=8, duration_s=0.5, **changes), seed=seed)
+    n, k = len(sim.truth), len(sim.site.receivers)
+    p = sim.packets
+    packets = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id,
+                      np.tile(p.rss_dbm[:k], n))  # fmt: skip
+    t = sim.truth
+    truth = Truth(t.timestamp_s, t.transmitter, np.tile(t.position_m[0], (n, 1)),
+                  np.tile(t.orientation_deg[0], (n, 1)))  # fmt: skip
+    return replace(sim, packets=packets, truth=truth)
+
+
+STATIC_SEED = 424242
+
+
 @pytest.fixture(scope="module")
-def clean_result(clean_sim):
-    return run_filter(clean_sim, Pose3dConfig())
+def static_sim():
+    return static_scene(STATIC_SEED)
 
 
-def test_known_pose_recovered_noise_free(clean_result):
-    """Noise-free 3-D scene, 6 receivers (3 on the ceiling): after half a second
-    the track holds the pose."""
-    pos_m, rot_deg = clean_result
+def test_known_pose_recovered_noise_free(static_sim):
+    """Noise-free, 8 receivers: the coarse acquisition and the local refinement
+    find the one pose (after the first 0.25 s)."""
+    pos_m, rot_deg = run_filter(static_sim, Pose3dConfig())
     assert pos_m < POS_BOUND_M
     assert rot_deg < ROT_BOUND_DEG
 
 
-def test_without_pitch_in_the_state_the_bound_fails(clean_sim):
+def test_without_pitch_in_the_state_the_bound_fails(static_sim):
     """The same data with pitch frozen at 0 (one candidate pitch): the phone's
-    20–70° tilt cannot be represented and the error bound breaks."""
-    flat = simulate_handheld(replace(SMALL, pitch_deg=(0.0,)), seed=424242)
-    np.testing.assert_array_equal(flat.packets.rss_dbm, clean_sim.packets.rss_dbm)
+    tilt cannot be represented and the error bound breaks."""
+    flat = static_scene(STATIC_SEED, pitch_deg=(0.0,))
+    np.testing.assert_array_equal(flat.packets.rss_dbm, static_sim.packets.rss_dbm)
     pos_m, rot_deg = run_filter(flat, Pose3dConfig())
     assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
 
 
-def test_without_coarse_acquisition_the_bound_fails(clean_sim):
+def test_without_coarse_acquisition_the_bound_fails(static_sim):
     """The coarse grid's scores replaced by a constant: particles start from
     arbitrary cells (the first ones of the table) and the bound breaks."""
-    site = clean_sim.site
+    site = static_sim.site
     p3 = Pose3dConfig()
     model = FilterModel3d.build3d(site, candidate_space(site, site.devices[0].transmitter), p3)
     assert model.coarse is not None
-    blind = replace(
-        model, coarse=replace(model.coarse, table_dbm=np.zeros_like(model.coarse.table_dbm))
-    )
-    pos_m, rot_deg = run_filter(clean_sim, p3, model=blind)
+    table = np.zeros_like(model.coarse.table_dbm)
+    blind = replace(model, coarse=replace(model.coarse, table_dbm=table))
+    pos_m, rot_deg = run_filter(static_sim, p3, model=blind)
     assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
+
+
+def test_filter_dispatch_at_a_3d_site(static_sim):
+    """The registry's ``filter`` runs the 3-D filter at a 3-D site, builds no site
+    scorer there, and keeps the 2-D filter at a 2-D site."""
+    from radiopose.filtering import ParticleFilter
+    from radiopose.tracker import Tracker
+
+    sim = replace(static_sim, packets=static_sim.packets)
+    tracker = Tracker(sim.site, "filter")
+    obs = group_packets(sim.packets)
+    tracker.update(obs[0])
+    dev = next(iter(tracker._devices.values()))
+    assert isinstance(dev.engine, ParticleFilter3d)
+    assert dev.scorer is None
+    flat2d = simulate(ScenarioConfig(size_m=6.0, step_m=0.5, duration_s=0.02, azimuth_step_deg=10.0,
+                                     min_receiver_spacing_m=2.0), seed=9)  # fmt: skip
+    tracker2 = Tracker(flat2d.site, "filter")
+    tracker2.update(group_packets(flat2d.packets)[0])
+    dev2 = next(iter(tracker2._devices.values()))
+    assert type(dev2.engine) is ParticleFilter

@@ -96,6 +96,10 @@ class Pose3dConfig:
         of six receivers leaves a one-parameter family of poses that fit it
         (six readings, six pose angles and coordinates plus the offset), so
         hypotheses are compared over a longer stretch of motion.
+    sigma_floor_db
+        Lower bound of the σ estimate (replaces the 2-D default): the 3-D
+        expected RSS carries the bilinear map's error, up to ~0.5 dB near a
+        receiver, and a σ below it starves the particles.
     refine_steps
         Rounds of tempered resampling after drawing.
     max_table_entries
@@ -114,6 +118,7 @@ class Pose3dConfig:
     acquisition_tilts: int = 4
     reentry_interval_s: float = 0.5
     proposal_window_s: float = 0.5
+    sigma_floor_db: float = 0.5
     refine_steps: int = 6
     max_table_entries: int = 20_000_000
 
@@ -498,6 +503,7 @@ class ParticleFilter3d(ParticleFilter):
             n_particles=self.pose3d.n_particles,
             reentry_interval_s=self.pose3d.reentry_interval_s,
             proposal_window_s=self.pose3d.proposal_window_s,
+            sigma_floor_db=self.pose3d.sigma_floor_db,
         )
         super().__init__(model, cfg, lag_s)
         self.model3d = model
