@@ -283,3 +283,42 @@ def test_filter_dispatch_at_a_3d_site(static_sim):
     tracker2.update(group_packets(flat2d.packets)[0])
     dev2 = next(iter(tracker2._devices.values()))
     assert type(dev2.engine) is ParticleFilter
+
+
+# ----------------------------------------------------------------------------- CLI, experiment
+def test_cli_simulate_pose_3d(tmp_path, capsys):
+    from radiopose.cli import main
+    from radiopose.site import load_site, site_is_3d
+
+    out = tmp_path / "sim"
+    args = ["simulate", "-o", str(out), "--pose", "3d", "--duration-s", "0.02", "--receivers", "4"]
+    assert main(args) == 0
+    site = load_site(out / "site")
+    assert site_is_3d(site) and site.area.has_height_range
+    assert "z_min_m" in (out / "site" / "site.toml").read_text()
+    capsys.readouterr()
+    assert main([*args[:2], str(tmp_path / "x"), *args[3:], "--size-m", "10"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "radiopose: --size-m applies only with --pose 2d"
+    assert main(["simulate", "-o", str(tmp_path / "y"), "--pose", "4d"]) == 2
+    assert "--pose must be 2d or 3d" in capsys.readouterr().err
+
+
+def test_scenario_pose_3d_is_the_handheld_scenario():
+    cfg = ScenarioConfig(pose="3d", duration_s=0.02, n_receivers=4, noise_db=0.5)
+    a = simulate(cfg, seed=11)
+    b = simulate_handheld(HandheldConfig.from_scenario(cfg), seed=11)
+    np.testing.assert_array_equal(a.packets.rss_dbm, b.packets.rss_dbm)
+    assert a.config is cfg and a.site.area.has_height_range
+    assert not simulate(replace(cfg, pose="2d"), seed=11).site.area.has_height_range
+
+
+def test_3d_experiment_ships():
+    from radiopose.evaluate.experiments import SHIPPED, load_experiment
+
+    assert "3d" not in SHIPPED  # not run by default: the paper's five are
+    exp = load_experiment("3d")
+    assert exp.methods == ("filter",)
+    assert {dict(c.params)["n_receivers"] for c in exp.conditions} == {4, 6, 8}
+    assert {dict(c.params)["noise_db"] for c in exp.conditions} == {0.5, 1.0, 2.0, 3.0}
+    assert all(c.scenario.pose == "3d" for c in exp.conditions)
