@@ -14,12 +14,12 @@ from scipy.spatial.transform import Rotation
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names
+from radiopose.filtering.kernels3d import tilt_height_step
 from radiopose.filtering.particle3d import (
     FilterModel3d,
     ParticleFilter3d,
     Pose3dConfig,
     roll_support_deg,
-    tilt_height_step,
 )
 from radiopose.geometry import relative_rotation_angle_deg
 from radiopose.likelihood import HeardRss, candidate_space
