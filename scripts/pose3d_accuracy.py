@@ -15,7 +15,7 @@ per-axis means (height, azimuth, pitch, roll; :mod:`radiopose.evaluate.pose3d`).
 Usage::
 
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
-        [--sigmas 1.0] [--duration-s 4] [--causal] [--out FILE.md]
+        [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -29,14 +29,18 @@ from pathlib import Path
 import numpy as np
 
 from radiopose.evaluate.pose3d import AxisErrors, axis_errors
+from radiopose.filtering import FilterConfig
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 
 
-def run_one(n_rx: int, sigma_db: float, seed: int, duration_s: float, causal: bool) -> AxisErrors:
+def run_one(
+    n_rx: int, sigma_db: float, seed: int, duration_s: float, causal: bool, offset_sd_db: float
+) -> AxisErrors:
     cfg = replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma_db, duration_s=duration_s)
     sim = simulate_handheld(cfg, seed=seed)
-    tcfg = TrackerConfig(smoothing_lag_s=0.0) if causal else TrackerConfig()
+    tcfg = TrackerConfig(smoothing_lag_s=None) if causal else TrackerConfig()
+    tcfg = replace(tcfg, filter=replace(tcfg.filter, offset_prior_sd_db=offset_sd_db))
     res = locate(sim.site, sim.packets, "filter", tcfg)
     return axis_errors(sim.truth, res.estimates)
 
@@ -59,6 +63,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigmas", type=float, nargs="+", default=[1.0])
     ap.add_argument("--duration-s", type=float, default=4.0)
     ap.add_argument("--causal", action="store_true", help="causal filter (no smoother)")
+    ap.add_argument(
+        "--offset-prior-sd-db",
+        type=float,
+        default=FilterConfig().offset_prior_sd_db,
+        help="prior σ of the transmit-power offset (default: the filter's)",
+    )
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -70,7 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.time()
     for n_rx in args.receivers:
         for sigma in args.sigmas:
-            runs = [run_one(n_rx, sigma, s, args.duration_s, args.causal) for s in seeds]
+            runs = [
+                run_one(n_rx, sigma, s, args.duration_s, args.causal, args.offset_prior_sd_db)
+                for s in seeds
+            ]
             p = pooled(runs)
             lines.append(
                 f"| {n_rx} | {sigma:g} | {p['position_m']:.2f} | {p['rotation_deg']:.1f} | "
@@ -80,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             )
             print(lines[-1], flush=True)
     mode = "causal filter" if args.causal else "offline (fixed-lag smoother, 1 s)"
+    mode += f", offset prior σ {args.offset_prior_sd_db:g} dB"
     text = "\n".join(
         [
             f"Seeds {seeds.start}–{seeds.stop - 1}, {args.duration_s:g} s traces, {mode}; "
