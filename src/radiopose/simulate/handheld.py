@@ -68,7 +68,7 @@ class HandheldConfig:
     survey_step_m, survey_heights_m
         Survey grid step and the heights surveyed, metres.
     n_receivers
-        Receivers (3–16); even-numbered ones (rx1, rx3, …) on the ceiling.
+        Receivers (3–16); rx1, rx3, … (every other one) on the ceiling.
     ceiling_height_m, wall_height_m
         Height ranges of ceiling and wall receivers, metres.
     noise_db, interval_ms, duration_s, loss_fraction
