@@ -322,3 +322,24 @@ def test_3d_experiment_ships():
     assert {dict(c.params)["n_receivers"] for c in exp.conditions} == {4, 6, 8}
     assert {dict(c.params)["noise_db"] for c in exp.conditions} == {0.5, 1.0, 2.0, 3.0}
     assert all(c.scenario.pose == "3d" for c in exp.conditions)
+
+
+def test_axis_errors():
+    from radiopose.estimates import Estimates
+    from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
+
+    e = axis_errors_of([[0, 0, 1.5]], [[359.0, 40.0, 1.0]], [[3, 4, 1.0]], [[1.0, 30.0, 359.0]])
+    np.testing.assert_allclose(
+        [e.position_m[0], e.height_m[0], e.azimuth_deg[0], e.pitch_deg[0], e.roll_deg[0]],
+        [math.sqrt(25.25), 0.5, 2.0, 10.0, 2.0],
+    )
+    assert e.rotation_deg[0] == pytest.approx(
+        relative_rotation_angle_deg([359.0, 40.0, 1.0], [1.0, 30.0, 359.0])[0]
+    )
+    truth = Truth(np.array([0.0, 0.1]), np.array(["tx", "tx"], dtype=object),
+                  np.zeros((2, 3)), np.zeros((2, 3)))  # fmt: skip
+    est = Estimates(np.array([0.1]), np.array(["tx"], dtype=object), np.array(["1"], dtype=object),
+                    np.array([[0.0, 0.0, 0.3]]), np.array([[0.0, 0.0, 0.0]]),
+                    np.array(["filter"], dtype=object))  # fmt: skip
+    got = axis_errors(truth, est)
+    assert got.coverage == 0.5 and got.height_m[0] == pytest.approx(0.3)
