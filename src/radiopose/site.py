@@ -26,6 +26,12 @@ outside``.
 Optional ``site.toml`` keys beyond the contract (documented in
 ``docs/site.md``): ``[survey] interpolation = "cubic"|"linear"``,
 ``[survey] outside = "nearest"|"exclude"``.
+
+3-D pose (``docs/pose3d.md``): ``[area]`` takes either ``z_m`` (one candidate
+height, the 2-D search) or ``z_min_m``, ``z_max_m``, ``z_step_m`` (a range of
+candidate heights, at most :data:`MAX_HEIGHTS`), never both. With a range,
+``AreaGrid.z_m`` is the level nearest the middle of the range (the height at
+which the 2-D methods search).
 """
 
 from __future__ import annotations
@@ -70,6 +76,8 @@ MAX_CANDIDATES = 250_000_000
 numpy scorer's float32 table (5 GB at 4 receivers) stop being practical."""
 STEP_TOLERANCE = 1e-9
 """An area span is a whole number ``k`` of steps if ``|span/step − k| ≤ 1e-9 · max(k, 1)``."""
+MAX_HEIGHTS = 1000
+"""Most candidate heights of a ``z_min_m``/``z_max_m``/``z_step_m`` range."""
 MIN_SURVEY_COVERAGE = 0.5
 """Least fraction of candidate positions inside each receiver's surveyed convex hull."""
 ANGLE_COLUMNS = (
@@ -115,12 +123,16 @@ def grid_steps(span: float, step: float) -> tuple[int, bool]:
 
 @dataclass(frozen=True)
 class AreaGrid:
-    """Candidate positions: a regular grid at one height.
+    """Candidate positions: a regular grid at one height (or a range of heights).
 
     ``x_m()`` runs ``x_min_m, x_min_m + step_m, …`` up to ``x_max_m`` (inclusive
     when the span is a whole number of steps within :data:`STEP_TOLERANCE`,
     which :func:`load_site` requires); likewise ``y_m()``. Flattened candidates
-    are in ``ij`` order: index ``ix * ny + iy``.
+    are in ``ij`` order: index ``ix * ny + iy``, all at height ``z_m``.
+
+    3-D pose: ``z_min_m``, ``z_max_m``, ``z_step_m`` (all three or none) give
+    the candidate heights :meth:`z_levels_m`; ``z_m`` is then the level nearest
+    the middle of the range (see :func:`height_range_middle_m`).
     """
 
     x_min_m: float
@@ -129,6 +141,21 @@ class AreaGrid:
     y_max_m: float
     z_m: float
     step_m: float
+    z_min_m: float | None = None
+    z_max_m: float | None = None
+    z_step_m: float | None = None
+
+    @property
+    def has_height_range(self) -> bool:
+        """Whether the site carries a range of candidate heights (3-D pose)."""
+        return self.z_min_m is not None
+
+    def z_levels_m(self) -> FloatArray:
+        """``(nz,)`` candidate heights, metres: the range, or ``[z_m]``."""
+        if self.z_min_m is None or self.z_max_m is None or self.z_step_m is None:
+            return np.array([self.z_m])
+        n = grid_steps(self.z_max_m - self.z_min_m, self.z_step_m)[0] + 1
+        return self.z_min_m + np.arange(n) * self.z_step_m
 
     def _axis(self, lo: float, hi: float) -> FloatArray:
         return lo + np.arange(grid_steps(hi - lo, self.step_m)[0] + 1) * self.step_m
@@ -260,6 +287,18 @@ class Site:
         return self.patterns[self.device(transmitter).pattern]
 
 
+def height_range_middle_m(z_min_m: float, z_max_m: float, z_step_m: float) -> float:
+    """The candidate height nearest the middle of a range (lower one on a tie), metres."""
+    n = grid_steps(z_max_m - z_min_m, z_step_m)[0]
+    return z_min_m + (n // 2) * z_step_m
+
+
+def site_is_3d(site: Site) -> bool:
+    """Whether a site asks for 3-D pose: a height range, or several pitches or rolls."""
+    o = site.orientations
+    return site.area.has_height_range or len(o.pitch_deg) > 1 or len(o.roll_deg) > 1
+
+
 # ----------------------------------------------------------------------------- survey
 def correct_survey(
     rows: SurveyRows, tx_power_dbm: float, survey_pattern: Pattern, receivers: tuple[Receiver, ...]
@@ -352,6 +391,41 @@ def _distinct(o: Section, name: str, values: tuple[float, ...], periodic: bool) 
         seen[key] = i
 
 
+_HEIGHT_KEYS = ("z_min_m", "z_max_m", "z_step_m")
+
+
+def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, float | None]]:
+    """``[area]`` heights: ``z_m`` alone (2-D) or ``z_min_m``/``z_max_m``/``z_step_m``
+    (3-D); returns ``(z_m, (z_min_m, z_max_m, z_step_m))`` (``None`` s without a range)."""
+    lim = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
+    given = [k for k in _HEIGHT_KEYS if a.has(k)]
+    if not given:
+        return a.number("z_m", required=True, **lim), (None, None, None)
+    if a.has("z_m"):
+        raise a.error(
+            given[0],
+            "give either z_m (one candidate height) or z_min_m, z_max_m, z_step_m, not both",
+        )
+    for k in _HEIGHT_KEYS:
+        if k not in given:
+            raise a.error(k, f"missing: a height range needs all of {', '.join(_HEIGHT_KEYS)}")
+    z_lo = a.number("z_min_m", required=True, **lim)
+    z_hi = a.number("z_max_m", required=True, **lim)
+    z_step = a.number("z_step_m", required=True, positive=True, high=2 * COORD_LIMIT_M)
+    if z_hi < z_lo:
+        raise a.error("z_max_m", f"must be >= z_min_m ({z_lo:g}), got {z_hi:g}")
+    k = (z_hi - z_lo) / z_step
+    if not np.isfinite(k) or k + 1 > MAX_HEIGHTS:
+        raise a.error("z_step_m", f"the height range gives more than {MAX_HEIGHTS} heights")
+    if not grid_steps(z_hi - z_lo, z_step)[1]:
+        raise a.error(
+            "z_step_m",
+            f"the height span {z_hi - z_lo:g} m (z_min_m to z_max_m) must be a whole number "
+            f"of steps of {z_step:g} m, got {k:.6g} steps",
+        )
+    return height_range_middle_m(z_lo, z_hi, z_step), (z_lo, z_hi, z_step)
+
+
 def _read_site_toml(path: Path) -> _SiteToml:
     root = Section(load_toml(path), path)
     name = root.string("name", path.parent.name)
@@ -361,14 +435,14 @@ def _read_site_toml(path: Path) -> _SiteToml:
     x_max = a.number("x_max_m", required=True, **lim)
     y_min = a.number("y_min_m", required=True, **lim)
     y_max = a.number("y_max_m", required=True, **lim)
-    z = a.number("z_m", required=True, **lim)
+    z, z_range = _read_heights(a)
     step = a.number("step_m", required=True, positive=True, high=2 * COORD_LIMIT_M)
     nx = _axis_steps(a, "x", x_min, x_max, step) + 1
     ny = _axis_steps(a, "y", y_min, y_max, step) + 1
     if nx * ny > MAX_GRID_POINTS:
         raise a.error("step_m", f"grid of {nx}x{ny} candidates exceeds {MAX_GRID_POINTS:,}")
     a.finish()
-    area = AreaGrid(x_min, x_max, y_min, y_max, z, step)
+    area = AreaGrid(x_min, x_max, y_min, y_max, z, step, *z_range)
 
     o = root.section("orientations")
     az_step = o.number("azimuth_step_deg", 1.0, positive=True, high=360.0)
@@ -611,13 +685,14 @@ def write_site_toml(
     survey: SurveyConfig,
 ) -> None:
     """Write ``site.toml`` (atomically)."""
+    heights = _HEIGHT_KEYS if area.has_height_range else ("z_m",)
     lines = [
         f"name = {_toml_string(name)}",
         "",
         "[area]",
         *(
             f"{k} = {_toml_number(getattr(area, k))}"
-            for k in ("x_min_m", "x_max_m", "y_min_m", "y_max_m", "z_m", "step_m")
+            for k in ("x_min_m", "x_max_m", "y_min_m", "y_max_m", *heights, "step_m")
         ),
         "",
         "[orientations]",

@@ -60,6 +60,14 @@ def simulate(
     survey_noise_db: Annotated[
         float, typer.Option("--survey-noise-db", help="σ of noise on survey RSS, dB.")
     ] = 0.0,
+    pose: Annotated[
+        str,
+        typer.Option(
+            "--pose",
+            help="2d (the paper's scenario) or 3d (a hand-held phone: height, pitch and roll "
+            "vary; receivers at mixed heights; docs/pose3d.md).",
+        ),
+    ] = "2d",
     pcap: Annotated[
         bool,
         typer.Option(
@@ -148,7 +156,25 @@ def simulate(
             capture_cfg.validate()
         except ValueError as exc:
             raise InputError(f"--pcap settings: {exc}") from None
-    sim = run(cfg, seed=seed)
+    if pose not in ("2d", "3d"):
+        raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
+    if pose == "3d":  # pose3d: the hand-held scenario takes the shared settings only
+        from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+
+        only_2d = {
+            "--rotation": rotation != "linear",
+            "--rotation-rate-dps": rotation_rate_dps is not None,
+            "--size-m": size_m != 20.0,
+            "--step-m": step_m != 0.1,
+            "--azimuth-step-deg": azimuth_step_deg != 1.0,
+            "--survey-noise-db": survey_noise_db != 0.0,
+        }
+        for name, given in only_2d.items():
+            if given:
+                raise InputError(f"{name} applies only with --pose 2d")
+        sim = simulate_handheld(HandheldConfig.from_scenario(cfg), seed=seed)
+    else:
+        sim = run(cfg, seed=seed)
     if capture_cfg is not None:
         from radiopose.capture.writer import whole_dbm
 

@@ -62,8 +62,8 @@ def evaluate(
     experiments: Annotated[
         list[str] | None,
         typer.Argument(
-            help="Shipped experiments (noise, receivers, interval, motion, bounds) or "
-            "experiment TOML files; default: the five shipped ones.",
+            help="Shipped experiments (noise, receivers, interval, motion, bounds; beyond the "
+            "paper: 3d) or experiment TOML files; default: the paper's five.",
             show_default=False,
         ),
     ] = None,

@@ -20,8 +20,9 @@ from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -91,6 +92,11 @@ class ScenarioConfig:
     device_range_db, receiver_range_db, survey_range_db
         Directivity ranges (max − min, dB) of the synthetic patterns, drawn
         uniformly from these intervals.
+    pose
+        ``"2d"`` (this scenario) or ``"3d"``: the hand-held 3-D scenario
+        (:mod:`radiopose.simulate.handheld`, docs/pose3d.md), which takes only
+        ``n_receivers``, ``noise_db``, ``interval_ms``, ``duration_s``,
+        ``loss_fraction`` and ``motion.speed_mps`` from here.
     """
 
     size_m: float = 20.0
@@ -112,6 +118,7 @@ class ScenarioConfig:
     device_range_db: tuple[float, float] = (14.0, 20.0)
     receiver_range_db: tuple[float, float] = (4.0, 8.0)
     survey_range_db: tuple[float, float] = (4.0, 8.0)
+    pose: Literal["2d", "3d"] = "2d"
 
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
@@ -127,6 +134,7 @@ class ScenarioConfig:
             ("azimuth_step_deg", 0 < self.azimuth_step_deg <= 360),
             ("loss_fraction", 0 <= self.loss_fraction < 1),
             ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0),
+            ("pose", self.pose in ("2d", "3d")),
         ]
         for name, ok in checks:
             value = getattr(self, name)
@@ -215,6 +223,10 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     cfg.validate()
     if not 0 <= seed < 2**63:
         raise InputError(f"seed must be a non-negative integer below 2**63, got {seed}")
+    if cfg.pose == "3d":  # pose3d: the hand-held scenario (docs/pose3d.md)
+        from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+
+        return replace(simulate_handheld(HandheldConfig.from_scenario(cfg), seed), config=cfg)
     rng = np.random.default_rng(seed)
 
     # Receivers with their own patterns.

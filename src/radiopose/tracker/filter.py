@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.likelihood import HeardRss
+from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
 from radiopose.tracker.protocol import Delayed, Device, Evidence, Outcome, Step
 from radiopose.tracker.reasons import (
@@ -46,6 +47,15 @@ class FilterMethod:
     state_type: type = field(default=FilterState)
 
     def prepare(self, device: Device) -> None:
+        # pose3d: a site with a height range or several pitches/rolls gets the 3-D filter
+        if site_is_3d(device.site):
+            from radiopose.filtering.particle3d import FilterModel3d, ParticleFilter3d, Pose3dConfig
+
+            p3 = Pose3dConfig()
+            model3d = FilterModel3d.build3d(device.site, device.space, p3)
+            cfg = filter_config(device.config)
+            device.engine = ParticleFilter3d(model3d, cfg, device.lag_s, p3)
+            return
         assert device.scorer is not None
         model = FilterModel.build(device.site, device.space, device.scorer)
         device.engine = ParticleFilter(model, filter_config(device.config), device.lag_s)
@@ -87,6 +97,13 @@ def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
         Delayed(t_s, packet_id, _outcome(est))
         for (packet_id, t_s), est in pf.take_smoothed()  # type: ignore[misc]
     )
+
+
+def uses_site_scorer(method: object, site: Site) -> bool:
+    """pose3d: whether ``method`` reads the site's scorer at ``site`` — not the
+    ``filter`` at a 3-D site (it scores its own coarse grid; the site's full
+    3-D candidate table would take minutes and gigabytes to build)."""
+    return not (isinstance(method, FilterMethod) and site_is_3d(site))
 
 
 def filter_seed(seed: int, transmitter_key: str) -> int:

@@ -1,0 +1,492 @@
+"""The particle filter in 3-D: position with height, azimuth, pitch and roll.
+
+Beyond the paper (docs/pose3d.md). The state, likelihood, power-offset belief,
+σ estimate, re-entry and smoother are the 2-D filter's
+(:mod:`radiopose.filtering.particle`, reused by subclassing); what changes:
+
+* **Height** is a state (``Z_M``), a random walk of density
+  ``height_noise_mps`` reflected at the site's candidate height range; the
+  expected RSS reads the survey map moved to the particle's height by the
+  height model (:mod:`radiopose.survey_height`: path loss in 3-D distance).
+* **Pitch and roll** are random walks of ``tilt_noise_dps`` within the support
+  of the site's candidate lists (padded by half their spacing). Roll is
+  periodic: its support is an arc (the shortest covering the listed rolls),
+  reflected at its ends, or the whole circle (wrapped) when the rolls cover
+  it. Pitch is reflected at its support's ends; where the support reaches
+  ±90° a step over the pole is the same rotation written the other way,
+  ``(az, p, r) → (az + 180°, ±180° − p, r + 180°)`` (gimbal).
+* **Acquisition** (a new track, and each re-entry) scores a **coarse grid**
+  (``acquisition_step_m`` positions × up to ``acquisition_heights`` heights ×
+  ``acquisition_azimuth_step_deg`` azimuths × the site's pitches × its rolls)
+  against the window's median RSS: the expected RSS of every coarse pose is a
+  table built once (:class:`CoarseGrid`), so a scoring is one pass over it
+  with each pose's offset profiled out in closed form (compiled,
+  :func:`coarse_costs`). Particles are drawn from the best ``acquisition_k``
+  poses, spread over their cells, then **refined locally** by
+  ``refine_steps`` rounds of tempered importance resampling on the same
+  window (σ from ``acquisition_sigma_db`` down to the filter's) with a
+  shrinking jitter. The per-packet cost is then that of the 2-D filter (the
+  expected RSS per particle and receiver, plus the height correction).
+
+Estimates: weighted mean position (height included), circular mean azimuth
+and roll and mean pitch (the 2-D filter's summary, valid away from pitch
+±90°, which hand-held motion does not reach).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from radiopose.errors import InputError
+from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.filtering.kernels3d import (
+    coarse_costs,
+    expected3d_into,
+    packet_update3d,
+    tilt_height_step,
+)
+from radiopose.filtering.lineage import Lineage
+from radiopose.filtering.particle import (
+    FilterConfig,
+    FilterEstimate,
+    FilterModel,
+    FilterState,
+    ParticleFilter,
+    _normalised,
+    _summary,
+)
+from radiopose.geometry import orientation_matrices, pattern_angles_deg
+from radiopose.likelihood import CandidateSpace, HeardRss, profile_offset_db
+from radiopose.patterns.pattern import Pattern
+from radiopose.site import Site
+from radiopose.survey_height import HeightModel, build_height_model
+from radiopose.units import FloatArray
+
+
+@dataclass(frozen=True)
+class Pose3dConfig:
+    """What the 3-D filter adds to :class:`~radiopose.filtering.FilterConfig`.
+
+    Attributes
+    ----------
+    n_particles
+        Particles per device (replaces the 2-D default).
+    height_noise_mps
+        Random-walk density of height, m/√s.
+    tilt_noise_dps
+        Random-walk density of pitch and roll, °/√s.
+    acquisition_step_m, acquisition_azimuth_step_deg
+        Coarse grid steps of position and azimuth.
+    acquisition_heights
+        Most coarse heights (taken evenly from the site's candidate heights).
+    acquisition_sigma_db
+        σ of the coarse scoring (covers the grid's coarseness), dB.
+    acquisition_k
+        Coarse poses from which particles are drawn.
+    acquisition_tilts
+        Most coarse pitches and most coarse rolls (taken evenly from the
+        site's lists).
+    reentry_interval_s
+        How often coarse hypotheses re-enter (replaces the 2-D default: a
+        coarse scoring costs more than the 2-D kernel's).
+    proposal_window_s
+        The re-entry's evidence window (replaces the 2-D default): one packet
+        of six receivers leaves a one-parameter family of poses that fit it
+        (six readings, six pose angles and coordinates plus the offset), so
+        hypotheses are compared over a longer stretch of motion.
+    sigma_floor_db
+        Lower bound of the σ estimate (replaces the 2-D default): the 3-D
+        expected RSS carries the bilinear map's error, up to ~0.5 dB near a
+        receiver, and a σ below it starves the particles.
+    refine_steps
+        Rounds of tempered resampling after drawing.
+    max_table_entries
+        Bound on the coarse table (poses × receivers); the position step is
+        widened until it fits.
+    """
+
+    n_particles: int = 2000
+    height_noise_mps: float = 0.2
+    tilt_noise_dps: float = 20.0
+    acquisition_step_m: float = 1.0
+    acquisition_azimuth_step_deg: float = 15.0
+    acquisition_heights: int = 4
+    acquisition_sigma_db: float = 3.0
+    acquisition_k: int = 2000
+    acquisition_tilts: int = 4
+    reentry_interval_s: float = 0.5
+    proposal_window_s: float = 0.5
+    sigma_floor_db: float = 0.5
+    refine_steps: int = 6
+    max_table_entries: int = 20_000_000
+
+    def __post_init__(self) -> None:
+        for name in (
+            "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
+            "acquisition_azimuth_step_deg", "acquisition_sigma_db",
+        ):  # fmt: skip
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"3-D filter setting {name} = {v!r} must be a positive number")
+        if min(self.n_particles - 9, self.acquisition_heights, self.acquisition_k) < 1:
+            raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
+        if self.refine_steps < 0 or self.max_table_entries < 1000:
+            raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
+
+
+# ----------------------------------------------------------------------------- model
+def _support(values_deg: tuple[float, ...], lo: float, hi: float) -> tuple[float, float]:
+    """``[min − pad, max + pad]`` of listed angles clipped to ``[lo, hi]`` degrees,
+    ``pad`` half the smallest spacing (0 for one value)."""
+    v = np.sort(np.asarray(values_deg, float))
+    pad = 0.5 * float(np.min(np.diff(v))) if v.size > 1 else 0.0
+    return max(float(v[0]) - pad, lo), min(float(v[-1]) + pad, hi)
+
+
+def roll_support_deg(roll_deg: tuple[float, ...]) -> tuple[float, float]:
+    """``(centre, half_width)`` degrees of the shortest arc covering the listed
+    rolls, padded by half their smallest circular spacing; half width 180 (the
+    whole circle) when the padded arc reaches it, 0 for one roll."""
+    r = np.sort(np.asarray(roll_deg, float) % 360.0)
+    if r.size == 1:
+        return float(r[0]), 0.0
+    gaps = np.diff(np.concatenate([r, [r[0] + 360.0]]))  # gap after each roll
+    pad = 0.5 * float(gaps.min())
+    j = int(np.argmax(gaps))  # the arc is the circle less the largest gap
+    arc = 360.0 - float(gaps[j]) + 2 * pad
+    start = float(r[(j + 1) % r.size]) - pad
+    if arc >= 360.0 - 1e-9:
+        return 0.0, 180.0
+    return (start + 0.5 * arc + 180.0) % 360.0 - 180.0, 0.5 * arc
+
+
+def _evenly(values: FloatArray, n: int) -> FloatArray:
+    """At most ``n`` of ``values`` taken evenly (first and last kept)."""
+    v = np.asarray(values, float)
+    if v.size <= n:
+        return v
+    return v[np.unique(np.round(np.linspace(0, v.size - 1, n)).astype(int))]
+
+
+@dataclass(frozen=True, eq=False)
+class CoarseGrid:
+    """The acquisition grid: coarse poses and their expected RSS (built once).
+
+    Attributes
+    ----------
+    positions_m
+        ``(n_p, 3)`` coarse positions, metres.
+    orientations_deg
+        ``(n_o, 3)`` coarse orientations (azimuth, pitch, roll), degrees.
+    table_dbm
+        ``(n_o · n_p, n_rx)`` float32 expected RSS without offset; row
+        ``o · n_p + p``.
+    cell
+        Half-widths of a cell: ``[x, y, z (m), azimuth, pitch, roll (deg)]``.
+    """
+
+    positions_m: FloatArray
+    orientations_deg: FloatArray
+    table_dbm: np.ndarray
+    cell: FloatArray
+
+    @classmethod
+    def build(
+        cls, site: Site, height: HeightModel, tx_power_dbm: float, pattern: Pattern,
+        cfg: Pose3dConfig,
+    ) -> CoarseGrid:  # fmt: skip
+        """The grid of a site's device (its pattern and power) under ``cfg``."""
+        a = site.area
+        n_rx = len(site.receivers)
+        z_all = a.z_levels_m()
+        nz = min(cfg.acquisition_heights, z_all.size)
+        z = _evenly(z_all, nz)
+        n_az = max(1, round(360.0 / cfg.acquisition_azimuth_step_deg))
+        az = np.arange(n_az) * (360.0 / n_az)
+        o = site.orientations
+        pitches = _evenly(np.sort(np.asarray(o.pitch_deg, float)), cfg.acquisition_tilts)
+        rolls = _evenly(np.asarray(o.roll_deg, float), cfg.acquisition_tilts)
+        p, r, zz = np.meshgrid(pitches, rolls, az, indexing="ij")
+        orient = np.column_stack([zz.ravel(), p.ravel(), r.ravel()])
+        step = cfg.acquisition_step_m
+        while True:
+            xs = np.arange(a.x_min_m, a.x_max_m + 1e-9, step)
+            ys = np.arange(a.y_min_m, a.y_max_m + 1e-9, step)
+            if xs.size * ys.size * z.size * orient.shape[0] * n_rx <= cfg.max_table_entries:
+                break
+            step *= 1.25
+        gx, gy, gz = np.meshgrid(xs, ys, z, indexing="ij")
+        pos = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
+        chan = height.channel_db(pos) + tx_power_dbm  # (n_p, n_rx)
+        rot = orientation_matrices(orient[:, 0], orient[:, 1], orient[:, 2])
+        rx = site.receiver_positions_m()
+        table = np.empty((orient.shape[0], pos.shape[0], n_rx), np.float32)
+        chunk = max(1, 2_000_000 // max(pos.shape[0] * n_rx, 1))
+        for s in range(0, orient.shape[0], chunk):
+            phi, theta = pattern_angles_deg(pos, rot[s : s + chunk], rx)  # (n_p, m, k)
+            table[s : s + chunk] = (pattern.lookup_dbi(phi, theta) + chan[:, None, :]).transpose(
+                1, 0, 2
+            )
+        spacing = [
+            float(np.min(np.diff(np.sort(v)))) if len(v) > 1 else 0.0 for v in (z, pitches, rolls)
+        ]
+        cell = np.array(
+            [0.5 * step, 0.5 * step, 0.5 * spacing[0], 0.5 * 360.0 / n_az, 0.5 * spacing[1],
+             0.5 * spacing[2]]
+        )  # fmt: skip
+        return cls(pos, orient, table.reshape(-1, n_rx), cell)
+
+
+@dataclass(frozen=True, eq=False)
+class FilterModel3d(FilterModel):
+    """:class:`FilterModel` with height: the height model's maps, the coarse grid
+    and the tilt and height supports. ``channel_db``/``grid`` are the 2-D map
+    (unused by the 3-D kernels); ``maps_db`` ``(L, n_rx, nx, ny)`` at
+    ``layers_z_m``."""
+
+    maps_db: FloatArray = field(default_factory=lambda: np.zeros((1, 1, 1, 1)))
+    layers_z_m: FloatArray = field(default_factory=lambda: np.zeros(1))
+    exponent: float = 2.0
+    coarse: CoarseGrid | None = None
+    tilt_rad: FloatArray = field(default_factory=lambda: np.zeros(4))
+    z_box_m: FloatArray = field(default_factory=lambda: np.zeros(2))
+
+    @classmethod
+    def build3d(cls, site: Site, space: CandidateSpace, cfg: Pose3dConfig) -> FilterModel3d:
+        """The device's arrays (``space`` names the device: pattern, power, receivers)."""
+        base = FilterModel.build(site, space, _NoScorer())  # type: ignore[arg-type]
+        height = build_height_model(site)
+        coarse = CoarseGrid.build(site, height, float(space.tx_power_dbm), space.pattern, cfg)
+        o = site.orientations
+        p_lo, p_hi = _support(o.pitch_deg, -90.0, 90.0)
+        r_c, r_w = roll_support_deg(o.roll_deg)
+        z = site.area.z_levels_m()
+        parts = {f: getattr(base, f) for f in base.__dataclass_fields__}
+        return cls(
+            **parts,
+            maps_db=np.ascontiguousarray(height.maps_db, dtype=np.float64),
+            layers_z_m=np.ascontiguousarray(height.layers_z_m, dtype=np.float64),
+            exponent=float(height.exponent),
+            coarse=coarse,
+            tilt_rad=np.deg2rad([p_lo, p_hi, r_c, r_w]),
+            z_box_m=np.array([z.min(), z.max()], float),
+        )
+
+    def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
+        """Expected RSS ``(n, h)`` dBm without the offset (height model, full sphere)."""
+        heard = np.ascontiguousarray(heard_index, dtype=np.int64)
+        out = np.empty((S.shape[0], heard.size))
+        expected3d_into(np.ascontiguousarray(S), heard, *self.arrays3d(), out)
+        return out
+
+    def arrays3d(self) -> tuple[Any, ...]:
+        """``(rx, maps, layers_z, exponent, grid, tx_dbm, d, pat)`` of the kernels."""
+        return (
+            self.receivers_m, self.maps_db, self.layers_z_m, self.exponent, self.grid,
+            self.tx_power_dbm, self.pattern_dbi, self.pattern_axes,
+        )  # fmt: skip
+
+
+class _NoScorer:
+    """The 3-D filter scores its own coarse grid, never the site's scorer."""
+
+
+class ParticleFilter3d(ParticleFilter):
+    """The 3-D filter for one device (see the module docstring).
+
+    Parameters
+    ----------
+    model
+        :meth:`FilterModel3d.build3d`.
+    config
+        The 2-D filter's parameters (motion, likelihood, σ, re-entry, smoother).
+    lag_s
+        As :class:`ParticleFilter`.
+    pose3d
+        What 3-D adds (:class:`Pose3dConfig`); its ``n_particles`` replaces
+        ``config``'s.
+    """
+
+    def __init__(
+        self,
+        model: FilterModel3d,
+        config: FilterConfig,
+        lag_s: float | None = None,
+        pose3d: Pose3dConfig | None = None,
+    ):
+        self.pose3d = pose3d or Pose3dConfig()
+        cfg = replace(
+            config,
+            n_particles=self.pose3d.n_particles,
+            reentry_interval_s=self.pose3d.reentry_interval_s,
+            proposal_window_s=self.pose3d.proposal_window_s,
+            sigma_floor_db=self.pose3d.sigma_floor_db,
+        )
+        super().__init__(model, cfg, lag_s)
+        self.model3d = model
+        self._motion = np.array(
+            [
+                cfg.accel_noise_mps2,
+                math.radians(cfg.angular_accel_noise_dps2),
+                math.radians(self.pose3d.tilt_noise_dps),
+                cfg.max_speed_mps,
+                math.radians(cfg.max_rate_dps),
+                self.pose3d.height_noise_mps,
+            ]
+        )
+
+    # ------------------------------------------------------------------ acquisition
+    def _draw(
+        self, st: FilterState, heard: HeardRss, m: int, offsets_db: list[float], n_packets: int
+    ) -> tuple[FloatArray, FloatArray, float] | None:
+        """``m`` particles from the coarse grid's best poses for ``heard`` (one
+        reading per receiver standing for ``n_packets``), refined locally; the
+        offset is profiled around the prior (``offsets_db`` is not needed: the
+        coarse scoring profiles each pose's offset in closed form)."""
+        cfg, p3, mod = self.config, self.pose3d, self.model3d
+        coarse = mod.coarse
+        assert coarse is not None
+        idx = np.ascontiguousarray(heard.receiver_index, dtype=np.int64)
+        rss = np.ascontiguousarray(heard.rss_dbm, dtype=np.float64)
+        cost = np.empty(coarse.table_dbm.shape[0])
+        coarse_costs(coarse.table_dbm, idx, rss, p3.acquisition_sigma_db, st.offset_prior_db,
+                     cfg.offset_prior_sd_db, cost)  # fmt: skip
+        ok = np.isfinite(cost)
+        if not ok.any():
+            return None
+        cost = np.where(ok, cost, np.inf)
+        k = min(p3.acquisition_k, int(ok.sum()))
+        top = np.argpartition(cost, k - 1)[:k]
+        p = np.exp(-(cost[top] - cost[top].min()))
+        pick = top[st.rng.choice(k, size=m, p=p / p.sum())]
+        n_p = coarse.positions_m.shape[0]
+        pos = coarse.positions_m[pick % n_p]
+        ori = coarse.orientations_deg[pick // n_p]
+        c = coarse.cell
+        S = np.zeros((m, K.N_COLUMNS))
+        u = st.rng.uniform(-1.0, 1.0, (m, 6))
+        S[:, K.X_M] = pos[:, 0] + u[:, 0] * c[0]
+        S[:, K.Y_M] = pos[:, 1] + u[:, 1] * c[1]
+        S[:, K.Z_M] = pos[:, 2] + u[:, 2] * c[2]
+        S[:, K.AZIMUTH_RAD] = np.deg2rad(ori[:, 0] + u[:, 3] * c[3]) % (2 * np.pi)
+        S[:, K.PITCH_RAD] = np.deg2rad(ori[:, 1] + u[:, 4] * c[4])
+        S[:, K.ROLL_RAD] = np.deg2rad(ori[:, 2] + u[:, 5] * c[5])
+        self._clamp(S)
+        sigma = math.sqrt(st.sigma2_db2)
+        for s in range(p3.refine_steps):
+            frac = (s + 1) / p3.refine_steps
+            sig = p3.acquisition_sigma_db ** (1 - frac) * max(sigma, 0.5) ** frac
+            best, cst, _ = self._profile(st, S, heard, n_packets, sig)
+            ok = np.isfinite(cst)
+            if not ok.any():
+                return None
+            w = np.where(ok, np.exp(-(cst - cst[ok].min())), 0.0)
+            S = S[st.rng.choice(m, size=m, p=w / w.sum())]
+            shrink = 0.5 ** (s + 1)
+            j = st.rng.normal(0.0, 1.0, (m, 6)) * shrink
+            S[:, K.X_M] += j[:, 0] * 2 * c[0]
+            S[:, K.Y_M] += j[:, 1] * 2 * c[1]
+            S[:, K.Z_M] += j[:, 2] * 2 * c[2]
+            S[:, K.AZIMUTH_RAD] = (S[:, K.AZIMUTH_RAD] + np.deg2rad(j[:, 3] * 2 * c[3])) % (
+                2 * np.pi
+            )
+            S[:, K.PITCH_RAD] += np.deg2rad(j[:, 4] * 2 * c[4])
+            S[:, K.ROLL_RAD] += np.deg2rad(j[:, 5] * 2 * c[5])
+            self._clamp(S)
+        best, cst, prec = self._profile(st, S, heard, n_packets, sigma)
+        if not np.isfinite(cst).any():
+            return None
+        return S, best, prec
+
+    def _profile(
+        self, st: FilterState, S: FloatArray, heard: HeardRss, n_packets: int, sigma_db: float
+    ) -> tuple[FloatArray, FloatArray, float]:
+        e = heard.rss_dbm[None, :] - self.model3d.expected(S, heard.receiver_index)
+        return profile_offset_db(
+            e, n_packets * heard.n_heard, sigma_db, st.offset_prior_db,
+            self.config.offset_prior_sd_db,
+        )  # fmt: skip
+
+    def _clamp(self, S: FloatArray) -> None:
+        """Particles into the supports: area, heights, pitch (gimbal-aware) and roll."""
+        mod = self.model3d
+        b = mod.box_m
+        S[:, K.X_M] = np.clip(S[:, K.X_M], b[0], b[1])
+        S[:, K.Y_M] = np.clip(S[:, K.Y_M], b[2], b[3])
+        zero = np.zeros(S.shape[0])
+        tilt_height_step(S, np.zeros((S.shape[0], 2)), zero, 1.0, 0.0, 0.0, mod.tilt_rad,
+                         mod.z_box_m)  # fmt: skip
+        S[:, K.Z_M] = np.clip(S[:, K.Z_M], mod.z_box_m[0], mod.z_box_m[1])
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
+    ) -> FilterEstimate | None:
+        """Process one packet (as :meth:`ParticleFilter.step`, with the 3-D kernels)."""
+        cfg, mod = self.config, self.model3d
+        new_track = st.particles is None or (
+            st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
+        )
+        dt = 0.0
+        if new_track:
+            if st.particles is not None:
+                w = _normalised(st.log_weights)
+                st.offset_prior_db = float(np.sum(w * st.particles[:, K.OFFSET_DB]))
+                self._flush_into(st, w)
+                st.particles = None
+            if heard.n_heard < cfg.min_acquisition_receivers or not self._initialise(st, heard):
+                st.last_time_s = t_s
+                return None
+            st.reentry_time_s = t_s
+        else:
+            assert st.particles is not None and st.last_time_s is not None
+            dt = max(t_s - st.last_time_s, 0.0)
+        st.last_time_s = t_s
+        S, logw = st.particles, st.log_weights
+        assert S is not None and logw is not None
+        n, h = S.shape[0], heard.n_heard
+        work = self._buffers(n)
+        noise_z = np.empty(n)
+        if dt > 0:
+            st.rng.standard_normal(out=work.noise)
+            st.rng.standard_normal(out=noise_z)
+        pred = work.pred[: n * h].reshape(n, h)
+        sigma = math.sqrt(st.sigma2_db2)
+        lse0, lse1 = packet_update3d(
+            S, logw, work.noise, noise_z, dt, self._motion, mod.box_m, mod.tilt_rad, mod.z_box_m,
+            np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.arrays3d(),
+            np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
+            self._likelihood_parameter(sigma), pred, work.w,
+        )  # fmt: skip
+        if not math.isfinite(lse1):
+            self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
+            st.particles = None
+            return self.step(st, t_s, heard, key)
+        st.window.append((t_s, heard, lse1 - lse0))
+        while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
+            st.window.popleft()
+        w = work.w
+        self._update_sigma(st, S, pred, heard, w, t_s)
+        if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
+            self._reenter(st, t_s, w)
+            st.reentry_time_s = t_s
+            K.normalise_into(logw, w)
+        moments = work.moments
+        K.posterior_moments(S, w, work.rows, moments)
+        est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
+        if self.lag_s is not None:
+            if st.lineage is None:
+                st.lineage = Lineage(n)
+            st.lineage.push(t_s, work.rows)
+            st.pending.append((t_s, key, est))
+            self._emit(st, w, t_s - self.lag_s)
+        if 1.0 / float(moments[10]) < 0.5 * n:
+            K.resample_in_place(S, w, float(st.rng.uniform()), work.scratch, work.idx)
+            logw[:] = 0.0
+            if st.lineage is not None:
+                st.lineage.remap(work.idx)
+        return est

@@ -1,0 +1,172 @@
+"""The survey map extended to heights: path loss in 3-D distance (docs/pose3d.md).
+
+The survey (:mod:`radiopose.survey`) measures the channel ``M_r(x, y)`` of each
+receiver at the surveyed height ``z_s``. A device at another height ``z`` is
+farther from (or nearer to) the receiver; the model moves the surveyed value
+along the log-distance law in 3-D distance::
+
+    M_r(x, y, z) = M_r(x, y; z_s) − 10 n log10( max(d(z), d0) / max(d(z_s), d0) )
+    d(z) = |(x, y, z) − receiver r|,  d0 = 1 m                          (dB)
+
+The exponent ``n`` is fitted to the survey itself (:func:`fit_exponent`): the
+corrected survey values against ``10 log10 max(d, d0)`` by least squares with
+one intercept per receiver. With several surveyed heights, each height has
+its own map and a height between two surveyed ones blends the two corrected
+values linearly in ``z``; outside them the nearest surveyed height is used.
+
+What the model assumes (and a real survey must check): the receiver's own
+pattern and the room change little with the device's height — true for a
+receiver whose pattern depends only on the horizontal direction (a vertical
+dipole, a slice pattern mounted level or upside down), not for a tilted
+directional antenna, for which a survey at two or more heights is needed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from radiopose.site import Site, correct_survey, survey_points_by_receiver
+from radiopose.survey import build_survey_map
+from radiopose.units import FloatArray
+
+REFERENCE_DISTANCE_M = 1.0
+"""``d0``: distances below it count as ``d0`` (far field only), metres."""
+EXPONENT_RANGE = (1.0, 6.0)
+"""A fitted exponent is clipped to this range."""
+
+
+@dataclass(frozen=True, eq=False)
+class HeightModel:
+    """Per-receiver channel maps at each surveyed height and the path-loss exponent.
+
+    Attributes
+    ----------
+    exponent
+        Path-loss exponent ``n`` (fitted, :func:`fit_exponent`).
+    layers_z_m
+        ``(L,)`` surveyed heights, increasing, metres.
+    maps_db
+        ``(L, n_rx, nx, ny)`` the survey map at each surveyed height, dB.
+    x_m, y_m
+        Grid axes of the maps, metres.
+    receivers_m
+        ``(n_rx, 3)`` receiver positions, metres.
+    """
+
+    exponent: float
+    layers_z_m: FloatArray
+    maps_db: FloatArray
+    x_m: FloatArray
+    y_m: FloatArray
+    receivers_m: FloatArray
+
+    def channel_db(self, xyz_m: FloatArray) -> FloatArray:
+        """``M_r(x, y, z)`` ``(n, n_rx)`` dB at points ``(n, 3)`` (bilinear in x, y)."""
+        p = np.asarray(xyz_m, float).reshape(-1, 3)
+        L = self.layers_z_m.size
+        z = p[:, 2]
+        if L == 1:
+            lo = np.zeros(p.shape[0], np.int64)
+            frac = np.zeros(p.shape[0])
+        else:
+            lo = np.clip(np.searchsorted(self.layers_z_m, z, side="right") - 1, 0, L - 2)
+            frac = np.clip((z - self.layers_z_m[lo]) / np.diff(self.layers_z_m)[lo], 0.0, 1.0)
+        out = np.zeros((p.shape[0], self.receivers_m.shape[0]))
+        for k, wgt in ((lo, 1.0 - frac), (np.minimum(lo + 1, L - 1), frac)):
+            zl = self.layers_z_m[k]
+            m = np.empty_like(out)
+            for layer in np.unique(k):
+                sel = k == layer
+                m[sel] = _bilinear_all(self.maps_db[layer], self.x_m, self.y_m, p[sel])
+            out += wgt[:, None] * (m + self.correction_db(p, zl))
+        return out
+
+    def correction_db(self, xyz_m: FloatArray, from_z_m: FloatArray | float) -> FloatArray:
+        """``−10 n log10(max(d(z), d0) / max(d(z_s), d0))`` ``(n, n_rx)`` dB from height
+        ``from_z_m`` (scalar or ``(n,)``) to each point's own height."""
+        p = np.asarray(xyz_m, float).reshape(-1, 3)
+        zs = np.broadcast_to(np.asarray(from_z_m, float), (p.shape[0],))
+        horiz2 = np.sum((p[:, None, :2] - self.receivers_m[None, :, :2]) ** 2, axis=-1)
+        d = np.sqrt(horiz2 + (p[:, None, 2] - self.receivers_m[None, :, 2]) ** 2)
+        ds = np.sqrt(horiz2 + (zs[:, None] - self.receivers_m[None, :, 2]) ** 2)
+        d0 = REFERENCE_DISTANCE_M
+        return -10.0 * self.exponent * np.log10(np.maximum(d, d0) / np.maximum(ds, d0))
+
+
+def _bilinear_all(maps: FloatArray, x: FloatArray, y: FloatArray, p: FloatArray) -> FloatArray:
+    """``(n, n_rx)`` bilinear values of ``maps`` ``(n_rx, nx, ny)`` at points ``p`` (clamped)."""
+    dx = x[1] - x[0] if x.size > 1 else 1.0
+    dy = y[1] - y[0] if y.size > 1 else 1.0
+    u = np.clip((p[:, 0] - x[0]) / dx, 0.0, x.size - 1.0)
+    v = np.clip((p[:, 1] - y[0]) / dy, 0.0, y.size - 1.0)
+    i0 = np.minimum(u.astype(np.int64), max(x.size - 2, 0))
+    j0 = np.minimum(v.astype(np.int64), max(y.size - 2, 0))
+    i1 = np.minimum(i0 + 1, x.size - 1)
+    j1 = np.minimum(j0 + 1, y.size - 1)
+    fu = (u - i0)[:, None]
+    fv = (v - j0)[:, None]
+    a = maps[:, i0, j0].T * (1 - fv) + maps[:, i0, j1].T * fv
+    b = maps[:, i1, j0].T * (1 - fv) + maps[:, i1, j1].T * fv
+    return a * (1 - fu) + b * fu
+
+
+def fit_exponent(site: Site) -> float:
+    """Least-squares path-loss exponent of the corrected survey in 3-D distance.
+
+    ``M = a_r − n · 10 log10(max(d, d0))`` with one intercept ``a_r`` per
+    receiver; ``n`` clipped to :data:`EXPONENT_RANGE`.
+    """
+    rows = site.survey_rows
+    m_db = correct_survey(
+        rows, site.survey_config.tx_power_dbm, site.patterns[site.survey_config.pattern],
+        site.receivers,
+    )  # fmt: skip
+    ids = list(site.receiver_ids)
+    idx = np.array([ids.index(r) for r in rows.receiver_id], dtype=np.int64)
+    d = np.linalg.norm(rows.xyz_m - site.receiver_positions_m()[idx], axis=1)
+    ell = 10.0 * np.log10(np.maximum(d, REFERENCE_DISTANCE_M))
+    num = den = 0.0
+    for r in range(len(ids)):
+        sel = idx == r
+        if sel.sum() < 2:
+            continue
+        le = ell[sel] - ell[sel].mean()
+        num += float(np.sum(le * (m_db[sel] - m_db[sel].mean())))
+        den += float(np.sum(le * le))
+    n = -num / den if den > 0 else 2.0
+    return float(np.clip(n, *EXPONENT_RANGE))
+
+
+def build_height_model(site: Site, decimals: int = 3) -> HeightModel:
+    """The site's :class:`HeightModel`: one map per surveyed height (heights rounded
+    to ``decimals``), the site's own survey map where only one height was surveyed."""
+    rows = site.survey_rows
+    z = np.round(rows.xyz_m[:, 2], decimals)
+    layers = np.unique(z)
+    x, y = np.asarray(site.survey_map.x_m, float), np.asarray(site.survey_map.y_m, float)
+    if layers.size == 1:
+        maps = np.asarray(site.survey_map.m_db, float)[None]
+    else:
+        m_db = correct_survey(
+            rows, site.survey_config.tx_power_dbm, site.patterns[site.survey_config.pattern],
+            site.receivers,
+        )  # fmt: skip
+        out = []
+        for h in layers:
+            sel = z == h
+            sub = type(rows)(rows.xyz_m[sel], rows.receiver_id[sel], rows.rss_dbm[sel],
+                             rows.orientation_deg[sel])  # fmt: skip
+            pts = survey_points_by_receiver(sub, m_db[sel], site.receiver_ids)
+            smap = build_survey_map(
+                site.receiver_ids, pts, x, y,
+                site.survey_config.interpolation,  # type: ignore[arg-type]
+                site.survey_config.outside,  # type: ignore[arg-type]
+            )  # fmt: skip
+            out.append(np.asarray(smap.m_db, float))
+        maps = np.stack(out)
+    return HeightModel(
+        fit_exponent(site), layers.astype(float), np.ascontiguousarray(maps), x, y,
+        site.receiver_positions_m(),
+    )  # fmt: skip

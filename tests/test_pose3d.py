@@ -1,0 +1,345 @@
+"""3-D pose: conventions at the gimbal and roll wrap, the height model, the
+hand-held simulation, the 3-D filter (a known pose recovered; stages removed
+break it) and its dispatch from the ``filter`` method (docs/pose3d.md)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from radiopose.errors import InputError
+from radiopose.filtering import FilterConfig
+from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names
+from radiopose.filtering.kernels3d import tilt_height_step
+from radiopose.filtering.particle3d import (
+    FilterModel3d,
+    ParticleFilter3d,
+    Pose3dConfig,
+    roll_support_deg,
+)
+from radiopose.geometry import relative_rotation_angle_deg
+from radiopose.likelihood import HeardRss, candidate_space
+from radiopose.packets import Packets, Truth, group_packets
+from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.simulate.channel import link_rss_dbm
+from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+from radiopose.survey_height import build_height_model
+
+POS_BOUND_M = 0.3
+ROT_BOUND_DEG = 10.0
+SMALL = HandheldConfig(
+    size_m=10.0, step_m=0.5, n_receivers=6, duration_s=1.0, noise_db=0.0,
+    min_receiver_spacing_m=3.0, survey_step_m=1.0,
+)  # fmt: skip
+
+
+def rot(az: float, pitch: float, roll: float) -> Rotation:
+    return Rotation.from_euler("ZXY", [az, pitch, roll], degrees=True)
+
+
+# ----------------------------------------------------------------------------- conventions
+@pytest.mark.parametrize("seed", range(5))
+def test_pole_identity(seed):
+    """(az, p, r) and (az + 180, 180 − p, r + 180) are one rotation (the gimbal step)."""
+    az, p, r = np.random.default_rng(seed).uniform([-180, -90, -180], [180, 90, 180])
+    a = rot(az, p, r).as_matrix()
+    b = rot(az + 180.0, 180.0 - p, r + 180.0).as_matrix()
+    np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def _particles(az_deg, pitch_deg, roll_deg, z_m=1.0):
+    S = np.zeros((len(az_deg), K.N_COLUMNS))
+    S[:, K.Z_M] = z_m
+    S[:, K.AZIMUTH_RAD] = np.deg2rad(az_deg)
+    S[:, K.PITCH_RAD] = np.deg2rad(pitch_deg)
+    S[:, K.ROLL_RAD] = np.deg2rad(roll_deg)
+    return S
+
+
+@pytest.mark.parametrize(("pitch0", "step"), [(89.0, 3.0), (-89.0, -3.0), (90.0, 0.5)])
+def test_pitch_over_the_pole_keeps_the_rotation(pitch0, step):
+    """A pitch step past ±90° lands back in range as the same rotation."""
+    S = _particles([30.0], [pitch0], [10.0])
+    tilt = np.deg2rad([-90.0, 90.0, 0.0, 180.0])  # full pitch range, rolls wrap
+    noise = np.array([[step, 0.0]])  # q_tilt = 1 rad/√s, dt = (1°)²: a step of `step` degrees
+    tilt_height_step(S, noise, np.zeros(1), math.radians(1.0) ** 2, 1.0, 0.0, tilt, np.zeros(2))
+    p = math.degrees(S[0, K.PITCH_RAD])
+    assert -90.0 <= p <= 90.0
+    got = [math.degrees(S[0, c]) for c in (K.AZIMUTH_RAD, K.PITCH_RAD, K.ROLL_RAD)]
+    angle = relative_rotation_angle_deg(got, [30.0, pitch0 + step, 10.0])[0]
+    assert angle == pytest.approx(0.0, abs=1e-9)
+    assert abs(p) < abs(pitch0 + step)  # it was folded, not clipped
+
+
+def test_pitch_reflects_inside_a_partial_range():
+    S = _particles([0.0], [70.0], [0.0])
+    tilt = np.deg2rad([0.0, 75.0, 0.0, 0.0])
+    noise = np.array([[10.0, 0.0]])
+    tilt_height_step(S, noise, np.zeros(1), math.radians(1.0) ** 2, 1.0, 0.0, tilt, np.zeros(2))
+    assert math.degrees(S[0, K.PITCH_RAD]) == pytest.approx(70.0)  # 80 reflected at 75
+    assert S[0, K.AZIMUTH_RAD] == 0.0
+
+
+@pytest.mark.parametrize(
+    ("rolls", "centre", "half"),
+    [
+        ((-45.0, -15.0, 15.0, 45.0), 0.0, 60.0),
+        ((170.0, -170.0), 180.0, 20.0),  # the arc across ±180, not the long way round
+        ((0.0, 90.0, 180.0, 270.0), 0.0, 180.0),  # covers the circle: wraps
+        ((30.0,), 30.0, 0.0),
+    ],
+)
+def test_roll_support(rolls, centre, half):
+    c, h = roll_support_deg(rolls)
+    assert abs((c - centre + 180.0) % 360.0 - 180.0) < 1e-9
+    assert h == pytest.approx(half)
+
+
+@pytest.mark.parametrize(
+    ("roll0", "step", "tilt_deg", "expect"),
+    [
+        (179.0, 3.0, [0.0, 0.0, 0.0, 180.0], -178.0),  # whole circle: wraps
+        (175.0, 10.0, [0.0, 0.0, 180.0, 20.0], -175.0),  # arc across ±180: wraps inside it
+        (-165.0, 10.0, [0.0, 0.0, 180.0, 20.0], -165.0),  # -155 is 25 from 180: reflected at 20
+        (-170.0, -15.0, [0.0, 0.0, 180.0, 20.0], 175.0),  # across ±180 inside the arc
+        (15.0, 10.0, [0.0, 0.0, 0.0, 20.0], 15.0),  # 25 reflected at 20
+    ],
+)
+def test_roll_steps_wrap_and_reflect(roll0, step, tilt_deg, expect):
+    S = _particles([0.0], [0.0], [roll0])
+    noise = np.array([[0.0, step]])
+    tilt_height_step(
+        S, noise, np.zeros(1), math.radians(1.0) ** 2, 1.0, 0.0, np.deg2rad(tilt_deg), np.zeros(2)
+    )
+    got = math.degrees(S[0, K.ROLL_RAD])
+    assert -180.0 <= got < 180.0
+    assert abs((got - expect + 180.0) % 360.0 - 180.0) < 1e-9
+
+
+# ----------------------------------------------------------------------------- simulation
+@pytest.fixture(scope="module")
+def clean_sim():
+    return simulate_handheld(SMALL, seed=424242)
+
+
+def test_handheld_motion_in_human_ranges(clean_sim):
+    t = clean_sim.truth
+    assert t.position_m[:, 2].min() >= 0.8 - 1e-9 and t.position_m[:, 2].max() <= 1.6 + 1e-9
+    assert t.orientation_deg[:, 1].min() >= 20.0 - 1e-9
+    assert t.orientation_deg[:, 1].max() <= 70.0 + 1e-9
+    roll = (t.orientation_deg[:, 2] + 180.0) % 360.0 - 180.0
+    assert np.abs(roll).max() <= 25.0 + 1e-9
+    z_rx = np.array([r.z_m for r in clean_sim.site.receivers])
+    assert np.all((z_rx[::2] >= 2.5) & (z_rx[::2] <= 3.0))  # ceiling
+    assert np.all(z_rx[1::2] < 2.5)
+    assert clean_sim.site.area.has_height_range
+    assert not clean_sim.site.device_pattern(clean_sim.truth.transmitter[0]).is_slice
+
+
+def test_handheld_is_deterministic(tmp_path):
+    cfg = replace(SMALL, duration_s=0.05)
+    simulate_handheld(cfg, seed=5).write(tmp_path / "a")
+    simulate_handheld(cfg, seed=5).write(tmp_path / "b")
+    for f in ("packets.csv", "truth.csv", "site/survey.csv", "site/receivers.csv"):
+        assert (tmp_path / "a" / f).read_bytes() == (tmp_path / "b" / f).read_bytes()
+
+
+def test_handheld_rejects_bad_settings():
+    with pytest.raises(InputError, match="pitch_range_deg"):
+        simulate_handheld(replace(SMALL, pitch_range_deg=(20.0, 100.0)))
+    with pytest.raises(InputError, match="z_step_m"):
+        simulate_handheld(replace(SMALL, z_step_m=0.25))
+
+
+# ----------------------------------------------------------------------------- height model
+def test_height_model_reproduces_the_channel(clean_sim):
+    """Noise-free: the 3-D expected RSS at the true poses is the simulated RSS, and
+    at heights far from the surveyed one (0.6 m, 1.8 m; survey at 1.2 m) the
+    channel recomputed there; without the height correction (exponent 0) it is not."""
+    site = clean_sim.site
+    hm = build_height_model(site)
+    assert hm.exponent == pytest.approx(3.0, abs=0.2)  # LogDistance's exponent, fitted
+    model = FilterModel3d.build3d(
+        site, candidate_space(site, site.devices[0].transmitter),
+        Pose3dConfig(acquisition_step_m=5.0, acquisition_tilts=2),
+    )  # fmt: skip
+    t = clean_sim.truth
+    S = _particles(*t.orientation_deg.T)
+    S[:, :3] = t.position_m
+    heard = np.arange(len(site.receivers))
+    rss = clean_sim.packets.rss_dbm.reshape(-1, heard.size)
+    err = np.abs(model.expected(S, heard) - rss)
+    # what remains is the bilinear lookup on the 0.5 m map grid (largest near a receiver)
+    assert err.mean() < 0.05 and np.percentile(err, 99) < 0.5
+    rx = site.receiver_positions_m()
+    rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
+    pats = tuple(site.patterns[r.pattern] for r in site.receivers)
+    flat = replace(model, exponent=0.0)
+    for z in (0.6, 1.8):
+        S[:, K.Z_M] = z
+        pos = t.position_m.copy()
+        pos[:, 2] = z
+        true = link_rss_dbm(
+            SMALL.channel, pos, t.orientation_deg, site.device_pattern(t.transmitter[0]),
+            SMALL.tx_power_dbm, rx, rx_o, pats,
+        )  # fmt: skip
+        moved = np.abs(model.expected(S, heard) - true).mean()
+        assert moved < 0.1
+        assert np.abs(flat.expected(S, heard) - true).mean() > 3 * moved
+
+
+# ----------------------------------------------------------------------------- the filter
+def run_filter(sim, pose3d: Pose3dConfig, model=None, seed: int = 3, config=None):
+    site = sim.site
+    space = candidate_space(site, site.devices[0].transmitter)
+    model = model or FilterModel3d.build3d(site, space, pose3d)
+    pf = ParticleFilter3d(model, config or FilterConfig(), None, pose3d)
+    st = pf.new_state(seed)
+    ids = list(site.receiver_ids)
+    out = []
+    for o in group_packets(sim.packets):
+        idx = np.array([ids.index(r) for r in o.receiver_ids])
+        out.append(pf.step(st, o.timestamp_s, HeardRss(idx, np.asarray(o.rss_dbm, float))))
+    pos = np.array([e.position_m for e in out])
+    ori = np.array([e.orientation_deg for e in out])
+    half = len(out) // 2  # the second half
+    pe = np.linalg.norm(pos - sim.truth.position_m, axis=1)[half:]
+    oe = relative_rotation_angle_deg(ori, sim.truth.orientation_deg)[half:]
+    return float(pe.mean()), float(oe.mean())
+
+
+def static_scene(seed: int, **changes):
+    """A noise-free scene with the phone held still at the walk's first pose
+    (8 receivers, 4 on the ceiling, 0.5 s): one pose to recover."""
+    sim = simulate_handheld(replace(SMALL, n_receivers=8, duration_s=0.5, **changes), seed=seed)
+    n, k = len(sim.truth), len(sim.site.receivers)
+    p = sim.packets
+    packets = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id,
+                      np.tile(p.rss_dbm[:k], n))  # fmt: skip
+    t = sim.truth
+    truth = Truth(t.timestamp_s, t.transmitter, np.tile(t.position_m[0], (n, 1)),
+                  np.tile(t.orientation_deg[0], (n, 1)))  # fmt: skip
+    return replace(sim, packets=packets, truth=truth)
+
+
+STATIC_SEED = 424242
+
+
+@pytest.fixture(scope="module")
+def static_sim():
+    return static_scene(STATIC_SEED)
+
+
+def test_known_pose_recovered_noise_free(static_sim):
+    """Noise-free, 8 receivers: the coarse acquisition and the local refinement
+    find the one pose (after the first 0.25 s)."""
+    pos_m, rot_deg = run_filter(static_sim, Pose3dConfig())
+    assert pos_m < POS_BOUND_M
+    assert rot_deg < ROT_BOUND_DEG
+
+
+def test_without_pitch_in_the_state_the_bound_fails(static_sim):
+    """The same data with pitch frozen at 0 (one candidate pitch): the phone's
+    tilt cannot be represented and the error bound breaks."""
+    flat = static_scene(STATIC_SEED, pitch_deg=(0.0,))
+    np.testing.assert_array_equal(flat.packets.rss_dbm, static_sim.packets.rss_dbm)
+    pos_m, rot_deg = run_filter(flat, Pose3dConfig())
+    assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
+
+
+def test_without_coarse_acquisition_the_bound_fails(static_sim):
+    """The coarse grid's scores replaced by a constant: particles start from
+    arbitrary cells (the first ones of the table) and the bound breaks."""
+    site = static_sim.site
+    p3 = Pose3dConfig()
+    model = FilterModel3d.build3d(site, candidate_space(site, site.devices[0].transmitter), p3)
+    assert model.coarse is not None
+    table = np.zeros_like(model.coarse.table_dbm)
+    blind = replace(model, coarse=replace(model.coarse, table_dbm=table))
+    pos_m, rot_deg = run_filter(static_sim, p3, model=blind)
+    assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
+
+
+def test_filter_dispatch_at_a_3d_site(static_sim):
+    """The registry's ``filter`` runs the 3-D filter at a 3-D site, builds no site
+    scorer there, and keeps the 2-D filter at a 2-D site."""
+    from radiopose.filtering import ParticleFilter
+    from radiopose.tracker import Tracker
+
+    sim = replace(static_sim, packets=static_sim.packets)
+    tracker = Tracker(sim.site, "filter")
+    obs = group_packets(sim.packets)
+    tracker.update(obs[0])
+    dev = next(iter(tracker._devices.values()))
+    assert isinstance(dev.engine, ParticleFilter3d)
+    assert dev.scorer is None
+    flat2d = simulate(ScenarioConfig(size_m=6.0, step_m=0.5, duration_s=0.02, azimuth_step_deg=10.0,
+                                     min_receiver_spacing_m=2.0), seed=9)  # fmt: skip
+    tracker2 = Tracker(flat2d.site, "filter")
+    tracker2.update(group_packets(flat2d.packets)[0])
+    dev2 = next(iter(tracker2._devices.values()))
+    assert type(dev2.engine) is ParticleFilter
+
+
+# ----------------------------------------------------------------------------- CLI, experiment
+def test_cli_simulate_pose_3d(tmp_path, capsys):
+    from radiopose.cli import main
+    from radiopose.site import load_site, site_is_3d
+
+    out = tmp_path / "sim"
+    args = ["simulate", "-o", str(out), "--pose", "3d", "--duration-s", "0.02", "--receivers", "4"]
+    assert main(args) == 0
+    site = load_site(out / "site")
+    assert site_is_3d(site) and site.area.has_height_range
+    assert "z_min_m" in (out / "site" / "site.toml").read_text()
+    capsys.readouterr()
+    assert main([*args[:2], str(tmp_path / "x"), *args[3:], "--size-m", "10"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "radiopose: --size-m applies only with --pose 2d"
+    assert main(["simulate", "-o", str(tmp_path / "y"), "--pose", "4d"]) == 2
+    assert "--pose must be 2d or 3d" in capsys.readouterr().err
+
+
+def test_scenario_pose_3d_is_the_handheld_scenario():
+    cfg = ScenarioConfig(pose="3d", duration_s=0.02, n_receivers=4, noise_db=0.5)
+    a = simulate(cfg, seed=11)
+    b = simulate_handheld(HandheldConfig.from_scenario(cfg), seed=11)
+    np.testing.assert_array_equal(a.packets.rss_dbm, b.packets.rss_dbm)
+    assert a.config is cfg and a.site.area.has_height_range
+    assert not simulate(replace(cfg, pose="2d"), seed=11).site.area.has_height_range
+
+
+def test_3d_experiment_ships():
+    from radiopose.evaluate.experiments import SHIPPED, load_experiment
+
+    assert "3d" not in SHIPPED  # not run by default: the paper's five are
+    exp = load_experiment("3d")
+    assert exp.methods == ("filter",)
+    assert {dict(c.params)["n_receivers"] for c in exp.conditions} == {4, 6, 8}
+    assert {dict(c.params)["noise_db"] for c in exp.conditions} == {0.5, 1.0, 2.0, 3.0}
+    assert all(c.scenario.pose == "3d" for c in exp.conditions)
+
+
+def test_axis_errors():
+    from radiopose.estimates import Estimates
+    from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
+
+    e = axis_errors_of([[0, 0, 1.5]], [[359.0, 40.0, 1.0]], [[3, 4, 1.0]], [[1.0, 30.0, 359.0]])
+    np.testing.assert_allclose(
+        [e.position_m[0], e.height_m[0], e.azimuth_deg[0], e.pitch_deg[0], e.roll_deg[0]],
+        [math.sqrt(25.25), 0.5, 2.0, 10.0, 2.0],
+    )
+    assert e.rotation_deg[0] == pytest.approx(
+        relative_rotation_angle_deg([359.0, 40.0, 1.0], [1.0, 30.0, 359.0])[0]
+    )
+    truth = Truth(np.array([0.0, 0.1]), np.array(["tx", "tx"], dtype=object),
+                  np.zeros((2, 3)), np.zeros((2, 3)))  # fmt: skip
+    est = Estimates(np.array([0.1]), np.array(["tx"], dtype=object), np.array(["1"], dtype=object),
+                    np.array([[0.0, 0.0, 0.3]]), np.array([[0.0, 0.0, 0.0]]),
+                    np.array(["filter"], dtype=object))  # fmt: skip
+    got = axis_errors(truth, est)
+    assert got.coverage == 0.5 and got.height_m[0] == pytest.approx(0.3)
