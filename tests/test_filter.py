@@ -323,8 +323,6 @@ def test_unknown_transmitter_is_skipped_and_counted(sim_half_db, scorer):
         ("huber_c", -1.0),
         ("reentry_fraction", 1.5),
         ("sigma_prior_db", float("nan")),
-        ("prior_motion_fraction", 0.6),  # with rest_fraction 0.5: sum above 1
-        ("prior_motion_fraction", -0.1),
     ],
 )
 def test_bad_filter_settings_are_one_line_errors(field, value):

@@ -126,12 +126,6 @@ class FilterConfig:
         turn rate 0) instead of with the motion of a particle of the filter
         (which belongs to the filter's mode, perhaps the wrong one); only when
         the evidence window holds several packets.
-    prior_motion_fraction
-        Fraction of the re-entered hypotheses whose velocity and turn rate are
-        drawn from the motion prior (``initial_speed_mps``,
-        ``initial_rate_dps``) instead (only when the evidence window holds
-        several packets; ``rest_fraction + prior_motion_fraction <= 1``; the
-        others copy a donor's motion).
     difference_memory, difference_max_dt_s
         σ is also estimated from the packets alone: the median of the last
         ``difference_memory`` squared differences of one receiver's readings at
@@ -170,7 +164,6 @@ class FilterConfig:
     )  # fmt: skip
     offset_scans_per_reentry: int = 2
     rest_fraction: float = 0.5
-    prior_motion_fraction: float = 0.0
     difference_memory: int = 400
     difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
@@ -198,15 +191,8 @@ class FilterConfig:
             )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
-        if not (
-            0 <= self.rest_fraction <= 1
-            and 0 <= self.prior_motion_fraction <= 1 - self.rest_fraction
-        ):
-            raise InputError(
-                f"filter settings rest_fraction = {self.rest_fraction!r} and"
-                f" prior_motion_fraction = {self.prior_motion_fraction!r}: each in [0, 1],"
-                " their sum <= 1"
-            )
+        if not 0 <= self.rest_fraction <= 1:
+            raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
         if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
             raise InputError(
                 "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
@@ -509,22 +495,9 @@ class ParticleFilter:
         # a donor's motion belongs to the filter's mode, which may be the wrong
         # one: some hypotheses start at rest (the median pose of a window of
         # several packets is a static one; with one packet it says nothing of rest)
-        u = st.rng.random(m)
-        rest = (u < cfg.rest_fraction) & (len(st.window) > 1)
+        rest = (st.rng.random(m) < cfg.rest_fraction) & (len(st.window) > 1)
         new[rest, K.VX_MPS : K.VY_MPS + 1] = 0.0
         new[rest, K.RATE_RAD_S] = 0.0
-        if cfg.prior_motion_fraction > 0 and len(st.window) > 1:
-            # others move as the motion prior draws them: the evidence test over
-            # the window then favours those whose motion fits (neither rest nor
-            # a donor of the filter's mode need be near the device's turn rate)
-            drawn = np.flatnonzero(
-                (u >= cfg.rest_fraction) & (u < cfg.rest_fraction + cfg.prior_motion_fraction)
-            )
-            new[drawn, K.VX_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, drawn.size)
-            new[drawn, K.VY_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, drawn.size)
-            new[drawn, K.RATE_RAD_S] = np.deg2rad(
-                st.rng.normal(0.0, cfg.initial_rate_dps, drawn.size)
-            )
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
         # evidence of each hypothesis over the window (moved back along its velocity)
