@@ -126,34 +126,6 @@ class FilterConfig:
         turn rate 0) instead of with the motion of a particle of the filter
         (which belongs to the filter's mode, perhaps the wrong one); only when
         the evidence window holds several packets.
-    prior_motion_fraction
-        Fraction of the re-entered hypotheses whose velocity and turn rate are
-        drawn from the motion prior (``initial_speed_mps``,
-        ``initial_rate_dps``) instead (only when the evidence window holds
-        several packets; ``rest_fraction + prior_motion_fraction <= 1``; the
-        others copy a donor's motion).
-    holdout_windows
-        ``0``: a re-entered hypothesis is judged (its evidence against the
-        filter's) over the very window its pose and offset were fitted to;
-        ``n > 0``: it is held back and judged over the next ``n`` re-entry
-        windows only, moved forward along its velocity and turn rate, and
-        enters then (a fit to one window's noise does not carry over to the
-        next, so a spurious mode no longer wins the test by selection).
-    reentry_mass_cap
-        The most posterior mass one re-entry may give its hypotheses, as a
-        multiple of the rest of the cloud's (``inf``: no cap): with a cap a
-        mode takes over only by winning the evidence test in several windows
-        in a row, not by one noisy window.
-    jump_past_motion
-        A re-entered hypothesis far from the particle whose motion it copied
-        (a jump to another mode) has no genealogy; the smoother gives it a past
-        of its own pose moved back along this multiple of its velocity and
-        turn rate (``0``: a static past).
-    jump_past_refresh
-        At each of this many re-entries after a jump, the smoother's past of
-        the jump's descendants is drawn again from their pose then moved back
-        along their velocity and turn rate then, which the packets since the
-        jump have corrected (``0``: never).
     difference_memory, difference_max_dt_s
         σ is also estimated from the packets alone: the median of the last
         ``difference_memory`` squared differences of one receiver's readings at
@@ -192,11 +164,6 @@ class FilterConfig:
     )  # fmt: skip
     offset_scans_per_reentry: int = 2
     rest_fraction: float = 0.5
-    prior_motion_fraction: float = 0.0
-    holdout_windows: int = 0
-    reentry_mass_cap: float = math.inf
-    jump_past_motion: float = 1.0
-    jump_past_refresh: int = 0
     difference_memory: int = 400
     difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
@@ -212,10 +179,6 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise InputError(f"filter setting {name} = {v!r} must be a positive number")
-        if not 0 <= self.jump_past_motion <= 1:
-            raise InputError(
-                f"filter setting jump_past_motion = {self.jump_past_motion!r} not in [0, 1]"
-            )
         for name in ("tilt_noise_dps", "initial_speed_mps", "initial_rate_dps"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
@@ -228,28 +191,11 @@ class FilterConfig:
             )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
-        if not self.reentry_mass_cap > 0:  # inf allowed (no cap); NaN refused
+        if not 0 <= self.rest_fraction <= 1:
+            raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
+        if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
             raise InputError(
-                f"filter setting reentry_mass_cap = {self.reentry_mass_cap!r} must be > 0"
-            )
-        if not (
-            0 <= self.rest_fraction <= 1
-            and 0 <= self.prior_motion_fraction <= 1 - self.rest_fraction
-        ):
-            raise InputError(
-                f"filter settings rest_fraction = {self.rest_fraction!r} and"
-                f" prior_motion_fraction = {self.prior_motion_fraction!r}: each in [0, 1],"
-                " their sum <= 1"
-            )
-        if (
-            self.offset_scans_per_reentry < 0
-            or self.difference_memory < 0
-            or not (0 <= self.holdout_windows <= 10)
-            or not (0 <= self.jump_past_refresh <= 10)
-        ):
-            raise InputError(
-                "filter settings offset_scans_per_reentry and difference_memory must be >= 0,"
-                " holdout_windows and jump_past_refresh in 0..10"
+                "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
             )
         if not all(math.isfinite(v) for v in self.offset_scan_db):
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
@@ -392,9 +338,7 @@ class FilterState:
     offset_prior_db: float = 0.0
     scan_index: int = 0
     window: deque = field(default_factory=deque)
-    proposals: deque = field(default_factory=deque)
     lineage: Lineage | None = None
-    jump_age: np.ndarray | None = None
     pending: deque = field(default_factory=deque)
 
 
@@ -506,9 +450,7 @@ class ParticleFilter:
         st.particles = S
         st.log_weights = np.zeros(n)
         st.window.clear()
-        st.proposals.clear()
         st.lineage = None
-        st.jump_age = None
         return True
 
     def _reenter(self, st: FilterState, t_s: float, w: FloatArray) -> None:
@@ -542,9 +484,6 @@ class ParticleFilter:
             if min(abs(o - v) for v in offsets) > 1.0:
                 offsets.append(o)
         m = max(1, round(cfg.reentry_fraction * n))
-        self._refresh_jump_pasts(st, t_s)
-        if cfg.holdout_windows > 0:
-            self._judge_pending(st, t_s, w, b)
         drawn = self._draw(st, mean, m, offsets, len(st.window))
         if drawn is None:
             return
@@ -556,29 +495,11 @@ class ParticleFilter:
         # a donor's motion belongs to the filter's mode, which may be the wrong
         # one: some hypotheses start at rest (the median pose of a window of
         # several packets is a static one; with one packet it says nothing of rest)
-        u = st.rng.random(m)
-        rest = (u < cfg.rest_fraction) & (len(st.window) > 1)
+        rest = (st.rng.random(m) < cfg.rest_fraction) & (len(st.window) > 1)
         new[rest, K.VX_MPS : K.VY_MPS + 1] = 0.0
         new[rest, K.RATE_RAD_S] = 0.0
-        if cfg.prior_motion_fraction > 0 and len(st.window) > 1:
-            # others move as the motion prior draws them: the evidence test over
-            # the window then favours those whose motion fits (neither rest nor
-            # a donor of the filter's mode need be near the device's turn rate)
-            drawn = np.flatnonzero(
-                (u >= cfg.rest_fraction) & (u < cfg.rest_fraction + cfg.prior_motion_fraction)
-            )
-            new[drawn, K.VX_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, drawn.size)
-            new[drawn, K.VY_MPS] = st.rng.normal(0.0, cfg.initial_speed_mps, drawn.size)
-            new[drawn, K.RATE_RAD_S] = np.deg2rad(
-                st.rng.normal(0.0, cfg.initial_rate_dps, drawn.size)
-            )
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
-        if cfg.holdout_windows > 0:
-            # judged on later packets only (the proposal's pose and offset are
-            # fitted to this window, so its evidence here is biased upwards)
-            st.proposals.append(_Proposals(t_s, t_s, new, np.zeros(m), 0.0, 0))
-            return
         # evidence of each hypothesis over the window (moved back along its velocity)
         ll = np.zeros(m)
         sigma = math.sqrt(st.sigma2_db2)
@@ -592,104 +513,18 @@ class ParticleFilter:
             pred = mod.expected(back, hd.receiver_index)
             K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, self._log_eps(sigma), ll)
         evidence = sum(lz for _, _, lz in st.window)
-        self._admit(st, t_s, w, b, new, ll - evidence, donors, cfg.proposal_window_s)
-
-    def _admit(
-        self,
-        st: FilterState,
-        t_s: float,
-        w: FloatArray,
-        b: float,
-        new: FloatArray,
-        log_ratio: FloatArray,
-        donors: np.ndarray,
-        past_s: float,
-    ) -> None:
-        """Put hypotheses ``new`` (at ``t_s``) into random slots with weight
-        ``jump_probability / m`` × their evidence ratio ``log_ratio`` against the
-        filter's × the offset prior's ratio (their offset against the belief ``b``)."""
-        cfg = self.config
-        S, logw = st.particles, st.log_weights
-        assert S is not None and logw is not None
-        n, m = S.shape[0], new.shape[0]
-        off = new[:, K.OFFSET_DB]
         prior = (
             -0.5
             * ((off - st.offset_prior_db) ** 2 - (b - st.offset_prior_db) ** 2)
             / cfg.offset_prior_sd_db**2
         )
-        log_mass = math.log(cfg.jump_probability / m) + log_ratio + prior
-        if math.isfinite(cfg.reentry_mass_cap):
-            # one window's evidence may give the newcomers at most this share of
-            # the cloud's mass: a mode takes over only by winning several windows
-            total = float(K.log_sum_exp(log_mass))
-            cap = math.log(cfg.reentry_mass_cap)
-            if total > cap:
-                log_mass -= total - cap
         slots = st.rng.choice(n, size=m, replace=False)
-        lse = float(K.log_sum_exp(logw))
+        lse = float(K.log_sum_exp(st.log_weights))
         donor_rows = S[donors]
         S[slots] = new
-        logw[slots] = lse + log_mass
+        st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
-            self._inject_lineage(st, t_s, new, slots, donors, donor_rows, past_s)
-
-    def _refresh_jump_pasts(self, st: FilterState, t_s: float) -> None:
-        """Redraw the smoother's past of the descendants of recent jumps (see
-        ``FilterConfig.jump_past_refresh``) from their current pose moved back
-        along their current velocity and turn rate, which the packets since the
-        jump have corrected (the jump's own motion was its donor's)."""
-        age, lin, S = st.jump_age, st.lineage, st.particles
-        if age is None or lin is None or S is None or not age.any():
-            return
-        sel = np.flatnonzero(age > 0)
-        lin.inject(
-            t_s, 0.0, S[sel], sel, sel, inherit=np.zeros(sel.size, np.bool_),
-            box_m=self.model.box_m,
-        )  # fmt: skip
-        age[sel] += 1
-        age[age > self.config.jump_past_refresh] = 0
-
-    def _judge_pending(self, st: FilterState, t_s: float, w: FloatArray, b: float) -> None:
-        """Score the held-back proposals on the packets since they were last
-        scored (moved forward along their velocity and turn rate); admit those
-        judged over ``holdout_windows`` windows, at their pose now."""
-        cfg, mod = self.config, self.model
-        S = st.particles
-        assert S is not None
-        sigma = math.sqrt(st.sigma2_db2)
-        log_eps = self._log_eps(sigma)
-        keep: deque[_Proposals] = deque()
-        for prop in st.proposals:
-            fwd = np.empty_like(prop.particles)
-            for tau, hd, lz in st.window:
-                if tau <= prop.scored_until_s:
-                    continue
-                self._moved(prop.particles, tau - prop.t_s, fwd)
-                pred = mod.expected(fwd, hd.receiver_index)
-                K.fixed_offset_loglik(
-                    pred, hd.rss_dbm, prop.particles[:, K.OFFSET_DB], sigma, log_eps, prop.loglik
-                )
-                prop.evidence += lz
-            prop.scored_until_s = t_s
-            prop.windows += 1
-            if prop.windows < cfg.holdout_windows:
-                keep.append(prop)
-                continue
-            self._moved(prop.particles, t_s - prop.t_s, fwd)
-            donors = st.rng.choice(S.shape[0], size=fwd.shape[0], p=w)
-            past = t_s - prop.t_s + cfg.proposal_window_s
-            self._admit(st, t_s, w, b, fwd, prop.loglik - prop.evidence, donors, past)
-        st.proposals = keep
-
-    def _moved(self, P: FloatArray, dt_s: float, out: FloatArray) -> None:
-        """``P`` moved ``dt_s`` along its velocity and turn rate into ``out``
-        (positions clipped to the site's box)."""
-        box = self.model.box_m
-        out[:] = P
-        out[:, K.X_M] = np.clip(P[:, K.X_M] + P[:, K.VX_MPS] * dt_s, box[0], box[1])
-        out[:, K.Y_M] = np.clip(P[:, K.Y_M] + P[:, K.VY_MPS] * dt_s, box[2], box[3])
-        out[:, K.AZIMUTH_RAD] = (P[:, K.AZIMUTH_RAD] + P[:, K.RATE_RAD_S] * dt_s) % (2 * np.pi)
+            self._inject_lineage(st, t_s, new, slots, donors, donor_rows)
 
     def _inject_lineage(
         self,
@@ -699,7 +534,6 @@ class ParticleFilter:
         slots: np.ndarray,
         donors: np.ndarray,
         donor_rows: FloatArray,
-        past_s: float,
     ) -> None:
         """Give re-entered particles a past for the smoother: within the evidence
         window their pose moved back along their velocity and turn rate; before
@@ -712,22 +546,10 @@ class ParticleFilter:
         dist = np.hypot(new[:, K.X_M] - d[:, K.X_M], new[:, K.Y_M] - d[:, K.Y_M])
         turn = np.abs((new[:, K.AZIMUTH_RAD] - d[:, K.AZIMUTH_RAD] + np.pi) % (2 * np.pi) - np.pi)
         same = (dist <= 1.0) & (turn <= math.radians(30.0))
-        f = self.config.jump_past_motion
-        if f != 1.0 and not same.all():
-            # a jump's motion is its donor's, from another (perhaps mirrored)
-            # mode: over the lag it would carry the made-up past far off
-            new = new.copy()
-            new[~same, K.VX_MPS : K.VY_MPS + 1] *= f
-            new[~same, K.RATE_RAD_S] *= f
         st.lineage.inject(
-            t_s, past_s, new, slots, donors, inherit=same,
+            t_s, self.config.proposal_window_s, new, slots, donors, inherit=same,
             box_m=self.model.box_m,
         )  # fmt: skip
-        if self.config.jump_past_refresh > 0:
-            if st.jump_age is None or st.jump_age.size != st.lineage.n:
-                st.jump_age = np.zeros(st.lineage.n, np.int8)
-            # a hypothesis in its donor's mode inherits its past, so its age too
-            st.jump_age[slots] = np.where(same, st.jump_age[donors], 1)
 
     # ------------------------------------------------------------------ step
     def step(
@@ -798,8 +620,6 @@ class ParticleFilter:
             logw[:] = 0.0
             if st.lineage is not None:
                 st.lineage.remap(work.idx)
-                if st.jump_age is not None and st.jump_age.any():
-                    st.jump_age = st.jump_age[work.idx]
         return est
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
@@ -921,22 +741,6 @@ def _summary(moments: FloatArray, offset_db: float, sigma_db: float) -> FilterEs
         offset_db,
         sigma_db,
     )
-
-
-@dataclass(eq=False)
-class _Proposals:
-    """Re-entry hypotheses held back to be judged on later packets
-    (``FilterConfig.holdout_windows``): proposed at ``t_s`` (``particles`` the
-    pose there), scored up to ``scored_until_s`` — ``loglik`` per hypothesis
-    at its fixed offset, ``evidence`` the filter's over the same packets —
-    over ``windows`` re-entry windows."""
-
-    t_s: float
-    scored_until_s: float
-    particles: FloatArray
-    loglik: FloatArray
-    evidence: float
-    windows: int
 
 
 @dataclass(eq=False)
