@@ -27,11 +27,19 @@ Usage::
 
     python scripts/filter_accuracy.py [--seed-sets 1000-1009 1010-1029] [--sigmas 0.5 3]
         [--variants filter "filter, causal" ...] [--jobs 2] [--out docs/filter-accuracy.md]
+    python scripts/filter_accuracy.py --seeds 1 --first-seed 5   # one set: 5 only
+
+Tuning (seeds 7000–7059 only; each run's numbers go to stderr)::
+
+    python scripts/filter_accuracy.py --seed-sets 7000-7059 --sigmas 3 --variants filter \
+        --set jump_probability=0.0001 --jobs 2
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -40,7 +48,9 @@ from pathlib import Path
 
 import numpy as np
 
+from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
+from radiopose.filtering import FilterConfig
 from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
@@ -82,14 +92,39 @@ def _edited(sim: Simulation, edit: str) -> Simulation:
     return replace(sim, packets=packets)
 
 
+def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
+    """``FIELD=VALUE`` items as :class:`FilterConfig` overrides (argparse errors
+    for unknown fields, non-literals and values the config refuses)."""
+    fields = {f.name for f in dataclasses.fields(FilterConfig)}
+    out: dict[str, object] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in fields:
+            ap.error(f"--set {item}: {key!r} is not a FilterConfig field")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            ap.error(f"--set {item}: {value!r} is not a Python literal")
+    try:
+        replace(FilterConfig(), **out)
+    except (InputError, TypeError) as exc:
+        ap.error(str(exc))
+    return out
+
+
 def _one(
-    sigma: float, seed: int, variants: tuple[str, ...] = tuple(VARIANTS)
+    sigma: float,
+    seed: int,
+    variants: tuple[str, ...] = tuple(VARIANTS),
+    overrides: dict[str, object] | None = None,
 ) -> tuple[float, int, dict[str, RunResult]]:
     sim = simulate(ScenarioConfig(noise_db=sigma), seed)
     scorer = build_scorer(sim, "numba")
     out: dict[str, RunResult] = {}
     for name in variants:
         cfg, edit, method = VARIANTS[name]
+        if overrides and method == "filter":
+            cfg = replace(cfg, filter=replace(cfg.filter, **overrides))
         s = _edited(sim, edit) if edit else sim
         run = run_methods(s, (method,), cfg, scorer)[method]
         out[name] = RunResult(
@@ -154,12 +189,22 @@ def main(argv: list[str] | None = None) -> int:
         "--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
         help="rows to run (default all)",
     )  # fmt: skip
+    ap.add_argument("--seeds", type=int, default=None, help="with --first-seed: one set of N seeds")
+    ap.add_argument("--first-seed", type=int, default=None)
+    ap.add_argument(
+        "--set", nargs="*", default=[], metavar="FIELD=VALUE",
+        help="FilterConfig overrides for the filter rows (tuning: on seeds 7000-7059 only)",
+    )  # fmt: skip
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (runs in parallel)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.seeds is not None or args.first_seed is not None:
+        first = 1000 if args.first_seed is None else args.first_seed
+        args.seed_sets = [range(first, first + (10 if args.seeds is None else args.seeds))]
+    overrides = _overrides(ap, args.set)
     variants = [v for v in VARIANTS if v in args.variants]
     seeds = sorted({s for r in args.seed_sets for s in r})
-    tasks = [(sigma, seed, tuple(variants)) for sigma in args.sigmas for seed in seeds]
+    tasks = [(sigma, seed, tuple(variants), overrides) for sigma in args.sigmas for seed in seeds]
     t_start = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -175,7 +220,8 @@ def main(argv: list[str] | None = None) -> int:
         lines.append("")
     lines.append(
         f"{len(seeds)} seeds, {elapsed_s:.0f} s with {args.jobs} process(es) "
-        "(`python scripts/filter_accuracy.py`)."
+        "(`python scripts/filter_accuracy.py`)"
+        + (f", filter settings {overrides}." if overrides else ".")
     )
     text = "\n".join(lines) + "\n"
     print(text)
