@@ -419,3 +419,46 @@ def test_locate_bad_input_same_answer_as_the_paper_methods(
     else:
         assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
         assert not out.exists()
+
+
+def _accuracy_script():
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "filter_accuracy.py"
+    spec = importlib.util.spec_from_file_location("filter_accuracy_script", path)
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # its dataclass looks its module up there
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_accuracy_script_tables_each_seed_set_and_counts_bad_runs():
+    """``scripts/filter_accuracy.py`` (the held-out table): seed sets parse as
+    inclusive ranges (bad ones are argparse errors, not tracebacks), each set
+    gets its own rows, and runs whose mean orientation error exceeds 15° are
+    counted."""
+    import argparse
+
+    fa = _accuracy_script()
+    assert fa._seed_set("1010-1029") == range(1010, 1030)
+    assert fa._seed_set("7") == range(7, 8)
+    for bad in ("x", "5-3", "1-b"):
+        with pytest.raises(argparse.ArgumentTypeError, match="seed set"):
+            fa._seed_set(bad)
+
+    def run(ori_deg: float) -> object:
+        return fa.RunResult(np.full(4, 0.5), np.full(4, ori_deg), 4, 4, 1.0)
+
+    done = [
+        (3.0, 1000, {"filter": run(2.0)}),
+        (3.0, 1001, {"filter": run(20.0)}),
+        (3.0, 1010, {"filter": run(1.0)}),
+    ]
+    first = fa._table(done, [3.0], ["filter"], range(1000, 1002))
+    fresh = fa._table(done, [3.0], ["filter"], range(1010, 1011))
+    cells = [c.strip() for c in first[2].split("|")[1:-1]]
+    assert cells[1] == "filter" and cells[9] == "11.00" and cells[10] == "20.0"
+    assert cells[11] == "1"  # one run above 15°
+    assert [c.strip() for c in fresh[2].split("|")[1:-1]][11] == "0"
