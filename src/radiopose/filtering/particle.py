@@ -60,9 +60,13 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.lineage import Lineage
-from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, profile_offset_db
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, TopK, profile_offset_db
 from radiopose.site import Site
 from radiopose.units import FloatArray
+
+_HINT_BIN_DB = 1.5
+"""Width of the power-offset bins whose grid searches share a threshold hint, dB
+(the scanned offsets are 1.5 dB apart; speed only)."""
 
 _LookupArrays = tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, FloatArray]
 
@@ -290,6 +294,17 @@ class FilterModel:
             cell_m=(dx, dy, 360.0 / az.size if az.size else 360.0),
         )
 
+    def search(self, heard: HeardRss, k: int, slot: int) -> TopK:
+        """The scorer's top-``k`` over the full grid (``score_heard``). ``slot``
+        names a recurring search (here: the power offset's bin) so that a scorer
+        which keeps a threshold hint (:meth:`ShiftScorer.score_heard_slot
+        <radiopose.likelihood.compiled.ShiftScorer.score_heard_slot>`) starts
+        from that search's previous shortlist; the result does not depend on it."""
+        by_slot = getattr(self.scorer, "score_heard_slot", None)
+        if by_slot is not None:
+            return by_slot(heard, k, slot)
+        return self.scorer.score_heard(heard, k)
+
     def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
         """Expected RSS ``(n, h)`` dBm without the offset."""
         heard = np.ascontiguousarray(heard_index, dtype=np.int64)
@@ -398,7 +413,8 @@ class ParticleFilter:
         cfg, mod = self.config, self.model
         cand_parts = []
         for off in offsets_db:
-            top = mod.scorer.score_heard(HeardRss(heard.receiver_index, heard.rss_dbm - off), cfg.k)
+            shifted = HeardRss(heard.receiver_index, heard.rss_dbm - off)
+            top = mod.search(shifted, cfg.k, round((off - st.offset_prior_db) / _HINT_BIN_DB))
             cand_parts.append(top.candidate_idx)
         cand = np.unique(np.concatenate(cand_parts))
         if cand.size == 0:

@@ -58,6 +58,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+from collections.abc import Hashable
 
 import numba
 import numpy as np
@@ -619,6 +620,7 @@ class ShiftScorer(ScorerBase):
         self.prune = bool(prune)
         self.retries = 0
         self._hint = np.empty(0, np.int64)
+        self._slot_hints: dict[Hashable, np.ndarray] = {}
 
         pattern = space.pattern
         row_step, m = _row_grid(pattern, step)
@@ -850,6 +852,22 @@ class ShiftScorer(ScorerBase):
         """Top-k candidates of one packet over the full grid (best first)."""
         return self._run(heard, k, self.all_positions, 0, self.n_az)
 
+    def score_heard_slot(self, heard: HeardRss, k: int, slot: Hashable) -> TopK:
+        """:meth:`score_heard` with the threshold hint of ``slot`` instead of the
+        last call's: a caller that alternates between several recurring searches
+        (the particle filter's re-entry searches the grid at several power
+        offsets, each recurring every few re-entries) gives each its own key, so
+        each starts from the shortlist positions of its own previous search
+        rather than from another offset's. Only speed depends on ``slot``, never
+        the result."""
+        saved = self._hint
+        self._hint = self._slot_hints.get(slot, saved[:0])
+        try:
+            return self.score_heard(heard, k)
+        finally:
+            self._slot_hints[slot] = self._hint
+            self._hint = saved
+
     def score_window(
         self,
         heard: HeardRss,
@@ -920,6 +938,7 @@ class ShiftScorer(ScorerBase):
         twin.parallel = bool(parallel)
         twin._kernel = _shift_topk if twin.parallel else _shift_topk_serial
         twin._hint = np.empty(0, np.int64)
+        twin._slot_hints = {}
         return twin
 
 
