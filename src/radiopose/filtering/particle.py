@@ -684,17 +684,17 @@ class ParticleFilter:
                 st.last_rss_dbm = np.zeros(n_rx)
                 st.last_rss_time_s = np.full(n_rx, -math.inf)
                 st.diff2_db2 = np.zeros(cfg.difference_memory)
-            idx = heard.receiver_index
-            gap = t_s - st.last_rss_time_s[idx]
-            ok = (gap > 0) & (gap <= cfg.difference_max_dt_s)
-            for d in heard.rss_dbm[ok] - st.last_rss_dbm[idx[ok]]:
-                st.diff2_db2[st.diff_count % cfg.difference_memory] = d * d
-                st.diff_count += 1
-            st.last_rss_dbm[idx] = heard.rss_dbm
-            st.last_rss_time_s[idx] = t_s
+            st.diff_count = int(
+                K.push_differences(
+                    np.ascontiguousarray(heard.receiver_index, dtype=np.int64),
+                    np.ascontiguousarray(heard.rss_dbm, dtype=np.float64),
+                    t_s, cfg.difference_max_dt_s, st.last_rss_dbm, st.last_rss_time_s,
+                    st.diff2_db2, st.diff_count,
+                )
+            )  # fmt: skip
             if st.diff_count >= 40:
-                used = st.diff2_db2[: min(st.diff_count, cfg.difference_memory)]
-                sigma2 = min(sigma2, float(np.median(used)) / (2.0 * 0.4549))
+                used = min(st.diff_count, cfg.difference_memory)
+                sigma2 = min(sigma2, float(K.median_of_first(st.diff2_db2, used)) / (2.0 * 0.4549))
         st.sigma2_db2 = max(sigma2, cfg.sigma_floor_db**2)
 
     # ------------------------------------------------------------------ smoothing
