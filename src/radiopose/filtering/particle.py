@@ -294,16 +294,18 @@ class FilterModel:
             cell_m=(dx, dy, 360.0 / az.size if az.size else 360.0),
         )
 
-    def search(self, heard: HeardRss, k: int, slot: int) -> TopK:
-        """The scorer's top-``k`` over the full grid (``score_heard``). ``slot``
-        names a recurring search (here: the power offset's bin) so that a scorer
-        which keeps a threshold hint (:meth:`ShiftScorer.score_heard_slot
-        <radiopose.likelihood.compiled.ShiftScorer.score_heard_slot>`) starts
-        from that search's previous shortlist; the result does not depend on it."""
-        by_slot = getattr(self.scorer, "score_heard_slot", None)
-        if by_slot is not None:
-            return by_slot(heard, k, slot)
-        return self.scorer.score_heard(heard, k)
+    def search(self, heards: list[HeardRss], k: int, slots: list[int]) -> list[TopK]:
+        """The scorer's top-``k`` over the full grid of each of ``heards``
+        (``score_heard``). ``slots[i]`` names a recurring search (here: the power
+        offset's bin) so that a scorer which keeps a threshold hint starts from
+        that search's previous shortlist; the compiled scorer also runs the
+        searches on both cores (:meth:`ShiftScorer.score_heard_many
+        <radiopose.likelihood.compiled.ShiftScorer.score_heard_many>`). The
+        results do not depend on either."""
+        many = getattr(self.scorer, "score_heard_many", None)
+        if many is not None:
+            return list(many(heards, k, slots))
+        return [self.scorer.score_heard(h, k) for h in heards]
 
     def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
         """Expected RSS ``(n, h)`` dBm without the offset."""
@@ -411,12 +413,12 @@ class ParticleFilter:
         offset, with each candidate's best offset (shrunk to the prior); returns
         ``(particles, offsets, precision)`` or ``None`` if nothing is scorable."""
         cfg, mod = self.config, self.model
-        cand_parts = []
-        for off in offsets_db:
-            shifted = HeardRss(heard.receiver_index, heard.rss_dbm - off)
-            top = mod.search(shifted, cfg.k, round((off - st.offset_prior_db) / _HINT_BIN_DB))
-            cand_parts.append(top.candidate_idx)
-        cand = np.unique(np.concatenate(cand_parts))
+        tops = mod.search(
+            [HeardRss(heard.receiver_index, heard.rss_dbm - off) for off in offsets_db],
+            cfg.k,
+            [round((off - st.offset_prior_db) / _HINT_BIN_DB) for off in offsets_db],
+        )
+        cand = np.unique(np.concatenate([top.candidate_idx for top in tops]))
         if cand.size == 0:
             return None
         space = mod.space
@@ -627,7 +629,7 @@ class ParticleFilter:
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self.lag_s is not None:
             if st.lineage is None:
-                st.lineage = Lineage(n)
+                st.lineage = Lineage(n, extra_rows=self._lineage_extra_rows(n))
             st.lineage.push(t_s, work.rows)
             st.pending.append((t_s, key, est))
             self._emit(st, w, t_s - self.lag_s)
@@ -637,6 +639,16 @@ class ParticleFilter:
             if st.lineage is not None:
                 st.lineage.remap(work.idx)
         return est
+
+    def _lineage_extra_rows(self, n: int) -> int:
+        """Rows the smoother's genealogy keeps per packet for re-entered
+        hypotheses: one re-entry's worth per re-entry while the packet is within
+        the lag and the evidence window, with one to spare (so its ring need
+        not widen, a copy of all of it, while tracking)."""
+        cfg = self.config
+        m = max(1, round(cfg.reentry_fraction * n))
+        span_s = (self.lag_s or 0.0) + cfg.proposal_window_s
+        return m * (math.ceil(span_s / cfg.reentry_interval_s) + 2)
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
         """The scalar that :func:`kernels.measurement_update` takes after σ:

@@ -58,7 +58,8 @@ from __future__ import annotations
 import copy
 import math
 import os
-from collections.abc import Hashable
+from collections.abc import Hashable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -76,6 +77,8 @@ _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
 DENSE_MAX_VALUES = 65_536
+_LAST_CALL = object()  # `slot` of a search that uses (and sets) the last call's hint
+_NO_HINT = np.empty(0, np.int64)
 """Largest threshold pass scored densely (one array, then a partition); larger
 ones use the kernel's per-chunk heaps."""
 PARALLEL_MIN_TERMS = 1_000_000
@@ -243,7 +246,7 @@ def _accumulate(acc, e, k, f, t, g, toff, rows, drows, m, b0, nb):  # pragma: no
                     acc[jj] += d * d
 
 
-@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
 def _dense(
     w,
     heard,
@@ -398,9 +401,11 @@ def _shift_topk(*args):  # pragma: no cover - compiled
     return out_v, out_i
 
 
-@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
 def _shift_topk_serial(*args):  # pragma: no cover - compiled
-    """:func:`_shift_topk` (same arguments) on one thread: no parallel start-up."""
+    """:func:`_shift_topk` (same arguments) on one thread: no parallel start-up;
+    it releases the GIL, so independent searches can run on Python threads
+    (:meth:`ShiftScorer.score_heard_many`)."""
     kk = args[_KK_ARG]
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
@@ -409,7 +414,7 @@ def _shift_topk_serial(*args):  # pragma: no cover - compiled
     return out_v, out_i
 
 
-@numba.njit(cache=True, boundscheck=False)
+@numba.njit(cache=True, boundscheck=False, nogil=True)
 def _prefilter(w, heard, pre_lo, pre_hi, positions, every, cut):  # pragma: no cover - compiled
     """Positions whose whole-row lower bound ``Σ_r dist(w_r, [LO_rp, HI_rp])²``
     is within ``cut`` (the same bound the main kernel applies first, evaluated
@@ -765,7 +770,14 @@ class ShiftScorer(ScorerBase):
         )
 
     def _threshold(
-        self, w: np.ndarray, r: np.ndarray, positions: np.ndarray, j0: int, cnt: int, kk: int
+        self,
+        w: np.ndarray,
+        r: np.ndarray,
+        positions: np.ndarray,
+        j0: int,
+        cnt: int,
+        kk: int,
+        hint: np.ndarray,
     ) -> float:
         """An upper bound on the ``kk``-th best screened value (inf if none found).
 
@@ -775,9 +787,9 @@ class ShiftScorer(ScorerBase):
         ``kk``-th best value. Only speed depends on this choice, never the result.
         """
         if positions is self.all_positions:
-            pick = self._hint
+            pick = hint
         else:
-            pick = self._hint[np.isin(self._hint, positions)]
+            pick = hint[np.isin(hint, positions)]
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
@@ -794,7 +806,18 @@ class ShiftScorer(ScorerBase):
             return np.inf
         return float(np.partition(vals, kk - 1)[kk - 1])  # +inf if too few are scorable
 
-    def _run(self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int) -> TopK:
+    def _run(
+        self,
+        heard: HeardRss,
+        k: int,
+        positions: np.ndarray,
+        j0: int,
+        cnt: int,
+        slot: Hashable = _LAST_CALL,
+    ) -> TopK:
+        # the threshold hint: the last call's shortlist positions, or those of
+        # the last search of the caller's `slot` (score_heard_slot)
+        hint = self._hint if slot is _LAST_CALL else self._slot_hints.get(slot, _NO_HINT)
         r = heard.receiver_index
         w64 = heard.rss_dbm - self.centre_db[r]
         w = w64.astype(np.float32)
@@ -804,7 +827,7 @@ class ShiftScorer(ScorerBase):
             kk_eff = int(min(kk, max(n_total, 1)))
             thr0 = np.inf
             if self.prune and n_total > 8 * kk_eff:
-                thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
+                thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff, hint)
             run_pos = positions
             if np.isfinite(thr0):
                 cut = float(_prune_cut(np.float32(thr0), r.size))
@@ -844,7 +867,11 @@ class ShiftScorer(ScorerBase):
             if kk_eff >= n_total:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
-        self._hint = np.unique(short // (self.n_az * self.n_q))
+        hint = np.unique(short // (self.n_az * self.n_q))
+        if slot is _LAST_CALL:
+            self._hint = hint
+        else:
+            self._slot_hints[slot] = hint
         mse = exact_mse_db2(self.space, heard, short)
         return select_topk(short, mse, k)
 
@@ -860,13 +887,24 @@ class ShiftScorer(ScorerBase):
         each starts from the shortlist positions of its own previous search
         rather than from another offset's. Only speed depends on ``slot``, never
         the result."""
-        saved = self._hint
-        self._hint = self._slot_hints.get(slot, saved[:0])
-        try:
-            return self.score_heard(heard, k)
-        finally:
-            self._slot_hints[slot] = self._hint
-            self._hint = saved
+        return self._run(heard, k, self.all_positions, 0, self.n_az, slot)
+
+    def score_heard_many(
+        self, heards: Sequence[HeardRss], k: int, slots: Sequence[Hashable]
+    ) -> list[TopK]:
+        """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``, run
+        concurrently on up to :func:`threads` Python threads when this scorer is
+        single-threaded (the compiled search releases the GIL): independent
+        searches of a few milliseconds each use both cores without a parallel
+        region's per-call synchronisation. The same results as one by one."""
+        n_threads = min(len(heards), threads())
+        if self.parallel or n_threads < 2:
+            return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
+        pool = _search_pool(n_threads)
+        futures = [
+            pool.submit(self.score_heard_slot, h, k, s) for h, s in zip(heards, slots, strict=True)
+        ]
+        return [f.result() for f in futures]
 
     def score_window(
         self,
@@ -940,6 +978,19 @@ class ShiftScorer(ScorerBase):
         twin._hint = np.empty(0, np.int64)
         twin._slot_hints = {}
         return twin
+
+
+_POOL: tuple[ThreadPoolExecutor, int] | None = None
+
+
+def _search_pool(n_threads: int) -> ThreadPoolExecutor:
+    """The process's thread pool for concurrent searches (made on first use,
+    remade larger if more threads are asked for)."""
+    global _POOL
+    if _POOL is None or _POOL[1] < n_threads:
+        pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="radiopose-search")
+        _POOL = (pool, n_threads)
+    return _POOL[0]
 
 
 def threads() -> int:
