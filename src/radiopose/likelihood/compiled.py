@@ -968,11 +968,14 @@ class ShiftScorer(ScorerBase):
         """Top-k candidates of one packet (best first)."""
         return self.score_heard(self.space.heard(packet), k)
 
-    def with_parallel(self, parallel: bool) -> ShiftScorer:
-        """The same scorer on numba's threads or on one: the prepared tables are
-        shared, not copied; its own hint of the last shortlist starts empty.
-        Results do not depend on it."""
+    def with_parallel(self, parallel: bool, oversample: int | None = None) -> ShiftScorer:
+        """The same scorer on numba's threads or on one (and, if given, with
+        another ``oversample``): the prepared tables are shared, not copied; its
+        own hint of the last shortlist starts empty. Results do not depend on
+        either."""
         twin = copy.copy(self)
+        if oversample is not None:
+            twin.oversample = int(oversample)
         twin.parallel = bool(parallel)
         twin._kernel = _shift_topk if twin.parallel else _shift_topk_serial
         twin._hint = np.empty(0, np.int64)
