@@ -17,7 +17,7 @@ import pytest
 from radiopose.filtering import FilterModel
 from radiopose.filtering import kernels as K  # noqa: N812
 from radiopose.filtering.lineage import Lineage
-from radiopose.likelihood import ReferenceScorer, candidate_space
+from radiopose.likelihood import ReferenceScorer, candidate_space, compiled
 from radiopose.likelihood.candidates import HeardRss, expected_rss_dbm
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.simulate import ScenarioConfig, simulate
@@ -47,7 +47,8 @@ def _same(a, b) -> None:
 
 
 @pytest.mark.parametrize("seed", [4322, 4323])
-def test_slot_hints_and_concurrent_searches_equal_the_reference(space, seed):
+def test_slot_hints_and_concurrent_searches_equal_the_reference(space, seed, monkeypatch):
+    monkeypatch.setattr(compiled, "spare_core", lambda: True)  # threads even on a busy machine
     offsets = [0.0, 6.0, -9.0, 3.0]
     ref = ReferenceScorer(space)
     fast = ShiftScorer(space, parallel=False).with_parallel(False, oversample=16)
@@ -178,3 +179,40 @@ def test_scan_slots_are_offset_bins():
 
     scans = FilterConfig().offset_scan_db
     assert len({round(o / _HINT_BIN_DB) for o in scans}) == len(scans)
+
+
+def test_particles_on_two_threads_give_the_same_estimates(monkeypatch):
+    from radiopose.filtering import particle
+    from radiopose.tracker import TrackerConfig, locate
+
+    sim = simulate(
+        ScenarioConfig(size_m=6.0, step_m=0.25, duration_s=0.4, min_receiver_spacing_m=2.0),
+        seed=4329,
+    )
+    runs = []
+    for spare in (False, True):
+        monkeypatch.setattr(particle, "spare_core", lambda spare=spare: spare)
+        monkeypatch.setattr(compiled, "spare_core", lambda spare=spare: spare)
+        est = locate(sim.site, sim.packets, "filter", TrackerConfig()).estimates
+        runs.append(est)
+    a, b = runs
+    assert len(a) == len(b) > 50
+    np.testing.assert_array_equal(a.position_m, b.position_m)
+    np.testing.assert_array_equal(a.orientation_deg, b.orientation_deg)
+    np.testing.assert_array_equal(a.position_std_m, b.position_std_m)
+
+
+def test_spare_core_follows_the_load_once_a_second(monkeypatch):
+    monkeypatch.setattr(compiled, "threads", lambda: 2)
+    monkeypatch.setattr(compiled.os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(compiled, "_SPARE", [-math.inf, False])
+    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (0.9, 0.0, 0.0))
+    assert compiled.spare_core() is True
+    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (17.0, 0.0, 0.0))
+    assert compiled.spare_core() is True  # read at most once a second
+    compiled._SPARE[0] = -math.inf
+    assert compiled.spare_core() is False
+    monkeypatch.setattr(compiled, "threads", lambda: 1)
+    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    compiled._SPARE[0] = -math.inf
+    assert compiled.spare_core() is False  # NUMBA_NUM_THREADS=1: never

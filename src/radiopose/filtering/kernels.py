@@ -339,7 +339,7 @@ def normalise_into(logw, w):  # pragma: no cover - compiled
         w[i] /= total
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def packet_update(  # pragma: no cover - compiled
     S, logw, noise, dt_s, motion, box, tilt_box,
     heard, rx, chan, grid, tx_dbm, d, pat,
@@ -357,6 +357,12 @@ def packet_update(  # pragma: no cover - compiled
     Returns ``(lse0, lse1)``: ``log Σ exp(logw)`` before and after the packet
     (their difference is the packet's evidence; ``lse1 = -inf`` if every
     particle became impossible).
+
+    Each particle's predict, expected RSS and likelihood use only its own row,
+    so the call may run on a block of rows (views of ``S``, ``logw``, ``noise``,
+    ``pred``, ``w``) while another thread runs the others (it releases the GIL);
+    the weights and ``lse`` of the whole set are then taken over all rows
+    (:func:`log_sum_exp`, :func:`normalise_into`: the same numbers).
     """
     if dt_s > 0.0:
         predict(

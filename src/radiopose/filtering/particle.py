@@ -61,6 +61,7 @@ from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.lineage import Lineage
 from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, TopK, profile_offset_db
+from radiopose.likelihood.compiled import spare_core, thread_pool
 from radiopose.site import Site
 from radiopose.units import FloatArray
 
@@ -612,7 +613,7 @@ class ParticleFilter:
             st.rng.standard_normal(out=work.noise)
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
-        lse0, lse1 = K.packet_update(
+        lse0, lse1 = _packet_update(
             S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
@@ -752,6 +753,36 @@ class ParticleFilter:
         """The smoothed estimates emitted since the last call, as ``(key, estimate)``."""
         out, self._smoothed = self._smoothed, []
         return out
+
+
+_SPLIT_MIN_PARTICLES = 1000
+"""From this many particles a packet's particles are updated on two threads."""
+
+
+def _packet_update(
+    S: FloatArray, logw: FloatArray, noise: FloatArray, *args: object
+) -> tuple[float, float]:
+    """:func:`kernels.packet_update` (same arguments, same numbers), its particles
+    split in two halves run on two threads when there are at least
+    :data:`_SPLIT_MIN_PARTICLES` and a core is spare
+    (:func:`~radiopose.likelihood.compiled.spare_core`): the kernel releases the
+    GIL and touches only its own rows; the weights and ``lse`` are then taken
+    over all of them."""
+    n = S.shape[0]
+    if n < _SPLIT_MIN_PARTICLES or not spare_core():
+        return K.packet_update(S, logw, noise, *args)
+    *common, pred, w = args
+    lse0 = float(K.log_sum_exp(logw))
+    h = n // 2
+    first = thread_pool(2).submit(
+        K.packet_update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h]
+    )
+    K.packet_update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
+    first.result()
+    lse1 = float(K.log_sum_exp(logw))
+    if math.isfinite(lse1):
+        K.normalise_into(logw, w)
+    return lse0, lse1
 
 
 def _normalised(logw: FloatArray | None) -> FloatArray:

@@ -58,6 +58,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import time
 from collections.abc import Hashable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
@@ -894,13 +895,14 @@ class ShiftScorer(ScorerBase):
     ) -> list[TopK]:
         """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``, run
         concurrently on up to :func:`threads` Python threads when this scorer is
-        single-threaded (the compiled search releases the GIL): independent
+        single-threaded and a core is spare (:func:`spare_core`; the compiled
+        search releases the GIL): independent
         searches of a few milliseconds each use both cores without a parallel
         region's per-call synchronisation. The same results as one by one."""
         n_threads = min(len(heards), threads())
-        if self.parallel or n_threads < 2:
+        if self.parallel or n_threads < 2 or not spare_core():
             return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
-        pool = _search_pool(n_threads)
+        pool = thread_pool(n_threads)
         futures = [
             pool.submit(self.score_heard_slot, h, k, s) for h, s in zip(heards, slots, strict=True)
         ]
@@ -986,14 +988,37 @@ class ShiftScorer(ScorerBase):
 _POOL: tuple[ThreadPoolExecutor, int] | None = None
 
 
-def _search_pool(n_threads: int) -> ThreadPoolExecutor:
-    """The process's thread pool for concurrent searches (made on first use,
-    remade larger if more threads are asked for)."""
+def thread_pool(n_threads: int) -> ThreadPoolExecutor:
+    """The process's pool of Python threads for compiled work that releases the
+    GIL (concurrent searches, the filter's particle halves): made on first use,
+    remade larger if more threads are asked for."""
     global _POOL
     if _POOL is None or _POOL[1] < n_threads:
-        pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="radiopose-search")
+        pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="radiopose")
         _POOL = (pool, n_threads)
     return _POOL[0]
+
+
+_SPARE = [-math.inf, False]  # monotonic time of the last look at the load, and its answer
+
+
+def spare_core() -> bool:
+    """Whether a second Python thread is worth starting for compiled work now:
+    numba may use two or more threads (``NUMBA_NUM_THREADS``) and the machine's
+    1-minute load average is below its number of cores (read at most once a
+    second). On a busy machine the second thread waits for a core while the
+    first waits for it: measured slower in wall and CPU time at loads of 15-23
+    on 2 cores (docs/performance.md, "The Bayesian tracker"). Results never
+    depend on it."""
+    now = time.monotonic()
+    if now - _SPARE[0] >= 1.0:
+        try:
+            load = os.getloadavg()[0]
+            cores = len(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            load, cores = 0.0, os.cpu_count() or 1
+        _SPARE[0], _SPARE[1] = now, threads() > 1 and load < cores
+    return bool(_SPARE[1])
 
 
 def threads() -> int:
