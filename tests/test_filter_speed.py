@@ -216,3 +216,19 @@ def test_spare_core_follows_the_load_once_a_second(monkeypatch):
     monkeypatch.setattr(compiled.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
     compiled._SPARE[0] = -math.inf
     assert compiled.spare_core() is False  # NUMBA_NUM_THREADS=1: never
+
+
+@pytest.mark.filterwarnings("ignore:.*fork.*:DeprecationWarning")
+def test_thread_pool_is_remade_in_a_forked_child():
+    import multiprocessing as mp
+
+    pool = compiled.thread_pool(2)
+    assert compiled.thread_pool(2) is pool
+    assert pool.submit(lambda: 42).result() == 42
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as child:  # the child's copy of the pool has no threads
+        assert child.apply_async(_use_pool_in_child).get(timeout=60) == 7
+
+
+def _use_pool_in_child() -> int:
+    return compiled.thread_pool(2).submit(lambda: 7).result(timeout=30)

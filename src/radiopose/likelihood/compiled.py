@@ -985,17 +985,18 @@ class ShiftScorer(ScorerBase):
         return twin
 
 
-_POOL: tuple[ThreadPoolExecutor, int] | None = None
+_POOL: tuple[ThreadPoolExecutor, int, int] | None = None  # pool, its threads, its process
 
 
 def thread_pool(n_threads: int) -> ThreadPoolExecutor:
     """The process's pool of Python threads for compiled work that releases the
     GIL (concurrent searches, the filter's particle halves): made on first use,
-    remade larger if more threads are asked for."""
+    remade larger if more threads are asked for, and remade in a forked child
+    (whose copy of the parent's pool has no threads)."""
     global _POOL
-    if _POOL is None or _POOL[1] < n_threads:
+    if _POOL is None or _POOL[1] < n_threads or _POOL[2] != os.getpid():
         pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="radiopose")
-        _POOL = (pool, n_threads)
+        _POOL = (pool, n_threads, os.getpid())
     return _POOL[0]
 
 
