@@ -54,6 +54,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -760,7 +761,7 @@ _SPLIT_MIN_PARTICLES = 1000
 
 
 def _packet_update(
-    S: FloatArray, logw: FloatArray, noise: FloatArray, *args: object
+    S: FloatArray, logw: FloatArray, noise: FloatArray, *args: Any
 ) -> tuple[float, float]:
     """:func:`kernels.packet_update` (same arguments, same numbers), its particles
     split in two halves run on two threads when there are at least
