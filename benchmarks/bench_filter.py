@@ -1,6 +1,6 @@
 """The Bayesian tracker (``filter``): packets/s and memory, as ratios against ``full``.
 
-Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown FILE]``):
+Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--markdown FILE]``):
 
 1. **Warm, in process.** The paper's standard scenario (201 × 201 positions ×
    360 azimuths, 4 receivers, a packet every 5 ms), an ``N``-packet trace
@@ -21,6 +21,10 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown F
    site load, packets CSV parsing, scorer tables, the filter's model, the
    first packet (the kernels' cache loads, the track's acquisition) and the
    next 49 packets, each timed (CPU) inside one process (second of two runs).
+4. **Where a warm packet spends its CPU time** (``--parts``): each part of
+   ``filter`` (the fused kernel, the re-entry and its searches, σ, moments,
+   smoother, the adapter) timed by a wrapper around its calls, batch and
+   streaming, one run each.
 
 Every number is measured in this run on this machine; only the ratios compare
 across runs (the project's machine is shared and noisy). Beside wall-clock

@@ -264,10 +264,12 @@ class FilterModel:
 
     @classmethod
     def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
-        """The device's arrays; ``scorer`` serves the proposals (re-entry), run
-        on one thread where it can (``with_parallel``): the filter's other work
-        is serial, and on a busy 2-core machine a parallel region spends more
-        CPU waiting than it saves (docs/performance.md, "The Bayesian tracker")."""
+        """The device's arrays; ``scorer`` serves the proposals (re-entry), its
+        kernel run on one thread where it can (``with_parallel``): on a busy
+        2-core machine a parallel region spends more CPU waiting than it saves;
+        a re-entry's several searches may instead run side by side on two Python
+        threads when a core is spare (:meth:`search`; docs/performance.md, "The
+        Bayesian tracker")."""
         one_thread = getattr(scorer, "with_parallel", None)
         if one_thread is not None:
             # a shorter screened shortlist: ≈ 10 % less CPU in the re-entry's
