@@ -78,10 +78,10 @@ _EPS32 = float(np.finfo(np.float32).eps)
 N_CHUNKS = 64
 """Fixed number of position chunks (independent of the thread count)."""
 DENSE_MAX_VALUES = 65_536
-_LAST_CALL = object()  # `slot` of a search that uses (and sets) the last call's hint
-_NO_HINT = np.empty(0, np.int64)
 """Largest threshold pass scored densely (one array, then a partition); larger
 ones use the kernel's per-chunk heaps."""
+_LAST_CALL = object()  # `slot` of a search that uses (and sets) the last call's hint
+_NO_HINT = np.empty(0, np.int64)
 PARALLEL_MIN_TERMS = 1_000_000
 """Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
@@ -896,9 +896,9 @@ class ShiftScorer(ScorerBase):
         """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``, run
         concurrently on up to :func:`threads` Python threads when this scorer is
         single-threaded and a core is spare (:func:`spare_core`; the compiled
-        search releases the GIL): independent
-        searches of a few milliseconds each use both cores without a parallel
-        region's per-call synchronisation. The same results as one by one."""
+        search releases the GIL): independent searches of a few milliseconds
+        each use both cores without a parallel region's per-call
+        synchronisation. The same results as one by one."""
         n_threads = min(len(heards), threads())
         if self.parallel or n_threads < 2 or not spare_core():
             return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
