@@ -1,6 +1,6 @@
 """The Bayesian tracker (``filter``): packets/s and memory, as ratios against ``full``.
 
-Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown FILE]``):
+Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--markdown FILE]``):
 
 1. **Warm, in process.** The paper's standard scenario (201 × 201 positions ×
    360 azimuths, 4 receivers, a packet every 5 ms), an ``N``-packet trace
@@ -21,6 +21,10 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--markdown F
    site load, packets CSV parsing, scorer tables, the filter's model, the
    first packet (the kernels' cache loads, the track's acquisition) and the
    next 49 packets, each timed (CPU) inside one process (second of two runs).
+4. **Where a warm packet spends its CPU time** (``--parts``): each part of
+   ``filter`` (the fused kernel, the re-entry and its searches, σ, moments,
+   smoother, the adapter) timed by a wrapper around its calls, batch and
+   streaming, one run each.
 
 Every number is measured in this run on this machine; only the ratios compare
 across runs (the project's machine is shared and noisy). Beside wall-clock
@@ -236,6 +240,100 @@ def section_stages(tmp: Path) -> list[dict]:
     return out
 
 
+# (owner module, attribute, label) of the calls whose CPU time section 4 reports
+_PARTS = (
+    ("radiopose.tracker.stream", "Tracker.update", "Tracker.update (everything)"),
+    ("radiopose.tracker.filter", "FilterMethod.step", "adapter: FilterMethod.step"),
+    ("radiopose.filtering.particle", "ParticleFilter.step", "ParticleFilter.step"),
+    ("radiopose.filtering.kernels", "packet_update", "packet_update (fused kernel)"),
+    ("radiopose.filtering.particle", "ParticleFilter._reenter", "re-entry (_reenter)"),
+    ("radiopose.filtering.particle", "FilterModel.search", "re-entry: grid searches"),
+    ("radiopose.filtering.particle", "profile_offset_db", "re-entry: offset profiling"),
+    ("radiopose.filtering.kernels", "fixed_offset_loglik", "re-entry: window evidence"),
+    ("radiopose.filtering.particle", "ParticleFilter._inject_lineage", "re-entry: genealogy"),
+    ("radiopose.filtering.particle", "ParticleFilter._update_sigma", "sigma estimate"),
+    ("radiopose.filtering.kernels", "posterior_moments", "posterior moments"),
+    ("radiopose.filtering.particle", "_summary", "estimate objects (_summary)"),
+    ("radiopose.filtering.kernels", "resample_in_place", "resampling"),
+    ("radiopose.filtering.lineage", "Lineage.push", "smoother: push"),
+    ("radiopose.filtering.lineage", "Lineage.remap", "smoother: remap at resampling"),
+    ("radiopose.filtering.particle", "ParticleFilter._emit", "smoother: emit"),
+)
+
+
+def section_parts(n_packets: int) -> list[dict]:
+    """CPU time per packet of each part of ``filter`` (``_PARTS``, nested: a row
+    includes the rows below it that it calls), batch ``locate`` (1 s smoother)
+    and streaming ``Tracker.update`` (causal), one run each, warm. Each call
+    is wrapped by a ``process_time`` timer, which adds ≈ 1 µs per call."""
+    import importlib
+
+    sim = standard_trace(n_packets)
+    space = candidate_space(sim.site, TX)
+    scorer = ShiftScorer(space)
+    obs = group_packets(sim.packets)
+    cfg = TrackerConfig(kernel="numba")
+    warm = standard_trace(100, seed=203)
+    locate(warm.site, warm.packets, "filter", cfg)
+    spent: dict[str, float] = {}
+    calls: dict[str, int] = {}
+    undo = []
+    for module, attr, label in _PARTS:
+        owner = importlib.import_module(module)
+        *path, name = attr.split(".")
+        for p in path:
+            owner = getattr(owner, p)
+        f = owner.__dict__.get(name) if isinstance(owner, type) else getattr(owner, name, None)
+        if f is None:  # not in this version of the code (a baseline run)
+            continue
+
+        def timed(*a, _f=f, _label=label, **kw):  # type: ignore[no-untyped-def]
+            t0 = time.process_time()
+            try:
+                return _f(*a, **kw)
+            finally:
+                spent[_label] = spent.get(_label, 0.0) + time.process_time() - t0
+                calls[_label] = calls.get(_label, 0) + 1
+
+        setattr(owner, name, timed)
+        undo.append((owner, name, f))
+    rows = []
+    try:
+        for mode in ("batch locate", "streaming Tracker.update"):
+            spent.clear()
+            calls.clear()
+            c0 = time.process_time()
+            if mode == "batch locate":
+                locate(sim.site, sim.packets, "filter", cfg, scorers={TX: scorer})
+            else:
+                tracker = Tracker(sim.site, "filter", cfg, scorers={TX: scorer})
+                for o in obs:
+                    tracker.update(o)
+            total = time.process_time() - c0
+            rows.append(
+                {
+                    "mode": mode,
+                    "part": "total",
+                    "calls": len(obs),
+                    "ms_per_packet": 1e3 * total / len(obs),
+                }
+            )
+            rows += [
+                {
+                    "mode": mode,
+                    "part": label,
+                    "calls": calls[label],
+                    "ms_per_packet": 1e3 * spent[label] / len(obs),
+                }
+                for _, _, label in _PARTS
+                if label in spent
+            ]
+    finally:
+        for owner, name, f in reversed(undo):
+            setattr(owner, name, f)
+    return rows
+
+
 def machine() -> dict:
     info = {
         "python": platform.python_version(),
@@ -271,6 +369,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--packets", type=int, default=2000, help="packets in the trace")
     ap.add_argument("--repeat", type=int, default=3, help="repeats per measurement (median)")
     ap.add_argument("--skip-process", action="store_true", help="only the in-process section")
+    ap.add_argument(
+        "--parts", action="store_true", help="also the CPU time of each part of filter (section 4)"
+    )
     ap.add_argument("--markdown", help="also write the tables to this Markdown file")
     args = ap.parse_args(argv)
     lines = [f"Machine: `{machine()}`", ""]
@@ -302,6 +403,9 @@ def main(argv: list[str] | None = None) -> int:
             lines += ["### 3. Stages of a fresh process (CPU s; the process's wall s)", ""]
             stages = section_stages(Path(tmp))
             lines += table(stages, {k: ".3f" for k in stages[0]})
+    if args.parts:
+        lines += ["### 4. Where a warm packet of filter spends its CPU time", ""]
+        lines += table(section_parts(args.packets), {"ms_per_packet": ".3f"})
     text = "\n".join(lines)
     print(text)
     if args.markdown:

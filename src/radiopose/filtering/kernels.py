@@ -210,7 +210,10 @@ def _inlier(u, log_eps):  # pragma: no cover - compiled
     its inlier weight ``exp(−u²/2) / (exp(−u²/2) + ε′)`` (``log_eps = log ε′``)."""
     g = -0.5 * u * u
     m = max(g, log_eps)
-    lse = m + math.log(math.exp(g - m) + math.exp(log_eps - m))
+    # m + log(exp(g − m) + exp(log ε′ − m)): one of the two exponentials is
+    # exp(0) = 1 exactly and the other exp(−|g − log ε′|), so one exp is not
+    # computed (the same numbers, branch-free)
+    lse = m + math.log(1.0 + math.exp(-abs(g - log_eps)))
     return -lse, math.exp(g - lse)
 
 
@@ -336,7 +339,7 @@ def normalise_into(logw, w):  # pragma: no cover - compiled
         w[i] /= total
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def packet_update(  # pragma: no cover - compiled
     S, logw, noise, dt_s, motion, box, tilt_box,
     heard, rx, chan, grid, tx_dbm, d, pat,
@@ -354,6 +357,12 @@ def packet_update(  # pragma: no cover - compiled
     Returns ``(lse0, lse1)``: ``log Σ exp(logw)`` before and after the packet
     (their difference is the packet's evidence; ``lse1 = -inf`` if every
     particle became impossible).
+
+    Each particle's predict, expected RSS and likelihood use only its own row,
+    so the call may run on a block of rows (views of ``S``, ``logw``, ``noise``,
+    ``pred``, ``w``) while another thread runs the others (it releases the GIL);
+    the weights and ``lse`` of the whole set are then taken over all rows
+    (:func:`log_sum_exp`, :func:`normalise_into`: the same numbers).
     """
     if dt_s > 0.0:
         predict(
@@ -479,3 +488,34 @@ def median_squared_residual(S, pred, rss, w, lim2, u0):  # pragma: no cover - co
         r2[k] = lim2 if math.isnan(v) else v
     r2.sort()
     return r2[(m - 1) // 2]
+
+
+@numba.njit(cache=True)
+def push_differences(  # pragma: no cover - compiled
+    heard, rss, t_s, max_dt_s, last_rss, last_time_s, diff2, count
+):
+    """Record the squared differences of this packet's readings from each
+    receiver's previous one at most ``max_dt_s`` earlier (``0 < gap <= max_dt_s``)
+    into the ring ``diff2`` (slot ``count % len``, ``count`` then advanced), then
+    make this packet's readings the receivers' last (``last_rss``,
+    ``last_time_s`` per receiver, updated in place). Returns the new count."""
+    size = diff2.shape[0]
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        gap = t_s - last_time_s[r]
+        if gap > 0.0 and gap <= max_dt_s:
+            d = rss[q] - last_rss[r]
+            diff2[count % size] = d * d
+            count += 1
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        last_rss[r] = rss[q]
+        last_time_s[r] = t_s
+    return count
+
+
+@numba.njit(cache=True)
+def median_of_first(values, n):  # pragma: no cover - compiled
+    """``np.median(values[:n])`` (the same number: the middle value, or the mean
+    of the two middle values, by selection instead of numpy's call overhead)."""
+    return np.median(values[:n])

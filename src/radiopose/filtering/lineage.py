@@ -87,11 +87,19 @@ class Lineage:
         Particles of the filter.
     capacity
         Initial number of packets held (doubled when exceeded).
+    extra_rows
+        Rows per packet beyond the particles' own, for re-entered hypotheses
+        (:meth:`inject`; default ``n_particles // 8``). The ring widens when
+        more are needed, at the cost of a copy of the whole ring, so a caller
+        that knows how many hypotheses re-enter within the lag passes that.
     """
 
-    def __init__(self, n_particles: int, capacity: int = 256) -> None:
+    def __init__(
+        self, n_particles: int, capacity: int = 256, extra_rows: int | None = None
+    ) -> None:
         self.n = n_particles
-        self.rows = np.empty((capacity, n_particles + n_particles // 8, K.POSE_ROW))
+        extra = n_particles // 8 if extra_rows is None else max(int(extra_rows), 0)
+        self.rows = np.empty((capacity, n_particles + extra, K.POSE_ROW))
         self.n_rows = np.zeros(capacity, np.int64)
         self.anc = np.empty((capacity, n_particles), np.int32)
         self._spare = np.empty_like(self.anc)  # the other half of the double buffer

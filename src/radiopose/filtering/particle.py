@@ -54,15 +54,25 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.lineage import Lineage
-from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, profile_offset_db
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, TopK, profile_offset_db
+from radiopose.likelihood.compiled import spare_core, thread_pool
 from radiopose.site import Site
 from radiopose.units import FloatArray
+
+_HINT_BIN_DB = 1.5
+"""Width of the power-offset bins whose grid searches share a threshold hint, dB
+(the scanned offsets are 1.5 dB apart; speed only)."""
+
+_SEARCH_OVERSAMPLE = 16
+"""``ShiftScorer``'s screened shortlist beyond ``k`` in the re-entry's searches
+(speed only; docs/performance.md, "The Bayesian tracker")."""
 
 _LookupArrays = tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, FloatArray]
 
@@ -254,13 +264,18 @@ class FilterModel:
 
     @classmethod
     def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
-        """The device's arrays; ``scorer`` serves the proposals (re-entry), run
-        on one thread where it can (``with_parallel``): the filter's other work
-        is serial, and on a busy 2-core machine a parallel region spends more
-        CPU waiting than it saves (docs/performance.md, "The Bayesian tracker")."""
+        """The device's arrays; ``scorer`` serves the proposals (re-entry), its
+        kernel run on one thread where it can (``with_parallel``): on a busy
+        2-core machine a parallel region spends more CPU waiting than it saves;
+        a re-entry's several searches may instead run side by side on two Python
+        threads when a core is spare (:meth:`search`; docs/performance.md, "The
+        Bayesian tracker")."""
         one_thread = getattr(scorer, "with_parallel", None)
         if one_thread is not None:
-            scorer = one_thread(False)
+            # a shorter screened shortlist: ≈ 10 % less CPU in the re-entry's
+            # searches, the same answers (the kernel's exactness check widens it
+            # when needed)
+            scorer = one_thread(False, oversample=_SEARCH_OVERSAMPLE)
         sm = site.survey_map
         x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)
         dx = float(x[1] - x[0]) if x.size > 1 else 1.0
@@ -289,6 +304,19 @@ class FilterModel:
             ),
             cell_m=(dx, dy, 360.0 / az.size if az.size else 360.0),
         )
+
+    def search(self, heards: list[HeardRss], k: int, slots: list[int]) -> list[TopK]:
+        """The scorer's top-``k`` over the full grid of each of ``heards``
+        (``score_heard``). ``slots[i]`` names a recurring search (here: the power
+        offset's bin) so that a scorer which keeps a threshold hint starts from
+        that search's previous shortlist; the compiled scorer also runs the
+        searches on both cores (:meth:`ShiftScorer.score_heard_many
+        <radiopose.likelihood.compiled.ShiftScorer.score_heard_many>`). The
+        results do not depend on either."""
+        many = getattr(self.scorer, "score_heard_many", None)
+        if many is not None:
+            return list(many(heards, k, slots))
+        return [self.scorer.score_heard(h, k) for h in heards]
 
     def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
         """Expected RSS ``(n, h)`` dBm without the offset."""
@@ -396,11 +424,12 @@ class ParticleFilter:
         offset, with each candidate's best offset (shrunk to the prior); returns
         ``(particles, offsets, precision)`` or ``None`` if nothing is scorable."""
         cfg, mod = self.config, self.model
-        cand_parts = []
-        for off in offsets_db:
-            top = mod.scorer.score_heard(HeardRss(heard.receiver_index, heard.rss_dbm - off), cfg.k)
-            cand_parts.append(top.candidate_idx)
-        cand = np.unique(np.concatenate(cand_parts))
+        tops = mod.search(
+            [HeardRss(heard.receiver_index, heard.rss_dbm - off) for off in offsets_db],
+            cfg.k,
+            [round((off - st.offset_prior_db) / _HINT_BIN_DB) for off in offsets_db],
+        )
+        cand = np.unique(np.concatenate([top.candidate_idx for top in tops]))
         if cand.size == 0:
             return None
         space = mod.space
@@ -587,7 +616,7 @@ class ParticleFilter:
             st.rng.standard_normal(out=work.noise)
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
-        lse0, lse1 = K.packet_update(
+        lse0, lse1 = _packet_update(
             S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
@@ -611,7 +640,7 @@ class ParticleFilter:
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self.lag_s is not None:
             if st.lineage is None:
-                st.lineage = Lineage(n)
+                st.lineage = Lineage(n, extra_rows=self._lineage_extra_rows(n))
             st.lineage.push(t_s, work.rows)
             st.pending.append((t_s, key, est))
             self._emit(st, w, t_s - self.lag_s)
@@ -621,6 +650,16 @@ class ParticleFilter:
             if st.lineage is not None:
                 st.lineage.remap(work.idx)
         return est
+
+    def _lineage_extra_rows(self, n: int) -> int:
+        """Rows the smoother's genealogy keeps per packet for re-entered
+        hypotheses: one re-entry's worth per re-entry while the packet is within
+        the lag and the evidence window, with one to spare (so its ring need
+        not widen, a copy of all of it, while tracking)."""
+        cfg = self.config
+        m = max(1, round(cfg.reentry_fraction * n))
+        span_s = (self.lag_s or 0.0) + cfg.proposal_window_s
+        return m * (math.ceil(span_s / cfg.reentry_interval_s) + 2)
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
         """The scalar that :func:`kernels.measurement_update` takes after σ:
@@ -668,17 +707,17 @@ class ParticleFilter:
                 st.last_rss_dbm = np.zeros(n_rx)
                 st.last_rss_time_s = np.full(n_rx, -math.inf)
                 st.diff2_db2 = np.zeros(cfg.difference_memory)
-            idx = heard.receiver_index
-            gap = t_s - st.last_rss_time_s[idx]
-            ok = (gap > 0) & (gap <= cfg.difference_max_dt_s)
-            for d in heard.rss_dbm[ok] - st.last_rss_dbm[idx[ok]]:
-                st.diff2_db2[st.diff_count % cfg.difference_memory] = d * d
-                st.diff_count += 1
-            st.last_rss_dbm[idx] = heard.rss_dbm
-            st.last_rss_time_s[idx] = t_s
+            st.diff_count = int(
+                K.push_differences(
+                    np.ascontiguousarray(heard.receiver_index, dtype=np.int64),
+                    np.ascontiguousarray(heard.rss_dbm, dtype=np.float64),
+                    t_s, cfg.difference_max_dt_s, st.last_rss_dbm, st.last_rss_time_s,
+                    st.diff2_db2, st.diff_count,
+                )
+            )  # fmt: skip
             if st.diff_count >= 40:
-                used = st.diff2_db2[: min(st.diff_count, cfg.difference_memory)]
-                sigma2 = min(sigma2, float(np.median(used)) / (2.0 * 0.4549))
+                used = min(st.diff_count, cfg.difference_memory)
+                sigma2 = min(sigma2, float(K.median_of_first(st.diff2_db2, used)) / (2.0 * 0.4549))
         st.sigma2_db2 = max(sigma2, cfg.sigma_floor_db**2)
 
     # ------------------------------------------------------------------ smoothing
@@ -717,6 +756,36 @@ class ParticleFilter:
         """The smoothed estimates emitted since the last call, as ``(key, estimate)``."""
         out, self._smoothed = self._smoothed, []
         return out
+
+
+_SPLIT_MIN_PARTICLES = 1000
+"""From this many particles a packet's particles are updated on two threads."""
+
+
+def _packet_update(
+    S: FloatArray, logw: FloatArray, noise: FloatArray, *args: Any
+) -> tuple[float, float]:
+    """:func:`kernels.packet_update` (same arguments, same numbers), its particles
+    split in two halves run on two threads when there are at least
+    :data:`_SPLIT_MIN_PARTICLES` and a core is spare
+    (:func:`~radiopose.likelihood.compiled.spare_core`): the kernel releases the
+    GIL and touches only its own rows; the weights and ``lse`` are then taken
+    over all of them."""
+    n = S.shape[0]
+    if n < _SPLIT_MIN_PARTICLES or not spare_core():
+        return K.packet_update(S, logw, noise, *args)
+    *common, pred, w = args
+    lse0 = float(K.log_sum_exp(logw))
+    h = n // 2
+    first = thread_pool(2).submit(
+        K.packet_update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h]
+    )
+    K.packet_update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
+    first.result()
+    lse1 = float(K.log_sum_exp(logw))
+    if math.isfinite(lse1):
+        K.normalise_into(logw, w)
+    return lse0, lse1
 
 
 def _normalised(logw: FloatArray | None) -> FloatArray:

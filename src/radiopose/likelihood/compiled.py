@@ -58,6 +58,9 @@ from __future__ import annotations
 import copy
 import math
 import os
+import time
+from collections.abc import Hashable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
@@ -77,6 +80,8 @@ N_CHUNKS = 64
 DENSE_MAX_VALUES = 65_536
 """Largest threshold pass scored densely (one array, then a partition); larger
 ones use the kernel's per-chunk heaps."""
+_LAST_CALL = object()  # `slot` of a search that uses (and sets) the last call's hint
+_NO_HINT = np.empty(0, np.int64)
 PARALLEL_MIN_TERMS = 1_000_000
 """Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
@@ -242,7 +247,7 @@ def _accumulate(acc, e, k, f, t, g, toff, rows, drows, m, b0, nb):  # pragma: no
                     acc[jj] += d * d
 
 
-@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
 def _dense(
     w,
     heard,
@@ -397,9 +402,11 @@ def _shift_topk(*args):  # pragma: no cover - compiled
     return out_v, out_i
 
 
-@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
 def _shift_topk_serial(*args):  # pragma: no cover - compiled
-    """:func:`_shift_topk` (same arguments) on one thread: no parallel start-up."""
+    """:func:`_shift_topk` (same arguments) on one thread: no parallel start-up;
+    it releases the GIL, so independent searches can run on Python threads
+    (:meth:`ShiftScorer.score_heard_many`)."""
     kk = args[_KK_ARG]
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
@@ -408,7 +415,7 @@ def _shift_topk_serial(*args):  # pragma: no cover - compiled
     return out_v, out_i
 
 
-@numba.njit(cache=True, boundscheck=False)
+@numba.njit(cache=True, boundscheck=False, nogil=True)
 def _prefilter(w, heard, pre_lo, pre_hi, positions, every, cut):  # pragma: no cover - compiled
     """Positions whose whole-row lower bound ``Σ_r dist(w_r, [LO_rp, HI_rp])²``
     is within ``cut`` (the same bound the main kernel applies first, evaluated
@@ -619,6 +626,7 @@ class ShiftScorer(ScorerBase):
         self.prune = bool(prune)
         self.retries = 0
         self._hint = np.empty(0, np.int64)
+        self._slot_hints: dict[Hashable, np.ndarray] = {}
 
         pattern = space.pattern
         row_step, m = _row_grid(pattern, step)
@@ -763,7 +771,14 @@ class ShiftScorer(ScorerBase):
         )
 
     def _threshold(
-        self, w: np.ndarray, r: np.ndarray, positions: np.ndarray, j0: int, cnt: int, kk: int
+        self,
+        w: np.ndarray,
+        r: np.ndarray,
+        positions: np.ndarray,
+        j0: int,
+        cnt: int,
+        kk: int,
+        hint: np.ndarray,
     ) -> float:
         """An upper bound on the ``kk``-th best screened value (inf if none found).
 
@@ -773,9 +788,9 @@ class ShiftScorer(ScorerBase):
         ``kk``-th best value. Only speed depends on this choice, never the result.
         """
         if positions is self.all_positions:
-            pick = self._hint
+            pick = hint
         else:
-            pick = self._hint[np.isin(self._hint, positions)]
+            pick = hint[np.isin(hint, positions)]
         per_pos = cnt * self.n_q
         if pick.size * per_pos < kk:
             pick = positions[:: max(1, min(25, positions.size * per_pos // (4 * kk)))]
@@ -792,7 +807,18 @@ class ShiftScorer(ScorerBase):
             return np.inf
         return float(np.partition(vals, kk - 1)[kk - 1])  # +inf if too few are scorable
 
-    def _run(self, heard: HeardRss, k: int, positions: np.ndarray, j0: int, cnt: int) -> TopK:
+    def _run(
+        self,
+        heard: HeardRss,
+        k: int,
+        positions: np.ndarray,
+        j0: int,
+        cnt: int,
+        slot: Hashable = _LAST_CALL,
+    ) -> TopK:
+        # the threshold hint: the last call's shortlist positions, or those of
+        # the last search of the caller's `slot` (score_heard_slot)
+        hint = self._hint if slot is _LAST_CALL else self._slot_hints.get(slot, _NO_HINT)
         r = heard.receiver_index
         w64 = heard.rss_dbm - self.centre_db[r]
         w = w64.astype(np.float32)
@@ -802,7 +828,7 @@ class ShiftScorer(ScorerBase):
             kk_eff = int(min(kk, max(n_total, 1)))
             thr0 = np.inf
             if self.prune and n_total > 8 * kk_eff:
-                thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff)
+                thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff, hint)
             run_pos = positions
             if np.isfinite(thr0):
                 cut = float(_prune_cut(np.float32(thr0), r.size))
@@ -842,13 +868,45 @@ class ShiftScorer(ScorerBase):
             if kk_eff >= n_total:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
             kk *= 4
-        self._hint = np.unique(short // (self.n_az * self.n_q))
+        hint = np.unique(short // (self.n_az * self.n_q))
+        if slot is _LAST_CALL:
+            self._hint = hint
+        else:
+            self._slot_hints[slot] = hint
         mse = exact_mse_db2(self.space, heard, short)
         return select_topk(short, mse, k)
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
         """Top-k candidates of one packet over the full grid (best first)."""
         return self._run(heard, k, self.all_positions, 0, self.n_az)
+
+    def score_heard_slot(self, heard: HeardRss, k: int, slot: Hashable) -> TopK:
+        """:meth:`score_heard` with the threshold hint of ``slot`` instead of the
+        last call's: a caller that alternates between several recurring searches
+        (the particle filter's re-entry searches the grid at several power
+        offsets, each recurring every few re-entries) gives each its own key, so
+        each starts from the shortlist positions of its own previous search
+        rather than from another offset's. Only speed depends on ``slot``, never
+        the result."""
+        return self._run(heard, k, self.all_positions, 0, self.n_az, slot)
+
+    def score_heard_many(
+        self, heards: Sequence[HeardRss], k: int, slots: Sequence[Hashable]
+    ) -> list[TopK]:
+        """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``, run
+        concurrently on up to :func:`threads` Python threads when this scorer is
+        single-threaded and a core is spare (:func:`spare_core`; the compiled
+        search releases the GIL): independent searches of a few milliseconds
+        each use both cores without a parallel region's per-call
+        synchronisation. The same results as one by one."""
+        n_threads = min(len(heards), threads())
+        if self.parallel or n_threads < 2 or not spare_core():
+            return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
+        pool = thread_pool(n_threads)
+        futures = [
+            pool.submit(self.score_heard_slot, h, k, s) for h, s in zip(heards, slots, strict=True)
+        ]
+        return [f.result() for f in futures]
 
     def score_window(
         self,
@@ -912,15 +970,56 @@ class ShiftScorer(ScorerBase):
         """Top-k candidates of one packet (best first)."""
         return self.score_heard(self.space.heard(packet), k)
 
-    def with_parallel(self, parallel: bool) -> ShiftScorer:
-        """The same scorer on numba's threads or on one: the prepared tables are
-        shared, not copied; its own hint of the last shortlist starts empty.
-        Results do not depend on it."""
+    def with_parallel(self, parallel: bool, oversample: int | None = None) -> ShiftScorer:
+        """The same scorer on numba's threads or on one (and, if given, with
+        another ``oversample``): the prepared tables are shared, not copied; its
+        own hint of the last shortlist starts empty. Results do not depend on
+        either."""
         twin = copy.copy(self)
+        if oversample is not None:
+            twin.oversample = int(oversample)
         twin.parallel = bool(parallel)
         twin._kernel = _shift_topk if twin.parallel else _shift_topk_serial
         twin._hint = np.empty(0, np.int64)
+        twin._slot_hints = {}
         return twin
+
+
+_POOL: tuple[ThreadPoolExecutor, int, int] | None = None  # pool, its threads, its process
+
+
+def thread_pool(n_threads: int) -> ThreadPoolExecutor:
+    """The process's pool of Python threads for compiled work that releases the
+    GIL (concurrent searches, the filter's particle halves): made on first use,
+    remade larger if more threads are asked for, and remade in a forked child
+    (whose copy of the parent's pool has no threads)."""
+    global _POOL
+    if _POOL is None or _POOL[1] < n_threads or _POOL[2] != os.getpid():
+        pool = ThreadPoolExecutor(max_workers=n_threads, thread_name_prefix="radiopose")
+        _POOL = (pool, n_threads, os.getpid())
+    return _POOL[0]
+
+
+_SPARE = [-math.inf, False]  # monotonic time of the last look at the load, and its answer
+
+
+def spare_core() -> bool:
+    """Whether a second Python thread is worth starting for compiled work now:
+    numba may use two or more threads (``NUMBA_NUM_THREADS``) and the machine's
+    1-minute load average is below its number of cores (read at most once a
+    second). On a busy machine the second thread waits for a core while the
+    first waits for it: measured slower in wall and CPU time at loads of 15-23
+    on 2 cores (docs/performance.md, "The Bayesian tracker"). Results never
+    depend on it."""
+    now = time.monotonic()
+    if now - _SPARE[0] >= 1.0:
+        try:
+            load = os.getloadavg()[0]
+            cores = len(os.sched_getaffinity(0))
+        except (AttributeError, OSError):
+            load, cores = 0.0, os.cpu_count() or 1
+        _SPARE[0], _SPARE[1] = now, threads() > 1 and load < cores
+    return bool(_SPARE[1])
 
 
 def threads() -> int:
