@@ -80,10 +80,10 @@ def mse_map_db2(
         pos = np.repeat(np.arange(start, stop), n_o)
         ori = np.tile(np.arange(n_o), stop - start)
         exp = expected_rss_dbm(space, pos, ori)
-        acc = np.zeros(pos.size)
+        acc_db2 = np.zeros(pos.size)
         for r, rss in zip(heard.receiver_index, heard.rss_dbm, strict=True):
-            acc += (rss - exp[:, r]) ** 2
-        best[start:stop] = (acc / heard.n_heard).reshape(-1, n_o).min(axis=1)
+            acc_db2 += (rss - exp[:, r]) ** 2
+        best[start:stop] = (acc_db2 / heard.n_heard).reshape(-1, n_o).min(axis=1)
     return best.reshape(xs.size, -1)
 
 

@@ -36,6 +36,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -131,7 +132,8 @@ class AreaGrid:
     step_m: float
 
     def _axis(self, lo: float, hi: float) -> FloatArray:
-        return lo + np.arange(grid_steps(hi - lo, self.step_m)[0] + 1) * self.step_m
+        n = grid_steps(hi - lo, self.step_m)[0] + 1
+        return lo + np.arange(n, dtype=np.float64) * self.step_m
 
     def x_m(self) -> FloatArray:
         return self._axis(self.x_min_m, self.x_max_m)
@@ -163,7 +165,7 @@ class OrientationGrid:
 
     def azimuth_deg(self) -> FloatArray:
         n = round(360.0 / self.azimuth_step_deg)
-        return np.arange(n) * (360.0 / n)
+        return np.arange(n, dtype=np.float64) * (360.0 / n)
 
     @property
     def n_azimuth(self) -> int:
@@ -356,7 +358,7 @@ def _read_site_toml(path: Path) -> _SiteToml:
     root = Section(load_toml(path), path)
     name = root.string("name", path.parent.name)
     a = root.section("area")
-    lim = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
+    lim: dict[str, Any] = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
     x_min = a.number("x_min_m", required=True, **lim)
     x_max = a.number("x_max_m", required=True, **lim)
     y_min = a.number("y_min_m", required=True, **lim)
@@ -483,9 +485,9 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
             raise rt.error(i, "receiver_id", f"duplicate receiver id {rid!r}")
         seen[rid] = i
         receivers.append(
-            Receiver(
+            Receiver(  # type: ignore[misc]  # mypy cannot count a generator's star-args
                 rid,
-                *(
+                *(  # type: ignore[arg-type]
                     float(rt[c][i])
                     for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")
                 ),

@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -25,6 +26,9 @@ from radiopose.simulate import Simulation
 from radiopose.tracker import METHOD_NAMES, METHODS, RunSummary, TrackerConfig, locate
 from radiopose.tracker import needs_scorer as tracker_needs_scorer
 from radiopose.units import FloatArray
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,7 +284,7 @@ def run_demo_pipeline(
         receivers_xy_m=rx_xy,
     )
     written.append(_save(ax.figure, out / "trajectory.png"))
-    plt.close(ax.figure)
+    plt.close(cast("Figure", ax.figure))
 
     ax = plots.plot_orientation_error(
         {
@@ -290,7 +294,7 @@ def run_demo_pipeline(
         }
     )
     written.append(_save(ax.figure, out / "orientation_error.png"))
-    plt.close(ax.figure)
+    plt.close(cast("Figure", ax.figure))
 
     f, full = runs["filter"], runs["full"]
     if f.estimates.position_std_m is not None:
@@ -320,6 +324,6 @@ def _scenario_title(sim: Simulation) -> str:
     )
 
 
-def _save(fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
+def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     return path

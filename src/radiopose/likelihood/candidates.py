@@ -137,7 +137,7 @@ class CandidateSpace:
         InputError
             A receiver not in the site, or one receiver twice in the packet.
         """
-        idx = []
+        idx: list[int] = []
         for k, rid in enumerate(packet.receiver_ids):
             try:
                 i = self.receiver_ids.index(rid)

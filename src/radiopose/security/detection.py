@@ -42,6 +42,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates
@@ -235,9 +236,9 @@ def score_track(
 
 def pose_residuals_db(
     model: FilterModel,
-    position_m: FloatArray,
-    orientation_deg: FloatArray,
-    rss_dbm: FloatArray,
+    position_m: ArrayLike,
+    orientation_deg: ArrayLike,
+    rss_dbm: ArrayLike,
 ) -> FloatArray:
     """Residuals ``(n, n_rx)`` of packets at poses: RSS − the system's expected RSS.
 
