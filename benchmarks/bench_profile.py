@@ -43,7 +43,7 @@ def profile(seed: int = 101, n_packets: int = 200, repeat: int = 3) -> None:
 
         return wrapper
 
-    sc._threshold = timed("threshold pass", sc._threshold)  # type: ignore[method-assign]
+    sc._threshold = timed("threshold pass", sc._threshold)
     sc._kernel = timed("kernel calls", sc._kernel)
     compiled._prefilter = timed("prefilter", compiled._prefilter)
     compiled.exact_mse_db2 = timed("exact rescoring", compiled.exact_mse_db2)

@@ -51,7 +51,7 @@ QUICK: dict[str, float] = {
 mean nothing)."""
 
 
-def bounds_report(rows) -> list[str]:  # type: ignore[no-untyped-def]
+def bounds_report(rows) -> list[str]:
     """Lines checking the paper's bounds against the table."""
     by = {(r.method, r.noise_db): r for r in rows}
     out = []
