@@ -1,4 +1,6 @@
-"""``python -m benchmarks [likelihood|capture|server|filter|pose3d] [ARGS...]``: run one benchmark.
+"""``python -m benchmarks [likelihood|capture|server|filter|pose3d|prune|profile] [ARGS...]``.
+
+Runs one benchmark.
 
 Default ``likelihood`` (kernel, pipeline, scaling, memory and start-up tables;
 see ``docs/performance.md``). The remaining arguments go to that benchmark,
@@ -14,7 +16,7 @@ import runpy
 import sys
 from pathlib import Path
 
-NAMES = ("likelihood", "capture", "server", "filter", "pose3d")
+NAMES = ("likelihood", "capture", "server", "filter", "pose3d", "prune", "profile")
 HERE = Path(__file__).resolve().parent
 
 

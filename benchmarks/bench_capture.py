@@ -127,7 +127,7 @@ def dpkt_dissect(path: Path) -> int:
 
 def scapy_dissect(count: int) -> Callable[[Path], int]:
     def run(path: Path) -> int:
-        from scapy.utils import rdpcap  # type: ignore[import-not-found]
+        from scapy.utils import rdpcap
 
         return len(rdpcap(str(path), count=count))
 

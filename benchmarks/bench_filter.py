@@ -59,7 +59,7 @@ TX = "02:00:00:00:00:01"
 METHODS = ("filter", "full")
 
 
-def standard_trace(n_packets: int, seed: int = 202):  # type: ignore[no-untyped-def]
+def standard_trace(n_packets: int, seed: int = 202):
     """The standard scenario with ``n_packets`` packets (σ = 1 dB)."""
     cfg = replace(ScenarioConfig(), duration_s=n_packets * 0.005, noise_db=1.0)
     return simulate(cfg, seed=seed)

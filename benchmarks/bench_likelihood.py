@@ -57,7 +57,7 @@ def per_packet_s(fn: Callable[[object], object], items: list, repeat: int = 1) -
     return float(np.median(times))
 
 
-def scenario(seed: int = 101, **kw):  # type: ignore[no-untyped-def]
+def scenario(seed: int = 101, **kw):
     cfg = replace(ScenarioConfig(), **kw)
     return simulate(cfg, seed=seed)
 
@@ -83,7 +83,7 @@ def section_scoring(quick: bool) -> list[dict]:
     fast = ShiftScorer(space)
     fast.score_heard(heard[0], 100)  # compile / load from cache
 
-    def cold(h):  # type: ignore[no-untyped-def]
+    def cold(h):
         fast._hint = np.empty(0, np.int64)
         return fast.score_heard(h, 100)
 
@@ -175,7 +175,7 @@ def section_pipeline(quick: bool) -> list[dict]:
     return out
 
 
-def _scaling_case(label: str, sim, orient: OrientationGrid | None, n_packets: int) -> dict:  # type: ignore[no-untyped-def]
+def _scaling_case(label: str, sim, orient: OrientationGrid | None, n_packets: int) -> dict:
     space = candidate_space(sim.site, TX)
     if orient is not None:
         o = orient.orientations_deg()

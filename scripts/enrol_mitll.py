@@ -3,6 +3,7 @@
 Usage::
 
     python scripts/enrol_mitll.py [--data ../shared/data/phone-patterns-mitll]
+        [--patterns-dir src/radiopose/data/patterns] [--figures-dir docs/img]
 
 Writes ``src/radiopose/data/patterns/{iphone-11,galaxy-s10}.csv``,
 ``docs/img/pattern-{iphone-11,galaxy-s10}.png`` and the overlay
@@ -27,30 +28,35 @@ from radiopose.patterns.pattern import write_pattern_csv
 from radiopose.patterns.plot import plot_polar, save_pattern_figure
 
 ROOT = Path(__file__).resolve().parents[1]
+PATTERNS_DIR = ROOT / "src" / "radiopose" / "data" / "patterns"
+FIGURES_DIR = ROOT / "docs" / "img"
 PHONES = {"iphone-11": "iPhone-11-2", "galaxy-s10": "Samsung-Galaxy-S10-2"}
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--data", type=Path, default=ROOT.parent / "shared" / "data" / "phone-patterns-mitll"
     )
-    args = parser.parse_args()
+    parser.add_argument("--patterns-dir", type=Path, default=PATTERNS_DIR)
+    parser.add_argument("--figures-dir", type=Path, default=FIGURES_DIR)
+    args = parser.parse_args(argv)
     fig = plt.figure(figsize=(5.5, 5.5))
     ax = fig.add_subplot(projection="polar")
     for name, folder in PHONES.items():
         pattern = read_mitll(args.data / folder, name=name)
-        write_pattern_csv(pattern, ROOT / "src" / "radiopose" / "data" / "patterns" / f"{name}.csv")
-        save_pattern_figure(pattern, ROOT / "docs" / "img" / f"pattern-{name}.png")
+        write_pattern_csv(pattern, args.patterns_dir / f"{name}.csv")
+        save_pattern_figure(pattern, args.figures_dir / f"pattern-{name}.png")
         lo, hi = pattern.range_dbi
         print(f"{name}: directivity {lo:+.2f} … {hi:+.2f} dBi (span {hi - lo:.2f} dB)")
         plot_polar(pattern, ax=ax)
     ax.set_title("MIT LL chamber phones, 90° slice, directivity dBi", fontsize=10)
     ax.legend(loc="lower left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(ROOT / "docs" / "img" / "pattern-phones.png", dpi=120)
+    fig.savefig(args.figures_dir / "pattern-phones.png", dpi=120)
     plt.close(fig)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

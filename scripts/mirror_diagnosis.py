@@ -4,12 +4,12 @@ For one seed of the standard scenario (default 1006, the outlier of
 docs/accuracy.md at σ = 0.5 dB), prints for every 20th packet the truth, the
 best candidate (compiled kernel, top-100) with its MSE, the MSE of the grid
 candidate nearest the truth and that candidate's rank among the top 100.
-Usage: ``python scripts/mirror_diagnosis.py [SEED] [SIGMA_DB]``.
+Usage: ``python scripts/mirror_diagnosis.py [SEED] [SIGMA_DB] [--packets N] [--quick]``.
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 from dataclasses import replace
 
 import numpy as np
@@ -20,9 +20,22 @@ from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.units import angle_diff_deg
 
+QUICK: dict[str, float] = {
+    "size_m": 10.0,
+    "step_m": 0.25,
+    "duration_s": 0.2,
+    "min_receiver_spacing_m": 3.0,
+}
+"""``--quick``: a small site and a short trace, to check that the script runs (its numbers
+mean nothing)."""
 
-def main(seed: int = 1006, sigma_db: float = 0.5, n_packets: int = 100) -> None:
-    sim = simulate(replace(ScenarioConfig(), noise_db=sigma_db), seed=seed)
+
+def diagnose(
+    seed: int = 1006, sigma_db: float = 0.5, n_packets: int = 100, quick: bool = False
+) -> None:
+    """Print truth versus best candidate for every 20th of the first ``n_packets`` packets."""
+    base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    sim = simulate(replace(base, noise_db=sigma_db), seed=seed)
     space = candidate_space(sim.site, sim.site.devices[0].transmitter)
     scorer = ShiftScorer(space)
     packets = group_packets(sim.packets)
@@ -47,6 +60,16 @@ def main(seed: int = 1006, sigma_db: float = 0.5, n_packets: int = 100) -> None:
         )
 
 
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("seed", type=int, nargs="?", default=1006)
+    ap.add_argument("sigma_db", type=float, nargs="?", default=0.5, help="RSS noise σ, dB")
+    ap.add_argument("--packets", type=int, default=100, help="first packets to look at")
+    ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
+    args = ap.parse_args(argv)
+    diagnose(args.seed, args.sigma_db, args.packets, args.quick)
+    return 0
+
+
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    main(int(args[0]) if args else 1006, float(args[1]) if len(args) > 1 else 0.5)
+    raise SystemExit(main())

@@ -12,6 +12,76 @@ matplotlib.use("Agg")
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
+TIERS: dict[str, str] = {
+    # analytic: closed-form references and exact equivalences on small, hand-built inputs
+    "test_baselines": "analytic",
+    "test_clustering": "analytic",
+    "test_filter_kernels": "analytic",
+    "test_filter_speed": "analytic",
+    "test_likelihood": "analytic",
+    "test_likelihood_compiled": "analytic",
+    "test_motion": "analytic",
+    "test_patterns_enrol": "analytic",
+    "test_scoring": "analytic",
+    "test_security_attacker": "analytic",
+    "test_units": "analytic",
+    # property: seeded properties, round trips and hypothesis fuzzing of parsers/geometry
+    "test_capture_radiotap": "property",
+    "test_capture_records": "property",
+    "test_geometry": "property",
+    "test_module_seams": "property",
+    "test_pose3d_site": "property",
+    "test_patterns_importers": "property",
+    "test_patterns_io": "property",
+    "test_site": "property",
+    "test_site_toml_keys": "property",
+    "test_site_validation": "property",
+    "test_tables": "property",
+    # e2e: simulated (or real) scenarios through the pipeline, the CLI and the reports,
+    # asserting an error bound or a pinned output
+    "test_accuracy": "e2e",
+    "test_capture_sync": "e2e",
+    "test_cli_core": "e2e",
+    "test_demo": "e2e",
+    "test_demo_walk": "e2e",
+    "test_detection": "e2e",
+    "test_detection_wiring": "e2e",
+    "test_evaluate_experiments": "e2e",
+    "test_evaluate_report": "e2e",
+    "test_evaluate_runner": "e2e",
+    "test_filter": "e2e",
+    "test_method_protocol": "e2e",
+    "test_method_registry": "e2e",
+    "test_method_registry_filter": "e2e",
+    "test_patterns_cli": "e2e",
+    "test_pipeline_cli": "e2e",
+    "test_pose3d": "e2e",
+    "test_realdata": "e2e",
+    "test_scripts_smoke": "e2e",
+    "test_security_experiments": "e2e",
+    "test_simulate": "e2e",
+    "test_tracker": "e2e",
+    # live: the live system (HTTP server, database, receiver agents, browser)
+    "test_demo_dashboard": "live",
+    "test_server_api": "live",
+    "test_server_dashboard": "live",
+    "test_server_live": "live",
+    "test_server_live_lag": "live",
+    # lint: the code base's own checks
+    "test_style": "lint",
+}
+"""Test module -> its tier (a pytest marker, registered in pyproject.toml). ``pytest -m
+property`` runs one tier; ``slow`` is marked per test and left out by default. A new test
+module gets its row here (``tests/test_style.py`` fails until it has one)."""
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark every test with its module's tier (:data:`TIERS`)."""
+    for item in items:
+        tier = TIERS.get(item.path.stem)
+        if tier is not None:
+            item.add_marker(getattr(pytest.mark, tier))
+
 
 @pytest.fixture(scope="session")
 def shared_data() -> Path:

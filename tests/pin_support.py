@@ -69,7 +69,7 @@ FILTER_PINS: tuple[Pin, ...] = tuple(
 
 
 @cache
-def _sim(seed: int, noise_db: float, loss_fraction: float):  # type: ignore[no-untyped-def]
+def _sim(seed: int, noise_db: float, loss_fraction: float):
     from radiopose.simulate import ScenarioConfig, simulate
 
     cfg = ScenarioConfig(

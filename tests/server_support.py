@@ -230,7 +230,7 @@ def run_server(
 def fast_live(**kw: object) -> LiveConfig:
     """Live settings for short test traces."""
     base = {"calibration_s": 1.0, "idle_flush_s": 0.7, "poll_s": 0.02, "checkpoint_s": 0.2}
-    return LiveConfig(**{**base, **kw})  # type: ignore[arg-type]
+    return LiveConfig(**{**base, **kw})
 
 
 @pytest.fixture
@@ -264,7 +264,7 @@ def frame_dicts(frames: FrameRecords) -> list[dict[str, object]]:
     ]
 
 
-def wait_for(predicate, timeout_s: float = 30.0, interval_s: float = 0.05):  # type: ignore[no-untyped-def]
+def wait_for(predicate, timeout_s: float = 30.0, interval_s: float = 0.05):
     """Poll until ``predicate()`` is truthy; return its value (fail on timeout)."""
     end = time.monotonic() + timeout_s
     while True:

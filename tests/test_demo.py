@@ -205,7 +205,7 @@ def test_calibration_counts_errors_within_twice_the_stated_std() -> None:
     track = _track(n=4)
     assert track.position_std_m is not None
     track.position_std_m[:] = 1.0
-    track.azimuth_std_deg[:] = 10.0  # type: ignore[index]
+    track.azimuth_std_deg[:] = 10.0
     run = MethodRun(
         "filter",
         track,

@@ -32,7 +32,7 @@ FIRST = "[...window.radiopose.tracks.values()][0]"
 
 
 @pytest.fixture
-def page(tmp_path: Path):  # type: ignore[no-untyped-def]
+def page(tmp_path: Path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="pip install playwright")
     if not Path(CHROMIUM).exists():
         pytest.skip("system Chromium not found (apt-get install chromium)")
@@ -64,12 +64,12 @@ def filter_server(tiny: Tiny, tmp_path: Path) -> Iterator[Running]:  # noqa: F81
     db.close()
 
 
-def _open(page, server: Running) -> None:  # type: ignore[no-untyped-def]
+def _open(page, server: Running) -> None:
     page.goto(f"{server.url}/#token={server.tokens['viewer']}")
     page.wait_for_function("document.body.dataset.receivers === '3'", timeout=20_000)
 
 
-def _pixel(page, x: float, y: float) -> list[int]:  # type: ignore[no-untyped-def]
+def _pixel(page, x: float, y: float) -> list[int]:
     return page.evaluate(
         "([x, y]) => [...document.getElementById('floor').getContext('2d')"
         ".getImageData(Math.round(x), Math.round(y), 1, 1).data]",
@@ -77,7 +77,7 @@ def _pixel(page, x: float, y: float) -> list[int]:  # type: ignore[no-untyped-de
     )
 
 
-def _to_canvas(page, x_m: float, y_m: float) -> tuple[float, float, float]:  # type: ignore[no-untyped-def]
+def _to_canvas(page, x_m: float, y_m: float) -> tuple[float, float, float]:
     """Canvas pixel of a floor point and the scale (px per metre), as app.js's view()."""
     return tuple(
         page.evaluate(

@@ -114,7 +114,7 @@ def test_straight_path_unchanged(tmp_path: Path, rotation: str) -> None:
         step_m=0.5,
         duration_s=20.0,
         min_receiver_spacing_m=3.0,
-        motion=MotionConfig(rotation=rotation),  # type: ignore[arg-type]
+        motion=MotionConfig(rotation=rotation),
     )
     simulate(cfg, seed=5).write(tmp_path)
     assert hashlib.sha256((tmp_path / "truth.csv").read_bytes()).hexdigest() == PINNED[rotation]
@@ -133,4 +133,4 @@ def test_straight_path_unchanged(tmp_path: Path, rotation: str) -> None:
 )
 def test_walk_settings_are_checked(change: dict[str, object], needle: str) -> None:
     with pytest.raises(InputError, match=needle.replace("(", r"\(").replace(")", r"\)")):
-        replace(WALK, **change).validate()  # type: ignore[arg-type]
+        replace(WALK, **change).validate()

@@ -43,9 +43,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 @pytest.mark.parametrize("quick", [False, True])
 def test_shipped_experiments_load(quick):
     exps = {n: load_experiment(n, quick=quick) for n in SHIPPED}
-    assert all(
-        e.methods == (*PAPER_METHODS, "filter") for e in exps.values()
-    )
+    assert all(e.methods == (*PAPER_METHODS, "filter") for e in exps.values())
     noise = exps["noise"]
     assert [dict(c.params)["noise_db"] for c in noise.conditions] == [0.5, 1.0, 1.5, 2.0, 2.5, 3.0]
     assert all(c.scenario.n_receivers == 4 for c in noise.conditions)

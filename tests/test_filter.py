@@ -350,7 +350,7 @@ def test_heard_rss_kernel_matches_the_likelihood_model(sim_half_db):
     from radiopose.likelihood import expected_rss_dbm
 
     space = candidate_space(sim_half_db.site, sim_half_db.site.devices[0].transmitter)
-    model = FilterModel.build(sim_half_db.site, space, None)  # type: ignore[arg-type]
+    model = FilterModel.build(sim_half_db.site, space, None)
     rng = np.random.default_rng(0)
     pos = rng.integers(0, space.n_positions, 50)
     ori = rng.integers(0, space.n_orientations, 50)

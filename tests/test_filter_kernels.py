@@ -134,7 +134,7 @@ class _ListLineage:
     def remap(self, idx: np.ndarray) -> None:
         self.ancestors = [a[idx] for a in self.ancestors]
 
-    def inject(self, t_s, window_s, new, slots, donors, inherit=None, box=None) -> None:  # type: ignore[no-untyped-def]
+    def inject(self, t_s, window_s, new, slots, donors, inherit=None, box=None) -> None:
         m = new.shape[0]
         same = np.ones(m, bool) if inherit is None else inherit
         for j in range(len(self.history)):

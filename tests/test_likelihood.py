@@ -52,7 +52,7 @@ def _assert_same(a, b):
 def test_registry_names_and_unknown():
     assert {"reference", "numpy"} <= set(SCORERS)
     with pytest.raises(ValueError, match="unknown scorer"):
-        make_scorer("gpu", None)  # type: ignore[arg-type]
+        make_scorer("gpu", None)
 
 
 def test_noise_free_packet_at_a_survey_point_has_zero_mse_at_truth():

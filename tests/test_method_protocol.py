@@ -97,7 +97,7 @@ class Strongest:
     ) -> Step:
         loudest = heard.receiver_index[np.argmax(heard.rss_dbm)]
         xyz = tuple(float(v) for v in device.engine[loudest])
-        return Step(None, Outcome(xyz, (0.0, 0.0, 0.0)))  # type: ignore[arg-type]
+        return Step(None, Outcome(xyz, (0.0, 0.0, 0.0)))
 
     def flush(self, device: Device, state: None) -> tuple[()]:
         return ()
@@ -126,7 +126,7 @@ def test_a_registered_method_runs_everywhere(strongest, small_sim):
     with pytest.raises(ValueError, match="lower-case word"):
         register_method(replace(strongest, name="Loud One"))
     with pytest.raises(ValueError, match="protocol"):
-        register_method(object())  # type: ignore[arg-type]
+        register_method(object())
 
 
 # -- scorer features -----------------------------------------------------------------

@@ -166,7 +166,7 @@ def test_cli_spoof_resumes_finished_runs(tmp_path, capsys, monkeypatch):
     computed: list[list] = []
     real = runner.map_runs
 
-    def spy(tasks, *a, **kw):  # type: ignore[no-untyped-def]
+    def spy(tasks, *a, **kw):
         computed.append(list(tasks))
         return real(tasks, *a, **kw)
 

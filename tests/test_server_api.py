@@ -25,7 +25,7 @@ from server_support import (  # fixtures and helpers
 OK_PATTERN = "rx1"
 
 
-def _batch(tiny, rid="rx1", n=5, batch_id="b1"):  # type: ignore[no-untyped-def]
+def _batch(tiny, rid="rx1", n=5, batch_id="b1"):
     return {
         "receiver_id": rid,
         "batch_id": batch_id,
@@ -33,7 +33,7 @@ def _batch(tiny, rid="rx1", n=5, batch_id="b1"):  # type: ignore[no-untyped-def]
     }
 
 
-def _endpoints(tiny):  # type: ignore[no-untyped-def]
+def _endpoints(tiny):
     """(method, path, json body, roles allowed) of every API endpoint."""
     receiver = {
         "x_m": 1.0,
@@ -70,7 +70,7 @@ def _endpoints(tiny):  # type: ignore[no-untyped-def]
     ]
 
 
-def _call(client, method, path, body):  # type: ignore[no-untyped-def]
+def _call(client, method, path, body):
     if path == "/api/v1/stream":
         with client.stream(method, path) as r:
             return r.status_code

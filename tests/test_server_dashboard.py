@@ -39,7 +39,7 @@ SCREENSHOT = Path(__file__).resolve().parents[1] / "docs" / "img" / "dashboard.p
 
 
 @pytest.fixture
-def page(tmp_path: Path):  # type: ignore[no-untyped-def]
+def page(tmp_path: Path):
     sync_api = pytest.importorskip("playwright.sync_api", reason="pip install playwright")
     if not Path(CHROMIUM).exists():
         pytest.skip("system Chromium not found (apt-get install chromium)")

@@ -45,7 +45,7 @@ from server_support import (  # fixtures and helpers
 )
 
 
-def _agent(url: str, token: str, rid: str, spool: Path, **kw) -> ReceiverAgent:  # type: ignore[no-untyped-def]
+def _agent(url: str, token: str, rid: str, spool: Path, **kw) -> ReceiverAgent:
     cfg = AgentConfig(
         url,
         token,
@@ -59,7 +59,7 @@ def _agent(url: str, token: str, rid: str, spool: Path, **kw) -> ReceiverAgent: 
     return ReceiverAgent(cfg, client=httpx.Client(headers={"Connection": "close"}, timeout=5.0))
 
 
-def _replay_all(url: str, tokens: dict[str, str], tiny, spool: Path, speed: float) -> list:  # type: ignore[no-untyped-def]
+def _replay_all(url: str, tokens: dict[str, str], tiny, spool: Path, speed: float) -> list:
     agents = [_agent(url, tokens[r], r, spool) for r in RECEIVERS]
     threads = [
         threading.Thread(
@@ -74,7 +74,7 @@ def _replay_all(url: str, tokens: dict[str, str], tiny, spool: Path, speed: floa
     return [agents, threads]
 
 
-def _finish(agents, threads, timeout_s=60.0) -> None:  # type: ignore[no-untyped-def]
+def _finish(agents, threads, timeout_s=60.0) -> None:
     for t in threads:
         t.join(timeout_s)
     for a in agents:
@@ -155,7 +155,7 @@ def test_agent_spools_while_the_server_is_down(tiny, db_url: str, tmp_path: Path
     db.close()
 
 
-def _serve(db_url: str, site: Path, port: int, log: Path) -> subprocess.Popen:  # type: ignore[type-arg]
+def _serve(db_url: str, site: Path, port: int, log: Path) -> subprocess.Popen:
     with open(log, "ab") as err:
         return subprocess.Popen(
             [

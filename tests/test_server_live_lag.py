@@ -132,7 +132,7 @@ def test_a_checkpoint_pickled_by_the_single_module_tracker_still_loads():
     assert loaded.track_states["aa"].position_m == (1.0, 2.0, 1.0)
 
 
-def _post_all(client, tiny, per_batch: int = 40) -> None:  # type: ignore[no-untyped-def]
+def _post_all(client, tiny, per_batch: int = 40) -> None:
     """Every receiver's frames, in batches, receivers interleaved in time."""
     chunks = {r: list(range(0, len(tiny.frames[r]), per_batch)) for r in RECEIVERS}
     for i in range(max(len(c) for c in chunks.values())):

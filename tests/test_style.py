@@ -36,3 +36,17 @@ def test_ruff_clean():
         text=True,
     )
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_every_test_module_has_a_registered_tier():
+    import tomllib
+
+    from conftest import TIERS
+
+    modules = {p.stem for p in (REPO / "tests").glob("test_*.py")}
+    assert sorted(modules - set(TIERS)) == [], "add these modules to TIERS in tests/conftest.py"
+    assert sorted(set(TIERS) - modules) == [], "TIERS in tests/conftest.py names missing modules"
+    with (REPO / "pyproject.toml").open("rb") as fh:
+        markers = tomllib.load(fh)["tool"]["pytest"]["ini_options"]["markers"]
+    registered = {m.split(":")[0] for m in markers}
+    assert set(TIERS.values()) | {"slow"} <= registered

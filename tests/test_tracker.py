@@ -36,7 +36,7 @@ def test_config_defaults_are_the_papers():
     with pytest.raises(InputError, match="k = 0"):
         TrackerConfig(k=0)
     with pytest.raises(InputError, match="primary"):
-        TrackerConfig(primary="both")  # type: ignore[arg-type]
+        TrackerConfig(primary="both")
 
 
 def _two_mode_candidates() -> Candidates:
@@ -275,14 +275,14 @@ def test_streaming_skips_out_of_order_packets(small_sim):
 
 def test_unknown_method():
     with pytest.raises(InputError, match="unknown method"):
-        Tracker(None, "magic")  # type: ignore[arg-type]
+        Tracker(None, "magic")
 
 
 def test_config_is_replaceable_and_frozen():
     c = replace(TrackerConfig(), k=50)
     assert c.k == 50
     with pytest.raises(AttributeError):
-        c.k = 3  # type: ignore[misc]
+        c.k = 3
 
 
 def test_a_state_pickled_before_the_acquisition_fields_still_loads():

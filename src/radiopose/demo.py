@@ -20,8 +20,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 from radiopose.simulate import MotionConfig, ScenarioConfig
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 DEMO_DURATION_S = 30.0
 """Length of the demo's walk, seconds."""
@@ -107,11 +111,11 @@ def run_demo(
 
         ax = plot_scene(sim.site, sim.truth.position_m[:, :2], sim.truth.orientation_deg[:, 0])
         written.append(_save(ax.figure, stage / "scene.png"))
-        plt.close(ax.figure)
+        plt.close(cast("Figure", ax.figure))
 
         ax = plot_survey_map(sim.site, sim.site.receivers[0].receiver_id)
         written.append(_save(ax.figure, stage / "survey_map_rx1.png"))
-        plt.close(ax.figure)
+        plt.close(cast("Figure", ax.figure))
 
         written.append(_pattern_figure(sim, stage / "patterns.png"))
 
@@ -129,12 +133,12 @@ def run_demo(
     return written
 
 
-def _save(fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
+def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     return path
 
 
-def _pattern_figure(sim, path: Path) -> Path:  # type: ignore[no-untyped-def]
+def _pattern_figure(sim, path: Path) -> Path:
     import matplotlib.pyplot as plt
 
     from radiopose.patterns.plot import plot_polar

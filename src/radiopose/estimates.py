@@ -13,6 +13,7 @@ import math
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import TypedDict
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +32,13 @@ ESTIMATE_COLUMNS = (
     *POSE_COLUMNS,
     Column("method", "str"),
 )
+
+
+class _Where(TypedDict):
+    """``path``/``line`` keywords of :class:`~radiopose.errors.InputError`."""
+
+    path: str | None
+    line: int | None
 
 
 @dataclass(frozen=True)
@@ -81,7 +89,7 @@ class Estimates:
     def __len__(self) -> int:
         return int(self.timestamp_s.shape[0])
 
-    def where(self, row: int) -> dict[str, str | int | None]:
+    def where(self, row: int) -> _Where:
         """``path``/``line`` keywords of :class:`InputError` for row ``row`` (0-based)."""
         return {
             "path": self.path,

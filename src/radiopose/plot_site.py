@@ -95,7 +95,8 @@ def plot_scene(
     ax.plot(sxy[:, 0], sxy[:, 1], ".", ms=2, color="0.6", label="survey points")
     rx = site.receiver_positions_m()
     ax.plot(rx[:, 0], rx[:, 1], "^", ms=10, color="tab:red", label="receivers")
-    orientation_arrows(ax, rx[:, :2], [r.azimuth_deg for r in site.receivers], 1.2, color="tab:red")
+    rx_az = np.array([r.azimuth_deg for r in site.receivers])
+    orientation_arrows(ax, rx[:, :2], rx_az, 1.2, color="tab:red")
     for r in site.receivers:
         ax.annotate(r.receiver_id, (r.x_m, r.y_m), xytext=(6, 6), textcoords="offset points")
     if truth_xy_m is not None:

@@ -42,6 +42,7 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -155,10 +156,11 @@ class AreaGrid:
         if self.z_min_m is None or self.z_max_m is None or self.z_step_m is None:
             return np.array([self.z_m])
         n = grid_steps(self.z_max_m - self.z_min_m, self.z_step_m)[0] + 1
-        return self.z_min_m + np.arange(n) * self.z_step_m
+        return self.z_min_m + np.arange(n, dtype=np.float64) * self.z_step_m
 
     def _axis(self, lo: float, hi: float) -> FloatArray:
-        return lo + np.arange(grid_steps(hi - lo, self.step_m)[0] + 1) * self.step_m
+        n = grid_steps(hi - lo, self.step_m)[0] + 1
+        return lo + np.arange(n, dtype=np.float64) * self.step_m
 
     def x_m(self) -> FloatArray:
         return self._axis(self.x_min_m, self.x_max_m)
@@ -190,7 +192,7 @@ class OrientationGrid:
 
     def azimuth_deg(self) -> FloatArray:
         n = round(360.0 / self.azimuth_step_deg)
-        return np.arange(n) * (360.0 / n)
+        return np.arange(n, dtype=np.float64) * (360.0 / n)
 
     @property
     def n_azimuth(self) -> int:
@@ -397,7 +399,7 @@ _HEIGHT_KEYS = ("z_min_m", "z_max_m", "z_step_m")
 def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, float | None]]:
     """``[area]`` heights: ``z_m`` alone (2-D) or ``z_min_m``/``z_max_m``/``z_step_m``
     (3-D); returns ``(z_m, (z_min_m, z_max_m, z_step_m))`` (``None`` s without a range)."""
-    lim = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
+    lim: dict[str, Any] = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
     given = [k for k in _HEIGHT_KEYS if a.has(k)]
     if not given:
         return a.number("z_m", required=True, **lim), (None, None, None)
@@ -414,8 +416,8 @@ def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, 
     z_step = a.number("z_step_m", required=True, positive=True, high=2 * COORD_LIMIT_M)
     if z_hi < z_lo:
         raise a.error("z_max_m", f"must be >= z_min_m ({z_lo:g}), got {z_hi:g}")
-    k = (z_hi - z_lo) / z_step
-    if not np.isfinite(k) or k + 1 > MAX_HEIGHTS:
+    n_steps = (z_hi - z_lo) / z_step
+    if not np.isfinite(n_steps) or n_steps + 1 > MAX_HEIGHTS:
         raise a.error("z_step_m", f"the height range gives more than {MAX_HEIGHTS} heights")
     if not grid_steps(z_hi - z_lo, z_step)[1]:
         raise a.error(
@@ -430,7 +432,7 @@ def _read_site_toml(path: Path) -> _SiteToml:
     root = Section(load_toml(path), path)
     name = root.string("name", path.parent.name)
     a = root.section("area")
-    lim = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
+    lim: dict[str, Any] = {"low": -COORD_LIMIT_M, "high": COORD_LIMIT_M}
     x_min = a.number("x_min_m", required=True, **lim)
     x_max = a.number("x_max_m", required=True, **lim)
     y_min = a.number("y_min_m", required=True, **lim)
@@ -557,9 +559,9 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
             raise rt.error(i, "receiver_id", f"duplicate receiver id {rid!r}")
         seen[rid] = i
         receivers.append(
-            Receiver(
+            Receiver(  # type: ignore[misc]  # mypy cannot count a generator's star-args
                 rid,
-                *(
+                *(  # type: ignore[arg-type]
                     float(rt[c][i])
                     for c in ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")
                 ),

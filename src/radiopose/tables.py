@@ -24,7 +24,7 @@ import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import IO, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -210,9 +210,9 @@ def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table
                         values[col.name].append(_parse_number(raw, col, p, line))
                 lines.append(line)
         except UnicodeDecodeError as exc:
-            line, column = _undecodable_at(p)
+            bad_line, column = _undecodable_at(p)
             raise InputError(
-                f"not UTF-8 text ({exc.reason})", path=p, line=line, column=column
+                f"not UTF-8 text ({exc.reason})", path=p, line=bad_line, column=column
             ) from None
         except csv.Error as exc:
             raise InputError(f"malformed CSV: {exc}", path=p, line=reader.line_num) from None
@@ -236,7 +236,7 @@ def format_float(value: float, decimals: int = 6) -> str:
 
 
 @contextlib.contextmanager
-def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.IOBase]:
+def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; rename it over ``path`` on success.
 
     On any exception the temporary file is removed and ``path`` is untouched.
@@ -250,7 +250,7 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[io.
     except OSError as exc:  # name the file asked for, not the temporary one
         raise type(exc)(exc.errno, f"cannot write ({exc.strerror})", str(target)) from None
     try:
-        kwargs = {"newline": "", "encoding": "utf-8"} if "b" not in mode else {}
+        kwargs: dict[str, Any] = {"newline": "", "encoding": "utf-8"} if "b" not in mode else {}
         with os.fdopen(fd, mode, **kwargs) as fh:
             yield fh
         umask = os.umask(0)

@@ -22,12 +22,17 @@ import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
 
 FILE_NAME = "tracker.toml"
+
+FilterOverrides = dict[str, Any]
+"""``FilterConfig`` field name -> int or float value. The keys are checked against the
+fields at run time, so the values are typed ``Any`` for ``dataclasses.replace(**overrides)``."""
 
 
 def _filter_fields() -> dict[str, type]:
@@ -36,7 +41,7 @@ def _filter_fields() -> dict[str, type]:
 
 def read_tracker_toml(
     path: str | os.PathLike[str],
-) -> tuple[dict[str, float | int], float | None]:
+) -> tuple[FilterOverrides, float | None]:
     """``(filter overrides, smoothing_lag_s or None)`` from a ``tracker.toml``.
 
     Raises
@@ -50,7 +55,7 @@ def read_tracker_toml(
     _live_method(root)
     sec = root.section("filter", required=False)
     kinds = _filter_fields()
-    overrides: dict[str, float | int] = {}
+    overrides: FilterOverrides = {}
     for key in list(sec.data):
         kind = kinds.get(key)
         if kind is int:
@@ -90,7 +95,7 @@ def load_site_live_method(site_dir: str | os.PathLike[str]) -> str | None:
 
 def load_site_tracker_settings(
     site_dir: str | os.PathLike[str],
-) -> tuple[dict[str, float | int], float | None, Path | None]:
+) -> tuple[FilterOverrides, float | None, Path | None]:
     """The overrides of ``SITE/tracker.toml`` (empty, None, None if there is none)."""
     p = Path(site_dir) / FILE_NAME
     if not p.is_file():

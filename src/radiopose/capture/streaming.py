@@ -155,9 +155,9 @@ class StreamingMatcher:
         if len(known) < len(wm):
             bound = None
         else:
-            bound = min(known)  # type: ignore[type-var]
+            bound = min(known)
         if self._lag is not None and known:
-            lag_bound = max(known) - self._lag  # type: ignore[type-var]
+            lag_bound = max(known) - self._lag
             bound = lag_bound if bound is None else max(bound, lag_bound)
         if bound is None:
             return _empty_packets()
@@ -168,7 +168,7 @@ class StreamingMatcher:
         known = [w for w in self._watermark if w is not None]
         if not known:
             return _empty_packets()
-        return self._close(max(known) + 2 * self._tol + 1)  # type: ignore[operator]
+        return self._close(max(known) + 2 * self._tol + 1)
 
     def _close(self, bound: int) -> Packets:
         """Emit chains whose ``last + tol < bound``; frames below ``bound`` become late."""

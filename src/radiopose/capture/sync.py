@@ -486,7 +486,7 @@ def match_packets(
     clocks: Mapping[str, ClockModel] | None = None,
     *,
     tolerance_s: float = 0.005,
-) -> tuple[Packets, MatchCounts, int]:
+) -> tuple[Packets, MatchCounts, HashCounts]:
     """Match frames across receivers into packets (batch, vectorised).
 
     Parameters

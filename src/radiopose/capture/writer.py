@@ -109,8 +109,8 @@ def pack_radiotap(
                 align = FIELD_ALIGN_SIZE[bit][0]
                 out += b"\0" * (-len(out) % align)
                 out += ns[bit]
-        if k + 1 < n_words and isinstance(namespaces[k + 1], tuple):
-            oui, subns, data, _ = namespaces[k + 1]  # type: ignore[misc]
+        if k + 1 < n_words and isinstance(nxt := namespaces[k + 1], tuple):
+            oui, subns, data, _ = nxt
             out += b"\0" * (-len(out) % 2)
             out += bytes(oui[:3]).ljust(3, b"\0") + bytes([subns]) + struct.pack("<H", len(data))
             out += data
@@ -307,7 +307,7 @@ def write_receiver_pcaps(
         if not 0.0 <= frac <= 1.0:
             raise ValueError(f"{name} must be in [0, 1], got {frac}")
     cols = _columns(packets)
-    n = cols["timestamp_s"].shape[0]
+    n = int(cols["timestamp_s"].shape[0])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
 

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -12,6 +13,11 @@ from radiopose.cli import app
 
 # Show a progress bar when the captures together are larger than this.
 _PROGRESS_MIN_BYTES = 8 * 1024 * 1024
+
+
+def _advance(bar: Any, task: Any, done: int) -> None:
+    """Progress callback: ``done`` bytes of ``task`` read."""
+    bar.update(task, completed=done)
 
 
 def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
@@ -125,7 +131,7 @@ def sync(
                     read_capture(
                         p,
                         names.get(p),
-                        progress=lambda done, task=task: bar.update(task, completed=done),
+                        progress=functools.partial(_advance, bar, task),
                     )
                 )
                 bar.update(task, completed=sizes[p])

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -124,7 +124,8 @@ def simulate(
         if rotation == "periodic":
             raise InputError("--rotation-rate-dps applies to --rotation linear or fast")
         rate = "linear_rate_deg_s" if rotation == "linear" else "fast_rate_deg_s"
-        motion = replace(motion, **{rate: tuple(rotation_rate_dps)})
+        rate_change: dict[str, Any] = {rate: tuple(rotation_rate_dps)}
+        motion = replace(motion, **rate_change)
     cfg = ScenarioConfig(
         size_m=size_m,
         step_m=step_m,

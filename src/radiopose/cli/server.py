@@ -24,7 +24,7 @@ def _url(db: str) -> str:
     return db if "://" in db else f"sqlite:///{db}"
 
 
-def _database(db: str):  # type: ignore[no-untyped-def]
+def _database(db: str):
     try:
         from radiopose.server.db import Database
     except ModuleNotFoundError as exc:

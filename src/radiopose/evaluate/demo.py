@@ -13,6 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -23,6 +24,9 @@ from radiopose.likelihood import TableScorer
 from radiopose.packets import group_packets
 from radiopose.simulate import Simulation
 from radiopose.tracker import METHOD_NAMES, METHODS, TrackerConfig
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 __all__ = [
     "Calibration",
@@ -207,7 +211,7 @@ def run_demo_pipeline(
         receivers_xy_m=rx_xy,
     )
     written.append(_save(ax.figure, out / "trajectory.png"))
-    plt.close(ax.figure)
+    plt.close(cast("Figure", ax.figure))
 
     ax = plots.plot_orientation_error(
         {
@@ -217,7 +221,7 @@ def run_demo_pipeline(
         }
     )
     written.append(_save(ax.figure, out / "orientation_error.png"))
-    plt.close(ax.figure)
+    plt.close(cast("Figure", ax.figure))
 
     f, full = runs["filter"], runs["full"]
     if f.estimates.position_std_m is not None:
@@ -247,6 +251,6 @@ def _scenario_title(sim: Simulation) -> str:
     )
 
 
-def _save(fig, path: Path) -> Path:  # type: ignore[no-untyped-def]
+def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
     return path

@@ -309,7 +309,7 @@ def _read_figures(raw: Any, path: str, prefix: str = "figure") -> list[dict[str,
             "quantity": sec.string("quantity", required=True, choices=("position", "orientation")),
             "hue": sec.string("hue", "method"),
             "title": sec.string("title", None),
-            "baseline": sec.string("baseline", None, choices=METHODS),
+            "baseline": sec.string("baseline", None, choices=tuple(METHODS)),
         }
         if sec.has("methods"):
             d["methods"] = _read_methods(sec, "methods")

@@ -16,7 +16,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -26,6 +26,7 @@ from radiopose.evaluate.statistics import condition_summary, figure_table, mean_
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
+    from matplotlib.figure import Figure
 
     from radiopose.evaluate.runner import RunTask
 
@@ -393,8 +394,9 @@ def _experiment_blocks(
         ax = plot_spec(df, spec, rng=rng)
         rel = Path("figures") / f"{exp.name}-{spec.slug}.png"
         (out / rel).parent.mkdir(parents=True, exist_ok=True)
-        ax.figure.savefig(out / rel, dpi=110)
-        plt.close(ax.figure)
+        fig = cast("Figure", ax.figure)
+        fig.savefig(out / rel, dpi=110)
+        plt.close(fig)
         written.append(out / rel)
         blocks.append(("img", rel.as_posix(), ax.get_title()))
         if spec.kind in ("reduction", "relative"):
@@ -555,11 +557,11 @@ def write_report(
             )
     if full_tasks is not None and len(t):
         core_s = estimate_seconds(results, full_tasks)
-        w = max(info.workers, 1)
+        n_workers = max(info.workers, 1)
         timing.append(
             f"Estimated full run ({len(full_tasks)} runs): {core_s / 3600:.1f} "
-            f"core-hours, about {_hours(core_s / w)} on {w} worker"
-            f"{'s' if w > 1 else ''} (fitted to the measured run times above; "
+            f"core-hours, about {_hours(core_s / n_workers)} on {n_workers} worker"
+            f"{'s' if n_workers > 1 else ''} (fitted to the measured run times above; "
             "measured on a shared machine, so an idle one is faster)."
         )
     blocks += [("h", 2, "Run time"), ("ul", timing or ["No runs."])]

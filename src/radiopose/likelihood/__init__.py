@@ -60,10 +60,18 @@ class Scorer(Protocol):
     ``False``, the methods raise ``NotImplementedError``.
     """
 
-    name: str
-    space: CandidateSpace
-    supports_window: bool
-    supports_position_mse: bool
+    # read-only members (properties): class constants and instance attributes both satisfy them
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def space(self) -> CandidateSpace: ...
+
+    @property
+    def supports_window(self) -> bool: ...
+
+    @property
+    def supports_position_mse(self) -> bool: ...
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK: ...
 

@@ -122,7 +122,7 @@ def _mse_parallel(cand, heard, rss, *sp):  # pragma: no cover - compiled
     return out
 
 
-def _space_args(space) -> tuple:  # type: ignore[no-untyped-def]
+def _space_args(space) -> tuple:
     pat = space.pattern
     return (
         space.positions_m,
@@ -137,7 +137,7 @@ def _space_args(space) -> tuple:  # type: ignore[no-untyped-def]
     )
 
 
-def _candidates(space, candidate_idx: NDArray) -> NDArray[np.int64]:  # type: ignore[no-untyped-def]
+def _candidates(space, candidate_idx: NDArray) -> NDArray[np.int64]:
     """Candidate indices as a flat int64 array, checked: the compiled loops do not
     check bounds, so an index outside ``[0, n_candidates)`` is an ``IndexError`` here."""
     cand = np.ascontiguousarray(np.asarray(candidate_idx, dtype=np.int64).reshape(-1))
@@ -147,12 +147,12 @@ def _candidates(space, candidate_idx: NDArray) -> NDArray[np.int64]:  # type: ig
     return cand
 
 
-def expected_rss_all_dbm(space, candidate_idx: NDArray) -> NDArray[np.float64]:  # type: ignore[no-untyped-def]
+def expected_rss_all_dbm(space, candidate_idx: NDArray) -> NDArray[np.float64]:
     """Expected RSS ``(n, n_rx)`` dBm of candidates (NaN where ``M_r(p)`` is NaN)."""
     return _expected(_candidates(space, candidate_idx), *_space_args(space))
 
 
-def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDArray) -> NDArray:  # type: ignore[no-untyped-def]
+def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDArray) -> NDArray:
     """Exact MSE ``(n,)`` dB² of candidates over the heard receivers.
 
     ``(1/h) Σ_q (rss_q − RSS_{r_q})²``, summed in the order of ``receiver_index``

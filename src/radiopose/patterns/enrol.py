@@ -382,7 +382,7 @@ def _polar_grid(theta_deg: FloatArray, config: EnrolConfig) -> FloatArray:
                 hi,
             )
         n = min(int(np.ceil(180.0 / gap - 1e-6)), MAX_POLAR_ANGLES - 1)
-    return np.arange(n + 1) * (180.0 / n)
+    return np.arange(n + 1, dtype=np.float64) * (180.0 / n)
 
 
 def enrol(
@@ -425,7 +425,7 @@ def enrol(
 
     n_az = _grid_count(cfg.azimuth_step_deg, 360.0, "azimuth step", "azimuth_step_deg")
     step = 360.0 / n_az
-    az_grid = np.arange(n_az) * step
+    az_grid = np.arange(n_az, dtype=np.float64) * step
     thetas = np.unique(d_theta)
     po_grid = thetas[:1] if thetas.size == 1 else _polar_grid(thetas, cfg)
     n_po = po_grid.size
@@ -461,8 +461,8 @@ def enrol(
             known_db = mw_to_dbm(grid[:, rows])
             for i in range(n_az):
                 grid[i, :] = dbm_to_mw(np.interp(po_grid, po_grid[rows], known_db[i]))
-        for j in (0, n_po - 1):  # a pole is one direction: its row is one value
-            grid[:, j] = grid[:, j].mean()
+        for pole in (0, n_po - 1):  # a pole is one direction: its row is one value
+            grid[:, pole] = grid[:, pole].mean()
 
     smoothed = smooth_rows(grid, step, cfg.smooth_deg, cfg.smoothing_domain)
     raw = Pattern(name, az_grid, po_grid, mw_to_dbm(smoothed))

@@ -223,7 +223,7 @@ class Pattern:
         n = round(360.0 / azimuth_step_deg)
         if n < 1 or abs(n * azimuth_step_deg - 360.0) > 1e-6:
             raise ValueError(f"azimuth step {azimuth_step_deg} does not divide 360")
-        az = np.arange(n) * (360.0 / n)
+        az = np.arange(n, dtype=np.float64) * (360.0 / n)
         phi, theta = np.meshgrid(az, self.polar_deg, indexing="ij")
         return Pattern(self.name, az, self.polar_deg, self.lookup_dbi(phi, theta))
 
@@ -430,13 +430,13 @@ def pattern_from_samples(
                 int(first_row[f]),
             )
         first_row[f] = r
-    grid_a = a_fit.first + np.arange(n_a) * a_fit.step
-    grid_p = p_fit.first + np.arange(n_p) * p_fit.step
+    grid_a = a_fit.first + np.arange(n_a, dtype=np.float64) * a_fit.step
+    grid_p = p_fit.first + np.arange(n_p, dtype=np.float64) * p_fit.step
     if flat.size != n_a * n_p:
         _raise_missing(flat, ai, pi, n_a, n_p, grid_a, grid_p, a_fit, p_fit, slice_)
-    grid = np.empty(n_a * n_p)
-    grid[flat] = values
-    grid = grid.reshape(n_a, n_p)
+    flat_grid = np.empty(n_a * n_p)
+    flat_grid[flat] = values
+    grid = flat_grid.reshape(n_a, n_p)
     axis_a = np.empty(n_a)
     axis_a[ai] = az
     axis_p = np.empty(n_p)
@@ -444,7 +444,7 @@ def pattern_from_samples(
     try:  # the file's own angles where they pass Pattern's checks
         return Pattern(name, axis_a, axis_p, grid)
     except ValueError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
-        grid_a = max(a_fit.first, 0.0) + np.arange(n_a) * a_fit.step
+        grid_a = max(a_fit.first, 0.0) + np.arange(n_a, dtype=np.float64) * a_fit.step
         return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
 
 

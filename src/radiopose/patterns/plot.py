@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import os
+from typing import Any
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -31,7 +32,7 @@ def plot_polar(
     *,
     floor_dbi: float | None = None,
     label: str | None = None,
-    **line_kwargs: object,
+    **line_kwargs: Any,
 ) -> Axes:
     """Polar plot of the directivity at one polar angle.
 

@@ -23,12 +23,12 @@ from radiopose.units import FloatArray, db_to_linear, linear_to_db
 
 def _axes(azimuth_step_deg: float, polar_step_deg: float | None) -> tuple[FloatArray, FloatArray]:
     n_az = round(360.0 / azimuth_step_deg)
-    az = np.arange(n_az) * (360.0 / n_az)
+    az = np.arange(n_az, dtype=np.float64) * (360.0 / n_az)
     if polar_step_deg is None:
         po = np.array([90.0])
     else:
         n_po = round(180.0 / polar_step_deg)
-        po = np.arange(n_po + 1) * (180.0 / n_po)
+        po = np.arange(n_po + 1, dtype=np.float64) * (180.0 / n_po)
     return az, po
 
 

@@ -199,7 +199,7 @@ def write_site_dir(
     return d
 
 
-def write_track_dir(packets, directory: str | os.PathLike[str], beacon_id: str) -> Path:  # type: ignore[no-untyped-def]
+def write_track_dir(packets, directory: str | os.PathLike[str], beacon_id: str) -> Path:
     """Write one track's ``packets.csv`` and ``truth.csv`` (a :class:`TrackPackets`)."""
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)

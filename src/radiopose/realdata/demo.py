@@ -16,8 +16,12 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 def run_real_demo(out_dir: str | Path, *, echo: Callable[[str], None] = print) -> list[Path]:
@@ -80,9 +84,10 @@ def run_real_demo(out_dir: str | Path, *, echo: Callable[[str], None] = print) -
         plt.close(fig)
         ax = plot_errors_over_time(over_time)
         ax.set_title("filter (offline), position error over time")
-        ax.figure.tight_layout()
-        ax.figure.savefig(stage / "real-error-over-time.png", dpi=100)
-        plt.close(ax.figure)
+        fig = cast("Figure", ax.figure)
+        fig.tight_layout()
+        fig.savefig(stage / "real-error-over-time.png", dpi=100)
+        plt.close(fig)
         written = [stage / "real-tracks.png", stage / "real-error-over-time.png"]
         say("")
         say(f"{'track':30s} {'packets':>7s}   filter mean / median / p95 (m)   lms mean (m)")

@@ -22,6 +22,7 @@ import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -112,10 +113,12 @@ def position_errors_m(truth: Truth, est: Estimates) -> np.ndarray:
 
 
 def filter_config(overrides: Sequence[tuple[str, float]], lag_s: float | None) -> TrackerConfig:
-    return TrackerConfig(filter=replace(FilterConfig(), **dict(overrides)), smoothing_lag_s=lag_s)
+    return TrackerConfig(
+        filter=replace(FilterConfig(), **dict[str, Any](overrides)), smoothing_lag_s=lag_s
+    )
 
 
-def run_filter(site: Site, track: TrackData, overrides, lag_s: float | None) -> Estimates:  # type: ignore[no-untyped-def]
+def run_filter(site: Site, track: TrackData, overrides, lag_s: float | None) -> Estimates:
     return locate(site, track.packets, "filter", filter_config(overrides, lag_s)).estimates
 
 
@@ -253,7 +256,7 @@ def load_tracks(ds: TetamDataset, settings: ImportSettings) -> list[TrackData]:
 
 
 # ----------------------------------------------------------------------------- orientation
-def _circ_abs_diff_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def _circ_abs_diff_deg(a: np.ndarray, b: np.ndarray | float) -> np.ndarray:
     return np.abs((np.asarray(a) - np.asarray(b) + 180.0) % 360.0 - 180.0)
 
 

@@ -312,7 +312,7 @@ def read_histograms(
                         if mean is None:
                             summary.empty_histograms += 1
                             continue
-                        out.append(SurveyPoint(xyz, by_mac[m], mean))  # type: ignore[arg-type]
+                        out.append(SurveyPoint(xyz, by_mac[m], mean))
         elif line.startswith(("Dongles:", "Beacons:")) or not line.strip():
             continue
         else:
@@ -404,21 +404,21 @@ def read_track(
         rows.append((t, by_mac[mac], rss, *xyz, *fwd))
     if not rows:
         raise InputError("no readings of the beacon", path=p)
-    t = np.array([r[0] for r in rows])
-    order = np.argsort(t, kind="stable")
-    summary.reordered_readings += int(np.count_nonzero(order != np.arange(t.size)))
-    summary.readings += t.size
+    t_s = np.array([r[0] for r in rows])
+    order = np.argsort(t_s, kind="stable")
+    summary.reordered_readings += int(np.count_nonzero(order != np.arange(t_s.size)))
+    summary.readings += t_s.size
     name = p.name[: -len(TRACK_SUFFIX)] if p.name.endswith(TRACK_SUFFIX) else p.stem
     num = np.array([[r[0], r[2], *r[3:]] for r in rows], dtype=np.float64)[order]
-    fwd = num[:, 5:8]
-    fwd = fwd / np.linalg.norm(fwd, axis=1, keepdims=True)
+    forward = num[:, 5:8]
+    forward = forward / np.linalg.norm(forward, axis=1, keepdims=True)
     return TrackReadings(
         name,
         num[:, 0],
         np.array([r[1] for r in rows], dtype=object)[order],
         num[:, 1],
         num[:, 2:5],
-        fwd,
+        forward,
     )
 
 

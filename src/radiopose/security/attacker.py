@@ -560,7 +560,7 @@ def sustain_path(
     for t, p, o in zip(times_s, positions_m, orientations_deg, strict=True):
         pp = np.asarray(p, float).reshape(-1, 3)
         oo = np.asarray(o, float).reshape(-1, 3)
-        keys = [tuple(np.round(np.r_[a, b], 9)) for a, b in zip(pp, oo, strict=True)]
+        keys = [tuple(np.r_[a, b].round(9)) for a, b in zip(pp, oo, strict=True)]
         c = np.array([ids.setdefault(k, len(ids)) for k in keys], dtype=np.int64)
         search.step(float(t), pp, oo, c)
         if not search.alive:

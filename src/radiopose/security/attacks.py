@@ -180,7 +180,8 @@ def genuine_stream(
 ) -> PacketStream:
     """The genuine device alone for ``duration_s`` (its motion: the scenario's)."""
     sc = site.sim.config
-    t = np.arange(round(duration_s / (sc.interval_ms / 1000.0))) * (sc.interval_ms / 1000.0)
+    n = round(duration_s / (sc.interval_ms / 1000.0))
+    t = np.arange(n, dtype=np.float64) * (sc.interval_ms / 1000.0)
     pos, ori = genuine_path(sc, t, rng)
     rss = site.rss_dbm(pos, ori, 0.0, noise_db, rng)
     return PacketStream(t, rss, np.zeros(t.size, np.int8), pos, ori, np.inf)
@@ -319,7 +320,7 @@ def attack_stream(
     dt = sc.interval_ms / 1000.0
     n_pre = round(cfg.prefix_s / dt)
     n_att = round(cfg.attack_s / dt)
-    t = np.arange(n_pre + n_att) * dt
+    t = np.arange(n_pre + n_att, dtype=np.float64) * dt
     pos, ori = genuine_path(sc, t, rng)
     t_attack = float(t[n_pre])
     genuine_rss = site.rss_dbm(pos, ori, 0.0, noise_db, rng)

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 
 import numba
 import numpy as np
+from numpy.typing import ArrayLike
 
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates
@@ -370,9 +371,9 @@ def _score_track_streaming(
 
 def pose_residuals_db(
     model: FilterModel,
-    position_m: FloatArray,
-    orientation_deg: FloatArray,
-    rss_dbm: FloatArray,
+    position_m: ArrayLike,
+    orientation_deg: ArrayLike,
+    rss_dbm: ArrayLike,
 ) -> FloatArray:
     """Residuals ``(n, n_rx)`` of packets at poses: RSS − the system's expected RSS.
 

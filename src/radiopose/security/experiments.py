@@ -291,7 +291,7 @@ def _site_rows(sim: Simulation, run: int) -> list[Row]:
 def target_path(config: SpoofConfig, rng: np.random.Generator) -> tuple[FloatArray, ...]:
     """Times ``(n,)``, positions ``(n, 3)``, orientations ``(n, 3)`` of a straight target path."""
     sc = config.scenario
-    t = np.arange(config.path_packets) * (sc.interval_ms / 1000.0)
+    t = np.arange(config.path_packets, dtype=np.float64) * (sc.interval_ms / 1000.0)
     pos = straight_path(rng, t, (0.0, sc.size_m, 0.0, sc.size_m), sc.z_m, sc.motion)
     ori = rotation_path(rng, t, sc.motion)
     return t, pos, ori

@@ -11,7 +11,9 @@ the Axes; :func:`make_figures` draws every figure the tables allow and saves PNG
 
 from __future__ import annotations
 
+import functools
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -169,7 +171,7 @@ def make_figures(
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)
     sites = tables.get("sites", [])
-    jobs = []
+    jobs: list[tuple[str, Callable[[Axes], object]]] = []
     if any(r["metric"] == "p_at_least_one_match" for r in summary):
         jobs.append(("match-probability", lambda ax: plot_match_probability(summary, ax)))
     for exp in ("match", "pattern"):
@@ -177,7 +179,7 @@ def make_figures(
             jobs.append(
                 (
                     f"{exp}-example",
-                    lambda ax, e=exp: plot_match_example(tables["example_matches"], sites, e, ax),
+                    functools.partial(plot_match_example, tables["example_matches"], sites, exp),
                 )
             )
     if tables.get("paths"):

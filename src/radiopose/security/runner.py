@@ -140,7 +140,7 @@ class RunStore:
         text = repr((self._config, experiment, int(run)))
         return hashlib.sha256(text.encode("utf-8")).hexdigest()[:24]
 
-    def _path(self, experiment: str, run: int):  # type: ignore[no-untyped-def]
+    def _path(self, experiment: str, run: int):
         return self.dir / f"{experiment}-{int(run):03d}.json"
 
     def load(self, tasks: Sequence[tuple[str, int]]) -> dict[tuple[str, int], RunOutput]:

@@ -272,7 +272,7 @@ def simulate_handheld(config: HandheldConfig | None = None, seed: int = 0) -> Si
 
     # Path, packets, truth.
     n_pk = round(cfg.duration_s / (cfg.interval_ms / 1000.0))
-    t = np.arange(n_pk) * (cfg.interval_ms / 1000.0)
+    t = np.arange(n_pk, dtype=np.float64) * (cfg.interval_ms / 1000.0)
     pos, ori = handheld_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg)
     rss = link_rss_dbm(
         cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats

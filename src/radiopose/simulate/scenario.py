@@ -243,7 +243,16 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
             azimuth_step_deg=1.0,
         )
         receivers.append(
-            Receiver(f"rx{i + 1}", *map(float, rx_xyz[i]), float(rx_az[i]), 0.0, 0.0, pname)
+            Receiver(
+                f"rx{i + 1}",
+                float(rx_xyz[i, 0]),
+                float(rx_xyz[i, 1]),
+                float(rx_xyz[i, 2]),
+                float(rx_az[i]),
+                0.0,
+                0.0,
+                pname,
+            )
         )
     patterns["survey-tx"] = smartphone_like(
         rng, "survey-tx", range_db=rng.uniform(*cfg.survey_range_db)
@@ -294,7 +303,7 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
 
     # Trajectory and packets.
     n_pk = round(cfg.duration_s / (cfg.interval_ms / 1000.0))
-    t = np.arange(n_pk) * (cfg.interval_ms / 1000.0)
+    t = np.arange(n_pk, dtype=np.float64) * (cfg.interval_ms / 1000.0)
     pos, ori = device_path(rng, t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg.z_m, cfg.motion)
     rss = link_rss_dbm(
         cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import zlib
 from dataclasses import dataclass, field
+from typing import cast
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.likelihood import HeardRss
@@ -95,7 +96,9 @@ def _outcome(est: FilterEstimate) -> Outcome:
 def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
     return tuple(
         Delayed(t_s, packet_id, _outcome(est))
-        for (packet_id, t_s), est in pf.take_smoothed()  # type: ignore[misc]
+        for (packet_id, t_s), est in cast(
+            "list[tuple[tuple[str, float], FilterEstimate]]", pf.take_smoothed()
+        )
     )
 
 

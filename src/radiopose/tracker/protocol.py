@@ -167,13 +167,27 @@ class Method(Protocol):
         checkpoint written by another method) is replaced by :meth:`new_state`.
     """
 
-    name: str
-    label: str
-    evidence: frozenset[Evidence]
-    estimates_orientation: bool
-    acquires: bool
-    lagged: bool
-    state_type: type
+    # read-only members (properties), so that frozen dataclasses satisfy the protocol
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def label(self) -> str: ...
+
+    @property
+    def evidence(self) -> frozenset[Evidence]: ...
+
+    @property
+    def estimates_orientation(self) -> bool: ...
+
+    @property
+    def acquires(self) -> bool: ...
+
+    @property
+    def lagged(self) -> bool: ...
+
+    @property
+    def state_type(self) -> type: ...
 
     def prepare(self, device: Device) -> None:
         """Build the method's per-device resources into ``device.engine`` (once)."""

@@ -171,7 +171,7 @@ def _sampling(
             line=line,
             column=key,
         )
-    return start + np.arange(n + 1) * step
+    return start + np.arange(n + 1, dtype=np.float64) * step
 
 
 _BASTA_SYSTEMS = ("SPCS_Polar", "SPCS_CW", "SPCS_CCW")

@@ -312,14 +312,14 @@ def read_msi(
     p = Path(path)
     _, gain_dbi, h_ang, h_att, v_ang, v_att = _parse_msi(p)
     pname = name or _stem(p)
-    az = np.arange(360) * 1.0
+    az = np.arange(360, dtype=np.float64) * 1.0
     # pattern azimuth phi looks at horizontal angle h = 360 − phi
     a_h = _cut_at(h_ang, h_att, 360.0 - az)
     if mode == "horizontal":
         return _normalised(Pattern(pname, az, np.array([90.0]), gain_dbi - a_h), normalise)
     if mode != "sphere":
         raise ValueError(f"unknown MSI mode {mode!r}")
-    theta = np.arange(181) * 1.0
+    theta = np.arange(181, dtype=np.float64) * 1.0
     # front vertical half-plane (phi = 0): theta = 90 + v (mod 360)
     a_v = _cut_at(v_ang, v_att, wrap_deg(theta + 270.0))  # (181,)
     # A(phi, theta) = min(A_H(phi) + A_V(theta), A_max)

@@ -78,8 +78,8 @@ def health_of(db: Database) -> Health:
                 last_report_s=None if a is None else a["last_report_s"],
                 seconds_since_report=None if a is None else max(0.0, now - a["last_report_s"]),
                 frames_per_s=0.0 if a is None else a["frames_per_s"],
-                clock_offset_s=c["offset_s"] if estimated else None,
-                clock_drift_ppm=c["drift_ppm"] if estimated else None,
+                clock_offset_s=c["offset_s"] if c is not None and estimated else None,
+                clock_drift_ppm=c["drift_ppm"] if c is not None and estimated else None,
                 clock_method=None if c is None else c.get("method"),
             )
         )

@@ -6,12 +6,15 @@ evaluates the kernel's two lower bounds in numpy: the whole-row bound per
 position (the prefilter) and the per-block bound over blocks of 24 azimuths.
 Prints the fraction of positions and of blocks that survive. The kernel starts
 from a looser threshold and tightens it as it goes, so it visits somewhat more.
-Usage: ``python scripts/prune_statistics.py [SIGMA_DB]``.
+Usage: ``python -m benchmarks prune [--sigma-db 1.0] [--packets 5] [--seed 101]``.
+
+It restates the kernel's bounds in numpy, so it lives beside the benchmarks,
+not among the scripts.
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 from dataclasses import replace
 
 import numpy as np
@@ -22,7 +25,8 @@ from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 
 
-def main(sigma_db: float = 1.0, n_packets: int = 5, seed: int = 101) -> None:
+def prune_statistics(sigma_db: float = 1.0, n_packets: int = 5, seed: int = 101) -> None:
+    """Print, per packet, the fractions of positions and blocks the bounds keep."""
     sim = simulate(replace(ScenarioConfig(), duration_s=0.2, noise_db=sigma_db), seed=seed)
     space = candidate_space(sim.site, sim.site.devices[0].transmitter)
     sc = ShiftScorer(space)
@@ -46,5 +50,15 @@ def main(sigma_db: float = 1.0, n_packets: int = 5, seed: int = 101) -> None:
         )
 
 
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sigma-db", type=float, default=1.0, help="RSS noise σ, dB")
+    ap.add_argument("--packets", type=int, default=5, help="packets to examine")
+    ap.add_argument("--seed", type=int, default=101)
+    args = ap.parse_args(argv)
+    prune_statistics(args.sigma_db, args.packets, args.seed)
+    return 0
+
+
 if __name__ == "__main__":
-    main(float(sys.argv[1]) if len(sys.argv) > 1 else 1.0)
+    raise SystemExit(main())

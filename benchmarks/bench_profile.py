@@ -6,12 +6,15 @@ and prints, per packet, the total and the time spent in the threshold pass,
 the prefilter, the kernel calls (main pass, and the threshold pass when it
 uses the per-chunk heaps) and the exact float64 rescoring; the remainder is
 Python bookkeeping. The timers wrap the calls, so they add a few µs each.
-Usage: ``python scripts/warm_packet_profile.py [SEED]``.
+Usage: ``python -m benchmarks profile [--seed 101] [--packets 200] [--repeat 3]``.
+
+It wraps the scorer's private passes (monkeypatching them with timers), so it
+lives beside the benchmarks, not among the scripts.
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -22,7 +25,8 @@ from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 
 
-def main(seed: int = 101, n_packets: int = 200) -> None:
+def profile(seed: int = 101, n_packets: int = 200, repeat: int = 3) -> None:
+    """Print, per repeat, the warm per-packet time and its parts (ms/packet)."""
     sim = simulate(replace(ScenarioConfig(), duration_s=1.0, noise_db=1.0), seed=seed)
     space = candidate_space(sim.site, sim.site.devices[0].transmitter)
     heard = [space.heard(p) for p in group_packets(sim.packets)][:n_packets]
@@ -39,11 +43,11 @@ def main(seed: int = 101, n_packets: int = 200) -> None:
 
         return wrapper
 
-    sc._threshold = timed("threshold pass", sc._threshold)  # type: ignore[method-assign]
+    sc._threshold = timed("threshold pass", sc._threshold)
     sc._kernel = timed("kernel calls", sc._kernel)
     compiled._prefilter = timed("prefilter", compiled._prefilter)
     compiled.exact_mse_db2 = timed("exact rescoring", compiled.exact_mse_db2)
-    for _ in range(3):
+    for _ in range(repeat):
         spent.clear()
         t0 = time.perf_counter()
         for h in heard:
@@ -53,5 +57,15 @@ def main(seed: int = 101, n_packets: int = 200) -> None:
         print(f"warm packet {1e3 * total / len(heard):.3f} ms: {parts} (ms/packet)")
 
 
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=101)
+    ap.add_argument("--packets", type=int, default=200, help="packets of the trace to score")
+    ap.add_argument("--repeat", type=int, default=3, help="passes over the trace")
+    args = ap.parse_args(argv)
+    profile(args.seed, args.packets, args.repeat)
+    return 0
+
+
 if __name__ == "__main__":
-    main(*(int(a) for a in sys.argv[1:2]))
+    raise SystemExit(main())

@@ -1,0 +1,172 @@
+"""Every script in ``scripts/`` (and the two benchmark-support tools) runs on a tiny input.
+
+Each script's ``main(argv)`` is called in this process with its smallest options
+(``--quick``: a 10 m site with a 0.25 m grid and a 0.2 s trace; one seed; one σ),
+and what it prints or writes is checked for the table it promises. The numbers
+mean nothing at this size: these tests only keep the scripts from rotting (an API
+they call renamed, an option gone). ``real_data.py --quick`` changes a module
+global of ``radiopose.realdata.experiment``, so it runs in a subprocess. The
+scripts whose smallest run is still long (standard-site filter runs, the real
+site's cross-validation, the detector's quick plan) are marked ``slow``.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SCRIPTS = REPO / "scripts"
+BENCHMARKS = REPO / "benchmarks"
+MITLL = REPO.parent / "shared" / "data" / "phone-patterns-mitll"
+
+
+def _load(path: Path) -> ModuleType:
+    """Import a script by path under a private module name (not ``__main__``)."""
+    spec = importlib.util.spec_from_file_location(f"_smoke_{path.stem}", path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(path: Path, argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    code = _load(path).main(argv)
+    assert code in (None, 0)
+    return capsys.readouterr().out
+
+
+def _table_rows(text: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith("|")]
+
+
+def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "accuracy.md"
+    argv = ["--quick", "--seeds", "1", "--first-seed", "5", "--sigmas", "1", "--out", str(out)]
+    printed = _run(SCRIPTS / "accuracy_table.py", argv, capsys)
+    text = out.read_text(encoding="utf-8")
+    assert text.startswith("# Accuracy on the paper's standard scenario")
+    assert printed.strip() == text.strip()
+    for method in ("full", "location", "orientation", "top", "lms"):
+        assert any(f"| {method} " in row or f"| `{method}`" in row for row in _table_rows(text))
+    assert out.with_suffix(".json").is_file()
+
+
+def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--quick", "--seeds", "1", "--first-seed", "5", "--sigmas", "1"]
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert len(rows) == 2 + 4  # header, rule, one row per variant
+    assert all(row.startswith("| 1 |") for row in rows[2:])
+
+
+def test_mirror_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(
+        SCRIPTS / "mirror_diagnosis.py", ["5", "1.0", "--quick", "--packets", "21"], capsys
+    )
+    lines = [line for line in printed.splitlines() if line.startswith("packet ")]
+    assert [line.split(":")[0] for line in lines] == ["packet 0", "packet 20"]
+    assert all("nearest-grid MSE" in line for line in lines)
+
+
+def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--seeds", "1", "--first-seed", "5", "--grid", "test", "--windows", "0.1"]
+    printed = _run(SCRIPTS / "orientation_outliers.py", argv, capsys)
+    assert "window 0.1 s: pooled" in printed
+    assert "seeds 5–5: pooled" in printed
+
+
+def test_survey_interpolation_error(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = _table_rows(
+        _run(SCRIPTS / "survey_interpolation_error.py", ["--quick", "--seeds", "1"], capsys)
+    )
+    assert len(rows) == 2 + 4  # header, rule; cubic and linear × all and far
+    assert {row.split("|")[1].strip() for row in rows[2:]} == {"cubic", "linear"}
+
+
+@pytest.mark.skipif(not MITLL.is_dir(), reason=f"MIT LL captures not found at {MITLL}")
+def test_enrol_mitll(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--data", str(MITLL), "--patterns-dir", str(tmp_path), "--figures-dir", str(tmp_path)]
+    printed = _run(SCRIPTS / "enrol_mitll.py", argv, capsys)
+    assert printed.count("directivity") == 2
+    for name in ("iphone-11", "galaxy-s10"):
+        # the shipped patterns are what the script writes (it reproduces them)
+        shipped = REPO / "src" / "radiopose" / "data" / "patterns" / f"{name}.csv"
+        assert (tmp_path / f"{name}.csv").read_bytes() == shipped.read_bytes()
+        assert (tmp_path / f"pattern-{name}.png").stat().st_size > 0
+    assert (tmp_path / "pattern-phones.png").stat().st_size > 0
+
+
+def test_benchmark_prune(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(BENCHMARKS / "bench_prune.py", ["--packets", "1"], capsys)
+    assert printed.startswith("packet ") and "blocks surviving" in printed
+
+
+def test_benchmark_profile(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(BENCHMARKS / "bench_profile.py", ["--packets", "3", "--repeat", "1"], capsys)
+    assert printed.startswith("warm packet ") and "kernel calls" in printed
+
+
+# ---------------------------------------------------- slow: long even at their smallest
+@pytest.mark.slow
+def test_filter_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "filter-accuracy.md"
+    argv = ["--seeds", "1", "--first-seed", "5", "--sigmas", "3", "--out", str(out)]
+    _run(SCRIPTS / "filter_accuracy.py", argv, capsys)
+    assert any("filter" in row for row in _table_rows(out.read_text(encoding="utf-8")))
+
+
+@pytest.mark.slow
+def test_filter_scenarios(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "filter_scenarios.py", ["--seeds", "1", "--first-seed", "5"], capsys)
+    assert any("30 % packet loss" in row for row in _table_rows(printed))
+
+
+@pytest.mark.slow
+def test_spoof_detection(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--plan", "quick", "--workers", "1", "--out", str(tmp_path)]
+    _run(SCRIPTS / "spoof_detection.py", argv, capsys)
+    text = (tmp_path / "summary.md").read_text(encoding="utf-8")
+    assert (
+        text.startswith("# Spoofing detector, plan `quick`") and "## ROC over the threshold" in text
+    )
+
+
+@pytest.mark.slow
+def test_real_data(tmp_path: Path) -> None:
+    out = tmp_path / "real.md"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO / "src"), *sys.path])}
+    r = subprocess.run(
+        [sys.executable, str(SCRIPTS / "real_data.py"), "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=1800,
+    )
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert _table_rows(out.read_text(encoding="utf-8"))
+
+
+SCRIPT_TESTS: dict[str, Callable[..., None]] = {
+    "accuracy_table": test_accuracy_table,
+    "enrol_mitll": test_enrol_mitll,
+    "filter_accuracy": test_filter_accuracy,
+    "filter_scenarios": test_filter_scenarios,
+    "live_lag_accuracy": test_live_lag_accuracy,
+    "mirror_diagnosis": test_mirror_diagnosis,
+    "orientation_outliers": test_orientation_outliers,
+    "real_data": test_real_data,
+    "spoof_detection": test_spoof_detection,
+    "survey_interpolation_error": test_survey_interpolation_error,
+}
+
+
+def test_every_script_has_a_smoke_test() -> None:
+    assert sorted(p.stem for p in SCRIPTS.glob("*.py")) == sorted(SCRIPT_TESTS)
