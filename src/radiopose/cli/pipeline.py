@@ -48,7 +48,7 @@ def locate(
     from radiopose.estimates import write_estimates_csv
     from radiopose.likelihood import SCORERS
     from radiopose.packets import read_packets_csv
-    from radiopose.site import load_site
+    from radiopose.site_io import load_site
     from radiopose.tracker import METHODS, TrackerConfig
     from radiopose.tracker import locate as run_locate
     from radiopose.tracker_settings import load_site_tracker_settings

@@ -777,9 +777,8 @@ def _packet_update(
     *common, pred, w = args
     lse0 = float(K.log_sum_exp(logw))
     h = n // 2
-    first = thread_pool(2).submit(  # type: ignore[call-arg]  # numba dispatcher: untyped
-        K.packet_update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h]
-    )
+    submit: Any = thread_pool(2).submit  # mypy miscounts numba's untyped dispatcher
+    first = submit(K.packet_update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h])
     K.packet_update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
     first.result()
     lse1 = float(K.log_sum_exp(logw))

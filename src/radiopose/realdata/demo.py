@@ -37,7 +37,7 @@ def run_real_demo(out_dir: str | Path, *, echo: Callable[[str], None] = print) -
     from radiopose.realdata.experiment import position_errors_m
     from radiopose.realdata.figures import plot_errors_over_time, plot_track
     from radiopose.realdata.tetam import shipped_dataset_dir
-    from radiopose.site import load_site
+    from radiopose.site_io import load_site
     from radiopose.tables import staged_directory
     from radiopose.tracker import TrackerConfig, locate
     from radiopose.tracker_settings import load_site_tracker_settings

@@ -33,7 +33,8 @@ from radiopose.filtering import FilterConfig
 from radiopose.packets import Packets, Truth, group_packets
 from radiopose.realdata.build import ImportSettings, heldout_survey, write_site_dir
 from radiopose.realdata.tetam import TetamDataset, TrackPackets, track_packets
-from radiopose.site import Site, load_site
+from radiopose.site import Site
+from radiopose.site_io import load_site
 from radiopose.tracker import TrackerConfig, locate
 
 FILTER_CANDIDATES: tuple[tuple[tuple[str, float], ...], ...] = tuple(

@@ -23,7 +23,8 @@ from typing import Any
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.site import Site, load_site
+from radiopose.site import Site
+from radiopose.site_io import load_site
 from radiopose.tables import write_table
 
 RECEIVER_FIELDS = ("x_m", "y_m", "z_m", "azimuth_deg", "pitch_deg", "roll_deg")

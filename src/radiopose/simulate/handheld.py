@@ -48,10 +48,10 @@ from radiopose.site import (
     Receiver,
     SurveyConfig,
     SurveyRows,
-    assemble_site,
     grid_steps,
     height_range_middle_m,
 )
+from radiopose.site_io import assemble_site
 from radiopose.units import FloatArray, wrap_deg
 
 

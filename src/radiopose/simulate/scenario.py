@@ -43,10 +43,9 @@ from radiopose.site import (
     Site,
     SurveyConfig,
     SurveyRows,
-    assemble_site,
     grid_steps,
-    write_site,
 )
+from radiopose.site_io import assemble_site, write_site
 from radiopose.tables import check_output_paths
 from radiopose.units import FloatArray
 
