@@ -260,7 +260,8 @@ class FilterModel:
     tx_power_dbm: float
     box_m: FloatArray
     tilt_box_rad: FloatArray
-    cell_m: tuple[float, float, float]
+    cell: tuple[float, float, float]
+    """One candidate cell: (x step m, y step m, azimuth step deg)."""
 
     @classmethod
     def build(cls, site: Site, space: CandidateSpace, scorer: Scorer) -> FilterModel:
@@ -302,7 +303,7 @@ class FilterModel:
             tilt_box_rad=np.deg2rad(
                 np.array([o[:, 1].min(), o[:, 1].max(), o[:, 2].min(), o[:, 2].max()])
             ),
-            cell_m=(dx, dy, 360.0 / az.size if az.size else 360.0),
+            cell=(dx, dy, 360.0 / az.size if az.size else 360.0),
         )
 
     def search(self, heards: list[HeardRss], k: int, slots: list[int]) -> list[TopK]:
@@ -455,7 +456,7 @@ class ParticleFilter:
         p = np.where(ok, np.exp(-(cost - cost[ok].min())), 0.0)
         pick = st.rng.choice(cand.size, size=m, p=p / p.sum())
         S = T[pick]
-        dx, dy, daz = mod.cell_m
+        dx, dy, daz = mod.cell
         S[:, K.X_M] += st.rng.uniform(-0.5, 0.5, m) * dx
         S[:, K.Y_M] += st.rng.uniform(-0.5, 0.5, m) * dy
         S[:, K.AZIMUTH_RAD] = (

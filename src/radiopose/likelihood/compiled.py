@@ -86,7 +86,6 @@ from radiopose.likelihood.shift_kernels import (
     shift_topk_serial as _shift_topk_serial,
 )
 from radiopose.likelihood.topk import TopK, select_topk
-from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
 from radiopose.units import wrap_deg
 
@@ -618,10 +617,6 @@ class ShiftScorer(ScorerBase):
             out[p] = best / r.size
         out[~np.all(np.isfinite(self.base[r]), axis=0)] = np.inf
         return out
-
-    def score_topk(self, packet: PacketObservation, k: int = 100) -> TopK:
-        """Top-k candidates of one packet (best first)."""
-        return self.score_heard(self.space.heard(packet), k)
 
     def with_parallel(self, parallel: bool, oversample: int | None = None) -> ShiftScorer:
         """The same scorer on numba's threads or on one (and, if given, with
