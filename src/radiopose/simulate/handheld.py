@@ -35,11 +35,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.packets import Packets, Truth
 from radiopose.patterns.pattern import Pattern
 from radiopose.patterns.synthetic import smartphone_like
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
-from radiopose.simulate.scenario import DEFAULT_TRANSMITTER, ScenarioConfig, Simulation
+from radiopose.simulate.scenario import (
+    DEFAULT_TRANSMITTER,
+    ScenarioConfig,
+    Simulation,
+    observe_path,
+)
 from radiopose.simulate.trajectories import MotionConfig, walk_path, walking_azimuth_deg
 from radiopose.site import (
     AreaGrid,
@@ -277,17 +281,5 @@ def simulate_handheld(config: HandheldConfig | None = None, seed: int = 0) -> Si
     rss = link_rss_dbm(
         cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats
     )
-    rss = rss + rng.normal(0.0, cfg.noise_db, rss.shape)
-    heard = rng.random(rss.shape) >= cfg.loss_fraction
-    pk_idx, rx_idx = np.nonzero(heard)
-    ids = np.array([r.receiver_id for r in receivers], dtype=object)
-    number = np.cumsum(heard.any(axis=1)) - 1
-    packets = Packets(
-        packet_id=np.array([str(i) for i in number[pk_idx]], dtype=object),
-        timestamp_s=t[pk_idx],
-        transmitter=np.full(pk_idx.size, DEFAULT_TRANSMITTER, dtype=object),
-        receiver_id=ids[rx_idx],
-        rss_dbm=np.round(rss[pk_idx, rx_idx], 3),
-    )
-    truth = Truth(t, np.full(n_pk, DEFAULT_TRANSMITTER, dtype=object), pos, ori)
+    packets, truth = observe_path(rng, rss, t, pos, ori, receivers, cfg.noise_db, cfg.loss_fraction)
     return Simulation(ScenarioConfig(), seed, site, packets, truth)

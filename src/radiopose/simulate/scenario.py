@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
@@ -307,20 +308,42 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     rss = link_rss_dbm(
         cfg.channel, pos, ori, patterns["device"], cfg.tx_power_dbm, rx_xyz, rx_orient, rx_pats
     )
-    rss = rss + rng.normal(0.0, cfg.noise_db, rss.shape)
-    heard = rng.random(rss.shape) >= cfg.loss_fraction
+    packets, truth = observe_path(rng, rss, t, pos, ori, receivers, cfg.noise_db, cfg.loss_fraction)
+    return Simulation(cfg, seed, site, packets, truth)
+
+
+def observe_path(
+    rng: np.random.Generator,
+    rss_dbm: FloatArray,
+    t_s: FloatArray,
+    position_m: FloatArray,
+    orientation_deg: FloatArray,
+    receivers: Sequence[Receiver],
+    noise_db: float,
+    loss_fraction: float,
+) -> tuple[Packets, Truth]:
+    """The packets the receivers hear of a path, and its truth.
+
+    ``rss_dbm`` ``(n_packets, n_receivers)`` is the noise-free link RSS; this
+    adds Gaussian noise (``noise_db``, dB) and drops each reading with
+    probability ``loss_fraction`` (in that order of random draws). Packet ids
+    number the packets someone heard, 0, 1, 2, ... in time order, as a
+    deployment sees them (and as `radiopose sync` numbers them): a packet no
+    receiver heard leaves no row and no gap. ``truth.csv`` keeps every packet.
+    """
+    rss = rss_dbm + rng.normal(0.0, noise_db, rss_dbm.shape)
+    heard = rng.random(rss.shape) >= loss_fraction
     pk_idx, rx_idx = np.nonzero(heard)
     ids = np.array([r.receiver_id for r in receivers], dtype=object)
-    # Packet ids number the packets someone heard, 0, 1, 2, ... in time order,
-    # as a deployment sees them (and as `radiopose sync` numbers them): a packet
-    # no receiver heard leaves no row and no gap. truth.csv keeps every packet.
     number = np.cumsum(heard.any(axis=1)) - 1
     packets = Packets(
         packet_id=np.array([str(i) for i in number[pk_idx]], dtype=object),
-        timestamp_s=t[pk_idx],
+        timestamp_s=t_s[pk_idx],
         transmitter=np.full(pk_idx.size, DEFAULT_TRANSMITTER, dtype=object),
         receiver_id=ids[rx_idx],
         rss_dbm=np.round(rss[pk_idx, rx_idx], 3),
     )
-    truth = Truth(t, np.full(n_pk, DEFAULT_TRANSMITTER, dtype=object), pos, ori)
-    return Simulation(cfg, seed, site, packets, truth)
+    truth = Truth(
+        t_s, np.full(t_s.size, DEFAULT_TRANSMITTER, dtype=object), position_m, orientation_deg
+    )
+    return packets, truth
