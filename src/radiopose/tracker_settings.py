@@ -26,8 +26,13 @@ from pathlib import Path
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.particle import LIKELIHOODS
 
 FILE_NAME = "tracker.toml"
+
+
+_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS}
+"""The values a string field of FilterConfig may take."""
 
 
 def _filter_fields() -> dict[str, type]:
@@ -36,7 +41,7 @@ def _filter_fields() -> dict[str, type]:
 
 def read_tracker_toml(
     path: str | os.PathLike[str],
-) -> tuple[dict[str, float | int], float | None]:
+) -> tuple[dict[str, float | int | str | bool], float | None]:
     """``(filter overrides, smoothing_lag_s or None)`` from a ``tracker.toml``.
 
     Raises
@@ -50,13 +55,17 @@ def read_tracker_toml(
     _live_method(root)
     sec = root.section("filter", required=False)
     kinds = _filter_fields()
-    overrides: dict[str, float | int] = {}
+    overrides: dict[str, float | int | str | bool] = {}
     for key in list(sec.data):
         kind = kinds.get(key)
         if kind is int:
             overrides[key] = sec.integer(key, low=1, high=10_000_000)
         elif kind is float:
             overrides[key] = sec.number(key, low=-1e6, high=1e6)
+        elif kind is bool:
+            overrides[key] = sec.boolean(key)
+        elif kind is str:
+            overrides[key] = sec.string(key, choices=_STRING_CHOICES.get(key))
     sec.finish()
     root.finish()
     try:
@@ -90,7 +99,7 @@ def load_site_live_method(site_dir: str | os.PathLike[str]) -> str | None:
 
 def load_site_tracker_settings(
     site_dir: str | os.PathLike[str],
-) -> tuple[dict[str, float | int], float | None, Path | None]:
+) -> tuple[dict[str, float | int | str | bool], float | None, Path | None]:
     """The overrides of ``SITE/tracker.toml`` (empty, None, None if there is none)."""
     p = Path(site_dir) / FILE_NAME
     if not p.is_file():
@@ -101,7 +110,7 @@ def load_site_tracker_settings(
 
 def write_tracker_toml(
     path: str | os.PathLike[str],
-    overrides: Mapping[str, float | int],
+    overrides: Mapping[str, float | int | str | bool],
     smoothing_lag_s: float | None = None,
     comment: str = "",
 ) -> None:
@@ -115,6 +124,12 @@ def write_tracker_toml(
     for key, value in overrides.items():
         if key not in kinds:
             raise ValueError(f"{key!r} is not a FilterConfig field")
+        if kinds[key] is bool:
+            lines.append(f"{key} = {'true' if value else 'false'}")
+            continue
+        if kinds[key] is str:
+            lines.append(f'{key} = "{value}"')
+            continue
         v = int(value) if kinds[key] is int else float(value)
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{key} = {v!r} is not finite")

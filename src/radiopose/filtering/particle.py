@@ -66,6 +66,9 @@ from radiopose.units import FloatArray
 
 _LookupArrays = tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, FloatArray]
 
+LIKELIHOODS = ("mixture", "huber")
+"""The values of :attr:`FilterConfig.likelihood`."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -136,6 +139,16 @@ class FilterConfig:
         estimates are kept).
     min_acquisition_receivers
         Receivers a packet needs to start (or restart) a track.
+    likelihood
+        Per-receiver likelihood: ``"mixture"`` (default: Gaussian plus the
+        uniform outlier term above) or ``"huber"`` (the previous design's
+        Huber-weighted Gaussian, threshold ``huber_c`` σ; chosen by the real
+        BLE site's cross-validation, docs/real-data.md).
+    jump_own_past
+        ``True`` (default): a re-entered hypothesis more than 1 m or 30° from the
+        particle whose motion it copied gets its own pose moved back as its past
+        for the smoother; ``False``: every re-entered hypothesis inherits that
+        particle's past (the previous design).
     """
 
     n_particles: int = 2000
@@ -168,6 +181,10 @@ class FilterConfig:
     difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
     min_acquisition_receivers: int = 3
+    # issue 16 (real data): switches back to parts of the previous design; the
+    # defaults are the current behaviour
+    likelihood: str = "mixture"
+    jump_own_past: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -201,6 +218,10 @@ class FilterConfig:
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+        if self.likelihood not in LIKELIHOODS:
+            raise InputError(
+                f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
 
 
 @dataclass(frozen=True)
@@ -511,7 +532,7 @@ class ParticleFilter:
             back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
             back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
             pred = mod.expected(back, hd.receiver_index)
-            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, self._log_eps(sigma), ll)
+            self._window_loglik(pred, hd.rss_dbm, off, sigma, ll)
         evidence = sum(lz for _, _, lz in st.window)
         prior = (
             -0.5
@@ -546,6 +567,8 @@ class ParticleFilter:
         dist = np.hypot(new[:, K.X_M] - d[:, K.X_M], new[:, K.Y_M] - d[:, K.Y_M])
         turn = np.abs((new[:, K.AZIMUTH_RAD] - d[:, K.AZIMUTH_RAD] + np.pi) % (2 * np.pi) - np.pi)
         same = (dist <= 1.0) & (turn <= math.radians(30.0))
+        if not self.config.jump_own_past:
+            same[:] = True
         st.lineage.inject(
             t_s, self.config.proposal_window_s, new, slots, donors, inherit=same,
             box_m=self.model.box_m,
@@ -587,7 +610,8 @@ class ParticleFilter:
             st.rng.standard_normal(out=work.noise)
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
-        lse0, lse1 = K.packet_update(
+        update = K.packet_update_huber if cfg.likelihood == "huber" else K.packet_update
+        lse0, lse1 = update(
             S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
@@ -624,8 +648,22 @@ class ParticleFilter:
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
         """The scalar that :func:`kernels.measurement_update` takes after σ:
-        ``log ε′`` of the per-receiver outlier mixture."""
+        ``log ε′`` of the per-receiver outlier mixture (``huber_c`` for
+        ``likelihood = "huber"``, :func:`kernels.measurement_update_huber`)."""
+        if self.config.likelihood == "huber":
+            return self.config.huber_c
         return self._log_eps(sigma_db)
+
+    def _window_loglik(
+        self, pred: FloatArray, rss: FloatArray, offset_db: FloatArray, sigma_db: float,
+        out: FloatArray,
+    ) -> None:  # fmt: skip
+        """Add each row's log-likelihood of one packet at its fixed offset to ``out``
+        (the configured likelihood)."""
+        if self.config.likelihood == "huber":
+            K.fixed_offset_loglik_huber(pred, rss, offset_db, sigma_db, self.config.huber_c, out)
+        else:
+            K.fixed_offset_loglik(pred, rss, offset_db, sigma_db, self._log_eps(sigma_db), out)
 
     def _buffers(self, n: int) -> _Work:
         """Work arrays for ``n`` particles (reused from packet to packet)."""
