@@ -16,6 +16,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from radiopose.realdata import experiment as X  # noqa: N812 - read as X.run_filter
 from radiopose.realdata.build import ImportSettings
 from radiopose.realdata.tetam import read_dataset, shipped_dataset_dir
+from radiopose.tracker import locate
 
 BASE: tuple[tuple[str, object], ...] = (
     ("huber_c", 1.0),
@@ -54,7 +56,9 @@ VARIANTS: dict[str, tuple[tuple[str, object], ...]] = {
 }
 
 
-def _run(name: str, extra: tuple[tuple[str, object], ...]) -> tuple[str, list[np.ndarray], float]:
+def _run(
+    name: str, extra: tuple[tuple[str, object], ...], seed: int
+) -> tuple[str, list[np.ndarray], float]:
     t0 = time.perf_counter()
     ds = read_dataset(shipped_dataset_dir())
     settings = ImportSettings()
@@ -65,7 +69,8 @@ def _run(name: str, extra: tuple[tuple[str, object], ...]) -> tuple[str, list[np
         overrides = tuple(dict(BASE + extra).items())
         for tr in tracks:
             site = cache.site({tr.name})
-            est = X.run_filter(site, tr, overrides, X.OFFLINE_LAG_S)
+            cfg = replace(X.filter_config(overrides, X.OFFLINE_LAG_S), seed=seed)
+            est = locate(site, tr.packets, "filter", cfg).estimates
             errs.append(X.position_errors_m(tr.truth, est))
     return name, errs, time.perf_counter() - t0
 
@@ -74,15 +79,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--seed", type=int, default=0, help="TrackerConfig.seed (0: as scored)")
     args = ap.parse_args(argv)
     with ProcessPoolExecutor(args.jobs) as pool:
-        futs = [pool.submit(_run, v, VARIANTS[v]) for v in args.variants]
+        futs = [pool.submit(_run, v, VARIANTS[v], args.seed) for v in args.variants]
         for f in futs:
             name, errs, dt = f.result()
             e = np.concatenate(errs)
             per = " ".join(f"{x.mean():.2f}" for x in errs)
             print(
-                f"{name:16s} mean {e.mean():.3f} median {np.median(e):.3f} "
+                f"{name:16s} seed {args.seed} mean {e.mean():.3f} median {np.median(e):.3f} "
                 f"p95 {np.percentile(e, 95):.3f} | {per} | {dt:.0f} s",
                 flush=True,
             )
