@@ -17,6 +17,7 @@ TIERS: dict[str, str] = {
     "test_baselines": "analytic",
     "test_clustering": "analytic",
     "test_filter_kernels": "analytic",
+    "test_filter_likelihood_option": "analytic",
     "test_filter_speed": "analytic",
     "test_likelihood": "analytic",
     "test_likelihood_compiled": "analytic",

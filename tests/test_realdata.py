@@ -191,7 +191,8 @@ def test_filter_settings_for_a_track_are_chosen_without_it(dataset, tmp_path, mo
 
 def test_real_position_error_bound(imported):
     """straight_02 (120 advertisements) on its held-out site with the site's settings:
-    0.80 m when measured; the bound leaves a margin, and filter must stay well below lms."""
+    0.91 m when measured (Huber likelihood, docs/real-data.md); the bound leaves a margin,
+    and filter must stay well below lms."""
     out, _ = imported
     d = out / "tracks" / "straight_02"
     site = load_site(d / "heldout-site")

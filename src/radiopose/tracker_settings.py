@@ -27,12 +27,17 @@ from typing import Any
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.particle import LIKELIHOODS
 
 FILE_NAME = "tracker.toml"
 
 FilterOverrides = dict[str, Any]
-"""``FilterConfig`` field name -> int or float value. The keys are checked against the
+"""``FilterConfig`` field name -> int, float, str or bool value. The keys are checked against the
 fields at run time, so the values are typed ``Any`` for ``dataclasses.replace(**overrides)``."""
+
+
+_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS}
+"""The values a string field of FilterConfig may take."""
 
 
 def _filter_fields() -> dict[str, type]:
@@ -62,6 +67,10 @@ def read_tracker_toml(
             overrides[key] = sec.integer(key, low=1, high=10_000_000)
         elif kind is float:
             overrides[key] = sec.number(key, low=-1e6, high=1e6)
+        elif kind is bool:
+            overrides[key] = sec.boolean(key)
+        elif kind is str:
+            overrides[key] = sec.string(key, choices=_STRING_CHOICES.get(key))
     sec.finish()
     root.finish()
     try:
@@ -106,7 +115,7 @@ def load_site_tracker_settings(
 
 def write_tracker_toml(
     path: str | os.PathLike[str],
-    overrides: Mapping[str, float | int],
+    overrides: Mapping[str, float | int | str | bool],
     smoothing_lag_s: float | None = None,
     comment: str = "",
 ) -> None:
@@ -120,6 +129,12 @@ def write_tracker_toml(
     for key, value in overrides.items():
         if key not in kinds:
             raise ValueError(f"{key!r} is not a FilterConfig field")
+        if kinds[key] is bool:
+            lines.append(f"{key} = {'true' if value else 'false'}")
+            continue
+        if kinds[key] is str:
+            lines.append(f'{key} = "{value}"')
+            continue
         v = int(value) if kinds[key] is int else float(value)
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{key} = {v!r} is not finite")

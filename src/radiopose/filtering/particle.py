@@ -76,6 +76,9 @@ _SEARCH_OVERSAMPLE = 16
 
 _LookupArrays = tuple[FloatArray, FloatArray, FloatArray, float, FloatArray, FloatArray]
 
+LIKELIHOODS = ("mixture", "huber")
+"""The values of :attr:`FilterConfig.likelihood`."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -146,6 +149,16 @@ class FilterConfig:
         estimates are kept).
     min_acquisition_receivers
         Receivers a packet needs to start (or restart) a track.
+    likelihood
+        Per-receiver likelihood: ``"mixture"`` (default: Gaussian plus the
+        uniform outlier term above) or ``"huber"`` (the previous design's
+        Huber-weighted Gaussian, threshold ``huber_c`` σ; chosen by the real
+        BLE site's cross-validation, docs/real-data.md).
+    jump_own_past
+        ``True`` (default): a re-entered hypothesis more than 1 m or 30° from the
+        particle whose motion it copied gets its own pose moved back as its past
+        for the smoother; ``False``: every re-entered hypothesis inherits that
+        particle's past (the previous design).
     """
 
     n_particles: int = 2000
@@ -178,6 +191,10 @@ class FilterConfig:
     difference_max_dt_s: float = 0.05
     reacquire_gap_s: float = 1.0
     min_acquisition_receivers: int = 3
+    # issue 16 (real data): switches back to parts of the previous design; the
+    # defaults are the current behaviour
+    likelihood: str = "mixture"
+    jump_own_past: bool = True
 
     def __post_init__(self) -> None:
         positive = (
@@ -211,6 +228,10 @@ class FilterConfig:
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+        if self.likelihood not in LIKELIHOODS:
+            raise InputError(
+                f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
 
 
 @dataclass(frozen=True)
@@ -541,7 +562,7 @@ class ParticleFilter:
             back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
             back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
             pred = mod.expected(back, hd.receiver_index)
-            K.fixed_offset_loglik(pred, hd.rss_dbm, off, sigma, self._log_eps(sigma), ll)
+            self._window_loglik(pred, hd.rss_dbm, off, sigma, ll)
         evidence = sum(lz for _, _, lz in st.window)
         prior = (
             -0.5
@@ -576,6 +597,8 @@ class ParticleFilter:
         dist = np.hypot(new[:, K.X_M] - d[:, K.X_M], new[:, K.Y_M] - d[:, K.Y_M])
         turn = np.abs((new[:, K.AZIMUTH_RAD] - d[:, K.AZIMUTH_RAD] + np.pi) % (2 * np.pi) - np.pi)
         same = (dist <= 1.0) & (turn <= math.radians(30.0))
+        if not self.config.jump_own_past:
+            same[:] = True
         st.lineage.inject(
             t_s, self.config.proposal_window_s, new, slots, donors, inherit=same,
             box_m=self.model.box_m,
@@ -617,7 +640,9 @@ class ParticleFilter:
             st.rng.standard_normal(out=work.noise)
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
+        update = K.packet_update_huber if cfg.likelihood == "huber" else K.packet_update
         lse0, lse1 = _packet_update(
+            update,
             S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
@@ -664,8 +689,22 @@ class ParticleFilter:
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
         """The scalar that :func:`kernels.measurement_update` takes after σ:
-        ``log ε′`` of the per-receiver outlier mixture."""
+        ``log ε′`` of the per-receiver outlier mixture (``huber_c`` for
+        ``likelihood = "huber"``, :func:`kernels.measurement_update_huber`)."""
+        if self.config.likelihood == "huber":
+            return self.config.huber_c
         return self._log_eps(sigma_db)
+
+    def _window_loglik(
+        self, pred: FloatArray, rss: FloatArray, offset_db: FloatArray, sigma_db: float,
+        out: FloatArray,
+    ) -> None:  # fmt: skip
+        """Add each row's log-likelihood of one packet at its fixed offset to ``out``
+        (the configured likelihood)."""
+        if self.config.likelihood == "huber":
+            K.fixed_offset_loglik_huber(pred, rss, offset_db, sigma_db, self.config.huber_c, out)
+        else:
+            K.fixed_offset_loglik(pred, rss, offset_db, sigma_db, self._log_eps(sigma_db), out)
 
     def _buffers(self, n: int) -> _Work:
         """Work arrays for ``n`` particles (reused from packet to packet)."""
@@ -764,9 +803,10 @@ _SPLIT_MIN_PARTICLES = 1000
 
 
 def _packet_update(
-    S: FloatArray, logw: FloatArray, noise: FloatArray, *args: Any
+    update: Any, S: FloatArray, logw: FloatArray, noise: FloatArray, *args: Any
 ) -> tuple[float, float]:
-    """:func:`kernels.packet_update` (same arguments, same numbers), its particles
+    """``update`` (:func:`kernels.packet_update` or its Huber twin
+    :func:`kernels.packet_update_huber`: same arguments, same numbers), its particles
     split in two halves run on two threads when there are at least
     :data:`_SPLIT_MIN_PARTICLES` and a core is spare
     (:func:`~radiopose.likelihood.compiled.spare_core`): the kernel releases the
@@ -774,13 +814,13 @@ def _packet_update(
     over all of them."""
     n = S.shape[0]
     if n < _SPLIT_MIN_PARTICLES or not spare_core():
-        return K.packet_update(S, logw, noise, *args)
+        return update(S, logw, noise, *args)
     *common, pred, w = args
     lse0 = float(K.log_sum_exp(logw))
     h = n // 2
     submit: Any = thread_pool(2).submit  # mypy miscounts numba's untyped dispatcher
-    first = submit(K.packet_update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h])
-    K.packet_update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
+    first = submit(update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h])
+    update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
     first.result()
     lse1 = float(K.log_sum_exp(logw))
     if math.isfinite(lse1):

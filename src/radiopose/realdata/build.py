@@ -68,7 +68,7 @@ class ImportSettings:
     burst_gap_s: float = 0.05
     cell_m: float = 1.0
     min_readings: int = 3
-    filter_settings: tuple[tuple[str, float], ...] = ()
+    filter_settings: tuple[tuple[str, float | str], ...] = ()
     smoothing_lag_s: float | None = None
 
     def __post_init__(self) -> None:
@@ -251,14 +251,13 @@ def import_tetam(
     return ds.summary
 
 
-SHIPPED_FILTER_SETTINGS: tuple[tuple[str, float], ...] = (
+SHIPPED_FILTER_SETTINGS: tuple[tuple[str, float | str], ...] = (
     ("huber_c", 1.0),
     ("sigma_prior_db", 5.0),
     ("sigma_floor_db", 5.0),
     ("offset_prior_sd_db", 1.0),
     ("accel_noise_mps2", 0.2),
-    ("outlier_probability", 0.3),
-    ("outlier_range_db", 20.0),
+    ("likelihood", "huber"),
 )
 """The ``filter`` settings ``radiopose import tetam`` writes into ``site/tracker.toml``:
 the candidate that leave-one-track-out chose for most tracks (docs/real-data.md).

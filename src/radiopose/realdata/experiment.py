@@ -37,26 +37,35 @@ from radiopose.site import Site
 from radiopose.site_io import load_site
 from radiopose.tracker import TrackerConfig, locate
 
-FILTER_CANDIDATES: tuple[tuple[tuple[str, float], ...], ...] = tuple(
+FilterSetting = tuple[str, float | str]
+"""One ``FilterConfig`` field and its value."""
+
+_LIKELIHOODS: tuple[tuple[FilterSetting, ...], ...] = (
+    (("likelihood", "mixture"), ("outlier_probability", 0.3), ("outlier_range_db", 20.0)),
+    (("likelihood", "huber"),),
+)
+
+FILTER_CANDIDATES: tuple[tuple[FilterSetting, ...], ...] = tuple(
     (
         ("huber_c", 1.0),
         ("sigma_prior_db", 5.0),
         ("sigma_floor_db", 5.0),
         ("offset_prior_sd_db", 1.0),
         ("accel_noise_mps2", acc),
-        ("outlier_probability", eps),
-        ("outlier_range_db", span_db),
+        *likelihood,
     )
-    for eps, span_db in ((0.05, 60.0), (0.3, 20.0))
+    for likelihood in _LIKELIHOODS
     for acc in (0.1, 0.2, 0.5)
 )
 """The ``filter`` settings tried per held-out track: white acceleration in
-m/s²/√Hz, and the per-receiver outlier model (probability, range in dB: the
-simulator's default 5 % over 60 dB, or 30 % over 20 dB for this site's heavy
-tails); σ floor and prior 5 dB (the only value a track chose when 3 dB was
-also a candidate); Huber threshold 1σ (now only the clip of the σ
-estimate's residuals); power offset prior 1 dB since the survey transmitter
-is the beacon itself."""
+m/s²/√Hz, and the per-receiver likelihood — the filter's default outlier
+mixture (at 30 % over 20 dB for this site's heavy tails: every track chose it
+over the simulator's 5 % over 60 dB) or the previous design's Huber-weighted
+Gaussian (``likelihood = "huber"``, threshold ``huber_c`` = 1σ;
+docs/real-data.md, "Which part of the filter"); σ floor and prior 5 dB (the
+only value a track chose when 3 dB was also a candidate); ``huber_c`` is also
+the clip of the σ estimate's residuals; power offset prior 1 dB since the
+survey transmitter is the beacon itself."""
 
 OFFLINE_LAG_S = 10.0
 """The fixed lag of the offline ``filter`` here: advertisements come every ~0.45 s."""
@@ -113,7 +122,7 @@ def position_errors_m(truth: Truth, est: Estimates) -> np.ndarray:
     return np.linalg.norm(est.position_m - truth.position_m[idx], axis=1)
 
 
-def filter_config(overrides: Sequence[tuple[str, float]], lag_s: float | None) -> TrackerConfig:
+def filter_config(overrides: Sequence[FilterSetting], lag_s: float | None) -> TrackerConfig:
     return TrackerConfig(
         filter=replace(FilterConfig(), **dict[str, Any](overrides)), smoothing_lag_s=lag_s
     )
@@ -128,7 +137,7 @@ def choose_filter_settings(
     tracks: Sequence[TrackData],
     test: str,
     progress: Callable[[str], None] | None = None,
-) -> tuple[tuple[str, float], ...]:
+) -> tuple[FilterSetting, ...]:
     """The candidate with the lowest mean error over the tracks other than ``test``,
     each localised on the site that leaves out itself and ``test``."""
     best, best_err = FILTER_CANDIDATES[0], math.inf
@@ -220,7 +229,7 @@ class TrackResult:
     n_packets: int
     errors_m: dict[str, np.ndarray]
     coverage: dict[str, float]
-    filter_settings: tuple[tuple[str, float], ...]
+    filter_settings: tuple[FilterSetting, ...]
 
 
 VARIANTS = ("filter", "filter-causal", "full", "top", "lms", "hmm", "hmm-fb")
