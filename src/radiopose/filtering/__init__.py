@@ -1,9 +1,13 @@
 """Bayesian tracking (beyond the paper): a particle filter over position, velocity,
 orientation, turn rate and transmit-power offset.
 
-:mod:`~radiopose.filtering.particle` holds the filter (configuration, state,
-step, fixed-lag smoother); :mod:`~radiopose.filtering.kernels` its compiled
-per-particle kernels. The tracker registers it as the method ``filter``
+:mod:`~radiopose.filtering.particle` holds the filter (state, step, re-entry,
+fixed-lag smoother), :mod:`~radiopose.filtering.config` its configuration and
+result, :mod:`~radiopose.filtering.model` a device's arrays at a site,
+:mod:`~radiopose.filtering.kernels` its compiled per-particle kernels and
+:mod:`~radiopose.filtering.lineage` the smoother's genealogy; in 3-D (height,
+pitch, roll) :mod:`~radiopose.filtering.particle3d` and
+:mod:`~radiopose.filtering.kernels3d`. The tracker registers it as the method ``filter``
 (docs/filter.md).
 """
 

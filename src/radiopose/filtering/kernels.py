@@ -16,6 +16,12 @@ with ``M_r`` bilinear on the survey map's grid, ``D`` bilinear on the pattern
 grid (periodic in azimuth, polar clamped), ``(φ_r, θ_r)`` the direction to the
 receiver in the body frame of ``R = Rz(azimuth)·Rx(pitch)·Ry(roll)`` and ``b``
 the power offset.
+
+One module of ~600 lines on purpose: every kernel reads the same column
+constants and the same off-grid lookup (inlined by numba across functions in
+one module), and the two likelihoods (the outlier mixture and the Huber
+alternative, ``FilterConfig.likelihood``) sit side by side so that a change to
+one is seen beside the other.
 """
 
 from __future__ import annotations

@@ -1,0 +1,198 @@
+"""The particle filter's configuration and its per-packet result.
+
+:class:`FilterConfig` (every setting with its unit and default, validated on
+construction) and :class:`FilterEstimate` (one packet's pose with its stated
+uncertainty); :mod:`radiopose.filtering.particle` runs the filter they describe.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from radiopose.errors import InputError
+
+LIKELIHOODS = ("mixture", "huber")
+"""The values of :attr:`FilterConfig.likelihood`."""
+
+
+@dataclass(frozen=True)
+class FilterConfig:
+    """Parameters of the particle filter (units in the names; defaults measured in
+    ``docs/filter.md``).
+
+    Attributes
+    ----------
+    n_particles
+        Particles per device.
+    accel_noise_mps2
+        White-acceleration density of the motion model, m/s² per √Hz.
+    angular_accel_noise_dps2
+        White angular-acceleration density, °/s² per √Hz.
+    tilt_noise_dps
+        Random-walk density of pitch and roll, °/√s (only where the site's
+        candidate orientations have several pitch or roll values).
+    max_speed_mps, max_rate_dps
+        Support of the motion prior: speed and turn rate are clipped there.
+    initial_speed_mps, initial_rate_dps
+        Standard deviation of each velocity component and of the turn rate of
+        a new particle.
+    reentry_interval_s
+        How often hypotheses from the full-grid likelihood re-enter.
+    reentry_fraction
+        Fraction of the particles replaced at each re-entry.
+    proposal_window_s
+        Packets pooled (mean RSS per receiver) for the re-entry proposal, and
+        over which a proposal's evidence is compared with the filter's.
+    jump_probability
+        Prior probability that the filter's mode is wrong at one re-entry.
+    k
+        Candidates taken from the kernel per proposal offset.
+    sigma_prior_db, sigma_floor_db
+        Starting value and lower bound of the online σ estimate, dB.
+    sigma_memory_packets
+        Packets over which the σ estimate averages once settled.
+    huber_c
+        Clip of the residuals that update the σ estimate, in units of 2σ.
+    outlier_probability, outlier_range_db
+        Prior probability that one receiver's reading is an outlier, spread
+        uniformly over ``outlier_range_db``: a receiver far off costs a bounded
+        amount and does not move the power offset (the likelihood is a
+        Gaussian-plus-uniform mixture per receiver).
+    offset_prior_sd_db
+        Prior standard deviation of the transmit-power offset around
+        ``devices.csv``'s ``tx_power_dbm``, dB.
+    initial_offsets_db
+        Offsets at which the first packet's candidates are searched, dB.
+    offset_scan_db, offset_scans_per_reentry
+        Besides the offset belief (and the prior's centre), each re-entry
+        searches the grid at this many further offsets from the prior's
+        centre, taken in turn from ``offset_scan_db`` (dB): the offset is a
+        constant of the device, and a wrong (pose, offset) lock is left only
+        if the true offset is searched (docs/filter.md, "Unknown transmit power").
+    rest_fraction
+        Fraction of the re-entered hypotheses that start at rest (velocity and
+        turn rate 0) instead of with the motion of a particle of the filter
+        (which belongs to the filter's mode, perhaps the wrong one); only when
+        the evidence window holds several packets.
+    difference_memory, difference_max_dt_s
+        σ is also estimated from the packets alone: the median of the last
+        ``difference_memory`` squared differences of one receiver's readings at
+        most ``difference_max_dt_s`` apart; σ is the smaller of that and the
+        fit's estimate (``0`` switches this off).
+    reacquire_gap_s
+        Past this silence a device is acquired afresh (its offset and σ
+        estimates are kept).
+    min_acquisition_receivers
+        Receivers a packet needs to start (or restart) a track.
+    likelihood
+        Per-receiver likelihood: ``"mixture"`` (default: Gaussian plus the
+        uniform outlier term above) or ``"huber"`` (the previous design's
+        Huber-weighted Gaussian, threshold ``huber_c`` σ; chosen by the real
+        BLE site's cross-validation, docs/real-data.md).
+    jump_own_past
+        ``True`` (default): a re-entered hypothesis more than 1 m or 30° from the
+        particle whose motion it copied gets its own pose moved back as its past
+        for the smoother; ``False``: every re-entered hypothesis inherits that
+        particle's past (the previous design).
+    """
+
+    n_particles: int = 2000
+    accel_noise_mps2: float = 1.0
+    angular_accel_noise_dps2: float = 90.0
+    tilt_noise_dps: float = 10.0
+    max_speed_mps: float = 10.0
+    max_rate_dps: float = 720.0
+    initial_speed_mps: float = 1.0
+    initial_rate_dps: float = 90.0
+    reentry_interval_s: float = 0.1
+    reentry_fraction: float = 0.05
+    proposal_window_s: float = 0.1
+    jump_probability: float = 0.001
+    k: int = 100
+    sigma_prior_db: float = 2.0
+    sigma_floor_db: float = 0.25
+    sigma_memory_packets: int = 200
+    huber_c: float = 2.5
+    outlier_probability: float = 0.05
+    outlier_range_db: float = 60.0
+    offset_prior_sd_db: float = 6.0
+    initial_offsets_db: tuple[float, ...] = (-9.0, -4.5, 0.0, 4.5, 9.0)
+    offset_scan_db: tuple[float, ...] = (
+        3.0, -3.0, 6.0, -6.0, 9.0, -9.0, 1.5, -1.5, 4.5, -4.5, 7.5, -7.5, 12.0, -12.0,
+    )  # fmt: skip
+    offset_scans_per_reentry: int = 2
+    rest_fraction: float = 0.5
+    difference_memory: int = 400
+    difference_max_dt_s: float = 0.05
+    reacquire_gap_s: float = 1.0
+    min_acquisition_receivers: int = 3
+    # issue 16 (real data): switches back to parts of the previous design; the
+    # defaults are the current behaviour
+    likelihood: str = "mixture"
+    jump_own_past: bool = True
+
+    def __post_init__(self) -> None:
+        positive = (
+            "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
+            "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
+            "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
+        )  # fmt: skip
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise InputError(f"filter setting {name} = {v!r} must be a positive number")
+        for name in ("tilt_noise_dps", "initial_speed_mps", "initial_rate_dps"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"filter setting {name} = {v!r} must be >= 0")
+        if not 10 <= self.n_particles <= 1_000_000:
+            raise InputError(f"filter setting n_particles = {self.n_particles!r} is out of range")
+        if not 0 < self.outlier_probability < 1 or not 0 < self.outlier_range_db < math.inf:
+            raise InputError(
+                "filter settings outlier_probability lies in (0, 1), outlier_range_db > 0"
+            )
+        if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
+            raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
+        if not 0 <= self.rest_fraction <= 1:
+            raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
+        if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
+            raise InputError(
+                "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
+            )
+        if not all(math.isfinite(v) for v in self.offset_scan_db):
+            raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
+        if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
+            raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+        if self.likelihood not in LIKELIHOODS:
+            raise InputError(
+                f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
+
+
+@dataclass(frozen=True)
+class FilterEstimate:
+    """One packet's estimate.
+
+    Attributes
+    ----------
+    position_m
+        ``(x, y, z)`` metres.
+    orientation_deg
+        ``(azimuth, pitch, roll)`` degrees, azimuth and roll in ``[0, 360)``.
+    position_std_m
+        Root of the trace of the horizontal position covariance, metres.
+    azimuth_std_deg
+        Circular standard deviation of azimuth, degrees.
+    offset_db
+        Posterior mean of the transmit-power offset, dB (``nan`` if smoothed).
+    sigma_db
+        The current σ estimate, dB.
+    """
+
+    position_m: tuple[float, float, float]
+    orientation_deg: tuple[float, float, float]
+    position_std_m: float
+    azimuth_std_deg: float
+    offset_db: float = math.nan
+    sigma_db: float = math.nan
