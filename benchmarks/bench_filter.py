@@ -36,8 +36,6 @@ less; all ratios are filter over full in rate terms (> 1: filter faster).
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import subprocess
 import sys
 import tempfile
@@ -45,9 +43,9 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numba
 import numpy as np
 
+from benchmarks.common import machine, table
 from radiopose.likelihood import candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets, write_packets_csv
@@ -332,36 +330,6 @@ def section_parts(n_packets: int) -> list[dict]:
         for owner, name, f in reversed(undo):
             setattr(owner, name, f)
     return rows
-
-
-def machine() -> dict:
-    info = {
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "numba_threads": numba.get_num_threads(),
-        "cpus": os.cpu_count(),
-        "load_average_1m": round(os.getloadavg()[0], 2),
-    }
-    try:
-        with open("/proc/cpuinfo") as fh:
-            info["cpu"] = next(
-                (ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), "?"
-            )
-    except OSError:
-        pass
-    return info
-
-
-def table(rows: list[dict], fmt: dict[str, str]) -> list[str]:
-    keys = list(rows[0])
-    lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
-    for r in rows:
-        cells = [
-            format(r[k], fmt.get(k, "")) if isinstance(r[k], float) else str(r[k]) for k in keys
-        ]
-        lines.append("| " + " | ".join(cells) + " |")
-    return [*lines, ""]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import resource
 import subprocess
 import sys
@@ -33,9 +31,9 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 
-import numba
 import numpy as np
 
+from benchmarks.common import machine
 from radiopose.geometry import orientation_matrices
 from radiopose.likelihood import ReferenceScorer, TableScorer, candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
@@ -309,27 +307,6 @@ def section_startup() -> list[dict]:
                 }
             )
     return out
-
-
-def machine() -> dict:
-    info = {
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
-        "numba_threads": numba.get_num_threads(),
-        "cpus": os.cpu_count(),
-        "machine": platform.machine(),
-    }
-    try:
-        with open("/proc/cpuinfo") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    info["cpu"] = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    info["load_average_1m"] = os.getloadavg()[0]
-    return info
 
 
 def markdown(results: dict) -> str:

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.bench_filter import TX, machine, standard_trace, table
+from benchmarks.bench_filter import TX, standard_trace
+from benchmarks.common import machine, table
 from radiopose.likelihood import candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets

@@ -332,17 +332,22 @@ def log_sum_exp(logw):  # pragma: no cover - compiled
 
 @numba.njit(cache=True)
 def normalise_into(logw, w):  # pragma: no cover - compiled
-    """Normalised weights ``w = exp(logw − max) / Σ`` (``logw`` has a finite entry)."""
-    m = -np.inf
+    """Normalised weights ``w = exp(logw − max) / Σ``; returns ``log Σ exp(logw)``
+    from the same exponentials (``w`` untouched and the max returned when no
+    entry of ``logw`` is finite)."""
+    top = -np.inf
     for v in logw:
-        if v > m:
-            m = v
+        if v > top:
+            top = v
+    if not math.isfinite(top):
+        return top
     total = 0.0
     for i in range(logw.shape[0]):
-        w[i] = math.exp(logw[i] - m)
+        w[i] = math.exp(logw[i] - top)
         total += w[i]
     for i in range(logw.shape[0]):
         w[i] /= total
+    return top + math.log(total)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -377,20 +382,7 @@ def packet_update(  # pragma: no cover - compiled
     lse0 = log_sum_exp(logw)
     expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, pred)
     measurement_update(S, pred, rss, sigma_db, likelihood_parameter, logw)
-    # lse1 = log Σ exp(logw) and w = exp(logw − max) / Σ from the same exponentials
-    top = -np.inf
-    for v in logw:
-        if v > top:
-            top = v
-    if not math.isfinite(top):
-        return lse0, top
-    total = 0.0
-    for i in range(logw.shape[0]):
-        w[i] = math.exp(logw[i] - top)
-        total += w[i]
-    for i in range(logw.shape[0]):
-        w[i] /= total
-    return lse0, top + math.log(total)
+    return lse0, normalise_into(logw, w)
 
 
 POSE_ROW = 8
@@ -608,16 +600,4 @@ def packet_update_huber(  # pragma: no cover - compiled
     lse0 = log_sum_exp(logw)
     expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, pred)
     measurement_update_huber(S, pred, rss, sigma_db, huber_c, logw)
-    top = -np.inf
-    for v in logw:
-        if v > top:
-            top = v
-    if not math.isfinite(top):
-        return lse0, top
-    total = 0.0
-    for i in range(logw.shape[0]):
-        w[i] = math.exp(logw[i] - top)
-        total += w[i]
-    for i in range(logw.shape[0]):
-        w[i] /= total
-    return lse0, top + math.log(total)
+    return lse0, normalise_into(logw, w)

@@ -166,19 +166,7 @@ def packet_update3d(  # pragma: no cover - compiled
     lse0 = K.log_sum_exp(logw)
     expected3d_into(S, heard, rx, maps, layers_z, exponent, grid, tx_dbm, d, pat, pred)
     K.measurement_update(S, pred, rss, sigma_db, log_eps, logw)
-    top = -np.inf
-    for v in logw:
-        if v > top:
-            top = v
-    if not math.isfinite(top):
-        return lse0, top
-    total = 0.0
-    for i in range(logw.shape[0]):
-        w[i] = math.exp(logw[i] - top)
-        total += w[i]
-    for i in range(logw.shape[0]):
-        w[i] /= total
-    return lse0, top + math.log(total)
+    return lse0, K.normalise_into(logw, w)
 
 
 @numba.njit(cache=True)

@@ -322,16 +322,12 @@ class ParticleFilter:
             box_m=self.model.box_m,
         )  # fmt: skip
 
-    # ------------------------------------------------------------------ step
-    def step(
-        self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
-    ) -> FilterEstimate | None:
-        """Process one packet at ``t_s``; return the causal estimate, or ``None``
-        while no track could be started (too few receivers, nothing scorable).
-
-        ``key`` identifies the packet for the smoother (:meth:`take_smoothed`).
-        """
-        cfg, mod = self.config, self.model
+    def _advance_clock(self, st: FilterState, t_s: float, heard: HeardRss) -> float | None:
+        """Start of :meth:`step`: the time since the last packet, seconds (0 for a
+        new track), or ``None`` when no track could be started. A gap longer than
+        ``reacquire_gap_s`` ends the track (flushed to the smoother, its power
+        offset kept as the next prior) and acquires anew from this packet."""
+        cfg = self.config
         new_track = st.particles is None or (
             st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
         )
@@ -350,6 +346,22 @@ class ParticleFilter:
             assert st.particles is not None and st.last_time_s is not None
             dt = max(t_s - st.last_time_s, 0.0)
         st.last_time_s = t_s
+        return dt
+
+    # ------------------------------------------------------------------ step
+    def step(
+        self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
+    ) -> FilterEstimate | None:
+        """Process one packet at ``t_s``; return the causal estimate, or ``None``
+        while no track could be started (too few receivers, nothing scorable).
+
+        ``key`` identifies the packet for the smoother (:meth:`take_smoothed`).
+        """
+        cfg, mod = self.config, self.model
+        dt_s = self._advance_clock(st, t_s, heard)
+        if dt_s is None:
+            return None
+        dt = dt_s
         S, logw = st.particles, st.log_weights
         assert S is not None and logw is not None
         n, h = S.shape[0], heard.n_heard

@@ -56,7 +56,6 @@ from radiopose.filtering.particle import (
     FilterModel,
     FilterState,
     ParticleFilter,
-    _normalised,
     _summary,
 )
 from radiopose.geometry import orientation_matrices, pattern_angles_deg
@@ -428,24 +427,10 @@ class ParticleFilter3d(ParticleFilter):
     ) -> FilterEstimate | None:
         """Process one packet (as :meth:`ParticleFilter.step`, with the 3-D kernels)."""
         cfg, mod = self.config, self.model3d
-        new_track = st.particles is None or (
-            st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
-        )
-        dt = 0.0
-        if new_track:
-            if st.particles is not None:
-                w = _normalised(st.log_weights)
-                st.offset_prior_db = float(np.sum(w * st.particles[:, K.OFFSET_DB]))
-                self._flush_into(st, w)
-                st.particles = None
-            if heard.n_heard < cfg.min_acquisition_receivers or not self._initialise(st, heard):
-                st.last_time_s = t_s
-                return None
-            st.reentry_time_s = t_s
-        else:
-            assert st.particles is not None and st.last_time_s is not None
-            dt = max(t_s - st.last_time_s, 0.0)
-        st.last_time_s = t_s
+        dt_s = self._advance_clock(st, t_s, heard)
+        if dt_s is None:
+            return None
+        dt = dt_s
         S, logw = st.particles, st.log_weights
         assert S is not None and logw is not None
         n, h = S.shape[0], heard.n_heard
