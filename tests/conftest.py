@@ -76,9 +76,34 @@ property`` runs one tier; ``slow`` is marked per test and left out by default. A
 module gets its row here (``tests/test_style.py`` fails until it has one)."""
 
 
+ACCURACY_RUNS: tuple[str, ...] = (
+    "test_accuracy::",
+    "test_filter::test_every_packet_answered_within_bounds",
+    "test_filter::test_causal_variant_answers_every_packet",
+    "test_filter::test_unknown_transmit_power_is_estimated",
+    "test_filter::test_motion_model_matters",
+    "test_filter::test_heard_outliers_do_not_throw_the_track",
+    "test_realdata::test_filter_settings_for_a_track_are_chosen_without_it",
+    "test_realdata::test_real_position_error_bound",
+    "test_pose3d::test_known_pose_recovered_noise_free",
+)
+"""``module::test-name prefixes`` of the end-to-end accuracy runs (an error bound measured
+on seeded scenarios or the real tracks: the suite's slowest e2e tests). Marked
+``accuracy``; they stay in the default suite (``pytest -m "not accuracy"`` leaves them out
+for a quick run, ``pytest -m accuracy`` runs only them)."""
+
+
+def _is_accuracy_run(item: pytest.Item) -> bool:
+    key = f"{item.path.stem}::{item.name}"
+    return any(key.startswith(p) for p in ACCURACY_RUNS)
+
+
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Mark every test with its module's tier (:data:`TIERS`)."""
+    """Mark every test with its module's tier (:data:`TIERS`) and the accuracy runs
+    (:data:`ACCURACY_RUNS`) with ``accuracy``."""
     for item in items:
+        if _is_accuracy_run(item):
+            item.add_marker(pytest.mark.accuracy)
         tier = TIERS.get(item.path.stem)
         if tier is not None:
             item.add_marker(getattr(pytest.mark, tier))
