@@ -94,7 +94,7 @@ def _axis_steps(a: Section, axis: str, lo: float, hi: float, step: float) -> int
         raise a.error(
             "step_m",
             f"the {axis} span {hi - lo:g} m ({axis}_min_m to {axis}_max_m) must be a whole "
-            f"number of steps of {step:g} m, got {k:.6g} steps",
+            f"number of steps of {step:g} m, got {n_steps:.6g} steps",
         )
     return n
 
@@ -145,7 +145,7 @@ def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, 
         raise a.error(
             "z_step_m",
             f"the height span {z_hi - z_lo:g} m (z_min_m to z_max_m) must be a whole number "
-            f"of steps of {z_step:g} m, got {k:.6g} steps",
+            f"of steps of {z_step:g} m, got {n_steps:.6g} steps",
         )
     return height_range_middle_m(z_lo, z_hi, z_step), (z_lo, z_hi, z_step)
 

@@ -378,6 +378,26 @@ class ParticleFilter:
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
             self._likelihood_parameter(sigma), pred, work.w,
         )  # fmt: skip
+        return self._finish_step(st, t_s, heard, key, pred, lse0, lse1)
+
+    def _finish_step(
+        self,
+        st: FilterState,
+        t_s: float,
+        heard: HeardRss,
+        key: object,
+        pred: FloatArray,
+        lse0: float,
+        lse1: float,
+    ) -> FilterEstimate | None:
+        """End of :meth:`step` after the packet's update (``lse0``/``lse1``: the
+        log-sum of the weights before and after it): the evidence window, σ,
+        re-entry, the estimate, the smoother's genealogy and resampling."""
+        cfg = self.config
+        S, logw = st.particles, st.log_weights
+        assert S is not None and logw is not None
+        n = S.shape[0]
+        work = self._buffers(n)
         if not math.isfinite(lse1):  # every particle impossible: start again
             self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
             st.particles = None

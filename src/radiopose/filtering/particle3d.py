@@ -49,14 +49,12 @@ from radiopose.filtering.kernels3d import (
     packet_update3d,
     tilt_height_step,
 )
-from radiopose.filtering.lineage import Lineage
 from radiopose.filtering.particle import (
     FilterConfig,
     FilterEstimate,
     FilterModel,
     FilterState,
     ParticleFilter,
-    _summary,
 )
 from radiopose.geometry import orientation_matrices, pattern_angles_deg
 from radiopose.likelihood import CandidateSpace, HeardRss, profile_offset_db
@@ -426,7 +424,7 @@ class ParticleFilter3d(ParticleFilter):
         self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
     ) -> FilterEstimate | None:
         """Process one packet (as :meth:`ParticleFilter.step`, with the 3-D kernels)."""
-        cfg, mod = self.config, self.model3d
+        mod = self.model3d
         dt_s = self._advance_clock(st, t_s, heard)
         if dt_s is None:
             return None
@@ -447,31 +445,4 @@ class ParticleFilter3d(ParticleFilter):
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
             self._likelihood_parameter(sigma), pred, work.w,
         )  # fmt: skip
-        if not math.isfinite(lse1):
-            self._flush_into(st, np.full(S.shape[0], 1.0 / S.shape[0]))
-            st.particles = None
-            return self.step(st, t_s, heard, key)
-        st.window.append((t_s, heard, lse1 - lse0))
-        while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
-            st.window.popleft()
-        w = work.w
-        self._update_sigma(st, S, pred, heard, w, t_s)
-        if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
-            self._reenter(st, t_s, w)
-            st.reentry_time_s = t_s
-            K.normalise_into(logw, w)
-        moments = work.moments
-        K.posterior_moments(S, w, work.rows, moments)
-        est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
-        if self.lag_s is not None:
-            if st.lineage is None:
-                st.lineage = Lineage(n)
-            st.lineage.push(t_s, work.rows)
-            st.pending.append((t_s, key, est))
-            self._emit(st, w, t_s - self.lag_s)
-        if 1.0 / float(moments[10]) < 0.5 * n:
-            K.resample_in_place(S, w, float(st.rng.uniform()), work.scratch, work.idx)
-            logw[:] = 0.0
-            if st.lineage is not None:
-                st.lineage.remap(work.idx)
-        return est
+        return self._finish_step(st, t_s, heard, key, pred, lse0, lse1)
