@@ -1,16 +1,10 @@
 """A site: candidate grid, receivers, enrolled devices, patterns and survey.
 
-A site directory (interchange contract, "Site")::
-
-    site.toml            area, candidate grid, survey transmitter
-    receivers.csv        receiver_id, x_m, y_m, z_m, azimuth_deg, pitch_deg, roll_deg, pattern
-    devices.csv          transmitter, pattern, tx_power_dbm
-    patterns/<name>.csv  every pattern named above
-    survey.csv           x_m, y_m, z_m, receiver_id, rss_dbm, azimuth_deg, pitch_deg, roll_deg
-
-:func:`~radiopose.site_io.load_site` validates all of it (every referenced
-pattern present, receiver ids unique, grid sane, every receiver surveyed, survey
-rows name known receivers) and builds the survey map (:mod:`radiopose.survey`);
+A site directory (interchange contract, "Site"; its files are listed in
+:mod:`radiopose.site_io`): :func:`~radiopose.site_io.load_site` validates all
+of it (every referenced pattern present, receiver ids unique, grid sane, every
+receiver surveyed, survey rows name known receivers) and builds the survey map
+(:mod:`radiopose.survey`);
 :func:`~radiopose.site_io.write_site` writes one (atomically, file by file).
 This module holds the value objects, the validation limits and the geometry on
 them; :mod:`radiopose.site_io` reads and writes the files (its four public
