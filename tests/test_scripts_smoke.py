@@ -154,6 +154,25 @@ def test_real_data(tmp_path: Path) -> None:
     assert _table_rows(out.read_text(encoding="utf-8"))
 
 
+def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
+    printed = _run(SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3"], capsys)
+    rows = _table_rows(printed)
+    assert any(r.startswith("| receivers |") for r in rows)
+    assert any(r.startswith("| 6 | 1 |") for r in rows)
+
+
+def test_pose3d_identifiability(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "pose3d_identifiability.py", ["--starts", "5", "--seed", "5"], capsys)
+    assert "offset known:" in printed and "offset free:" in printed
+
+
+@pytest.mark.slow
+def test_real_data_ablation(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "real_data_ablation.py", ["--variants", "base", "--jobs", "1"], capsys)
+    assert _table_rows(printed)
+
+
 SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "accuracy_table": test_accuracy_table,
     "enrol_mitll": test_enrol_mitll,
@@ -162,7 +181,10 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "live_lag_accuracy": test_live_lag_accuracy,
     "mirror_diagnosis": test_mirror_diagnosis,
     "orientation_outliers": test_orientation_outliers,
+    "pose3d_accuracy": test_pose3d_accuracy,
+    "pose3d_identifiability": test_pose3d_identifiability,
     "real_data": test_real_data,
+    "real_data_ablation": test_real_data_ablation,
     "spoof_detection": test_spoof_detection,
     "survey_interpolation_error": test_survey_interpolation_error,
 }
