@@ -94,7 +94,7 @@ def _axis_steps(a: Section, axis: str, lo: float, hi: float, step: float) -> int
         raise a.error(
             "step_m",
             f"the {axis} span {hi - lo:g} m ({axis}_min_m to {axis}_max_m) must be a whole "
-            f"number of steps of {step:g} m, got {n_steps:.6g} steps",
+            f"number of steps of {step:g} m, got {k:.6g} steps",
         )
     return n
 
