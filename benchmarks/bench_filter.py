@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from benchmarks.common import machine, table
+from benchmarks.common import emit, machine, table
 from radiopose.likelihood import candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets, write_packets_csv
@@ -374,11 +374,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.parts:
         lines += ["### 4. Where a warm packet of filter spends its CPU time", ""]
         lines += table(section_parts(args.packets), {"ms_per_packet": ".3f"})
-    text = "\n".join(lines)
-    print(text)
-    if args.markdown:
-        Path(args.markdown).write_text(text + "\n", encoding="utf-8")
-    return 0
+    return emit(lines, args.markdown)
 
 
 if __name__ == "__main__":

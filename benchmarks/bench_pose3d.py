@@ -23,12 +23,11 @@ import argparse
 import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 
 from benchmarks.bench_filter import TX, standard_trace
-from benchmarks.common import machine, table
+from benchmarks.common import emit, machine, table
 from radiopose.likelihood import candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets
@@ -115,11 +114,7 @@ def main(argv: list[str] | None = None) -> int:
         "cpu_ratio_vs_2d": ".2f", "prepare_s": ".2f", "first_packet_s": ".3f",
     }  # fmt: skip
     lines += table(rows, fmt)
-    text = "\n".join(lines)
-    print(text)
-    if args.markdown:
-        Path(args.markdown).write_text(text + "\n", encoding="utf-8")
-    return 0
+    return emit(lines, args.markdown)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import platform
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -46,3 +47,12 @@ def table(rows: list[dict], fmt: dict[str, str]) -> list[str]:
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return [*lines, ""]
+
+
+def emit(lines: list[str], markdown: str | None) -> int:
+    """Print the report and, if ``markdown`` names a file, write it there too; 0."""
+    text = "\n".join(lines)
+    print(text)
+    if markdown:
+        Path(markdown).write_text(text + "\n", encoding="utf-8")
+    return 0

@@ -43,6 +43,7 @@ from radiopose.simulate.scenario import (
     ScenarioConfig,
     Simulation,
     observe_path,
+    survey_rows_of,
 )
 from radiopose.simulate.trajectories import MotionConfig, walk_path, walking_azimuth_deg
 from radiopose.site import (
@@ -51,7 +52,6 @@ from radiopose.site import (
     OrientationGrid,
     Receiver,
     SurveyConfig,
-    SurveyRows,
     grid_steps,
     height_range_middle_m,
 )
@@ -251,13 +251,7 @@ def simulate_handheld(config: HandheldConfig | None = None, seed: int = 0) -> Si
         cfg.channel, s_xyz, s_orient, patterns["survey-tx"], cfg.survey_tx_power_dbm,
         rx_xyz, rx_orient, rx_pats,
     )  # fmt: skip
-    n_pts, k = s_rss.shape
-    survey_rows = SurveyRows(
-        xyz_m=np.repeat(s_xyz, k, axis=0),
-        receiver_id=np.array([r.receiver_id for r in receivers] * n_pts, dtype=object),
-        rss_dbm=s_rss.reshape(-1),
-        orientation_deg=np.repeat(s_orient, k, axis=0),
-    )
+    survey_rows = survey_rows_of(s_xyz, s_orient, s_rss, receivers)
     z_mid = height_range_middle_m(cfg.z_min_m, cfg.z_max_m, cfg.z_step_m)
     area = AreaGrid(
         0.0, cfg.size_m, 0.0, cfg.size_m, z_mid, cfg.step_m, cfg.z_min_m, cfg.z_max_m, cfg.z_step_m

@@ -279,13 +279,7 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     )
     if cfg.survey_noise_db > 0:
         s_rss = s_rss + rng.normal(0.0, cfg.survey_noise_db, s_rss.shape)
-    n_pts, k = s_rss.shape
-    survey_rows = SurveyRows(
-        xyz_m=np.repeat(s_xyz, k, axis=0),
-        receiver_id=np.array([r.receiver_id for r in receivers] * n_pts, dtype=object),
-        rss_dbm=s_rss.reshape(-1),
-        orientation_deg=np.repeat(s_orient, k, axis=0),
-    )
+    survey_rows = survey_rows_of(s_xyz, s_orient, s_rss, receivers)
 
     area = AreaGrid(0.0, cfg.size_m, 0.0, cfg.size_m, cfg.z_m, cfg.step_m)
     orient = OrientationGrid(cfg.azimuth_step_deg)
@@ -310,6 +304,24 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     )
     packets, truth = observe_path(rng, rss, t, pos, ori, receivers, cfg.noise_db, cfg.loss_fraction)
     return Simulation(cfg, seed, site, packets, truth)
+
+
+def survey_rows_of(
+    xyz_m: FloatArray,
+    orientation_deg: FloatArray,
+    rss_dbm: FloatArray,
+    receivers: Sequence[Receiver],
+) -> SurveyRows:
+    """Survey rows of ``rss_dbm`` ``(n_points, n_receivers)`` measured at the points
+    ``xyz_m`` ``(n_points, 3)`` (metres) with the survey transmitter at
+    ``orientation_deg`` ``(n_points, 3)``: one row per point per receiver."""
+    n_pts, k = rss_dbm.shape
+    return SurveyRows(
+        xyz_m=np.repeat(xyz_m, k, axis=0),
+        receiver_id=np.array([r.receiver_id for r in receivers] * n_pts, dtype=object),
+        rss_dbm=rss_dbm.reshape(-1),
+        orientation_deg=np.repeat(orientation_deg, k, axis=0),
+    )
 
 
 def observe_path(
