@@ -139,6 +139,24 @@ def predict(  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
+def body_rotation(ca, sa, cp, sp, cr, sr):  # pragma: no cover - compiled
+    """The elements ``r00 … r22`` of ``R = Rz(a)·Rx(p)·Ry(r)`` (body to world; a
+    direction ``d`` in the body frame is ``Rᵀ d``) from the cosines and sines of
+    azimuth, pitch and roll."""
+    return (
+        ca * cr - sa * sp * sr,
+        -sa * cp,
+        ca * sr + sa * sp * cr,
+        sa * cr + ca * sp * sr,
+        ca * cp,
+        sa * sr - ca * sp * cr,
+        -cp * sr,
+        sp,
+        cp * cr,
+    )
+
+
+@numba.njit(cache=True, inline="always")
 def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pragma: no cover
     """Expected RSS of particle ``i`` at the heard receivers into ``out[row, :h]``
     (see :func:`expected_rss_dbm`)."""
@@ -156,16 +174,7 @@ def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pra
         sp = math.sin(pitch)
         cr = math.cos(roll)
         sr = math.sin(roll)
-    # R = Rz(a) Rx(p) Ry(r), body to world; v = Rᵀ d
-    r00 = ca * cr - sa * sp * sr
-    r01 = -sa * cp
-    r02 = ca * sr + sa * sp * cr
-    r10 = sa * cr + ca * sp * sr
-    r11 = ca * cp
-    r12 = sa * sr - ca * sp * cr
-    r20 = -cp * sr
-    r21 = sp
-    r22 = cp * cr
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = body_rotation(ca, sa, cp, sp, cr, sr)
     slice_pattern = d.shape[1] == 1  # polar angle unused: no acos
     for q in range(heard.shape[0]):
         r = heard[q]
@@ -223,6 +232,32 @@ def _inlier(u, log_eps):  # pragma: no cover - compiled
     return -lse, math.exp(g - lse)
 
 
+@numba.njit(cache=True, inline="always")
+def _offset_residuals(S, i, pred, rss, s2, e):  # pragma: no cover - compiled
+    """Particle ``i``'s residuals ``e_q = rss_q − pred_q − b̄`` into ``e`` and the
+    offset correction before weighting ``ē = P Σe/σ² / (1 + P h/σ²)``; returns
+    ``(b̄, P, ē)``, ``ē`` NaN when a residual is (expected RSS outside the survey).
+    Shared by the likelihoods (:func:`measurement_update`, its Huber twin)."""
+    b = S[i, OFFSET_DB]
+    p = S[i, OFFSET_VAR_DB2]
+    h = rss.shape[0]
+    sum_e = 0.0
+    for q in range(h):
+        e[q] = rss[q] - pred[i, q] - b
+        sum_e += e[q]
+    if math.isnan(sum_e):
+        return b, p, math.nan
+    return b, p, p * sum_e / s2 / (1.0 + p * h / s2)
+
+
+@numba.njit(cache=True, inline="always")
+def _update_offset(S, i, b, p, swe, s2, a):  # pragma: no cover - compiled
+    """The scalar Kalman update of particle ``i``'s offset belief from the weighted
+    residual sum ``Σ w e`` (over ``s2 = σ²``) and ``a = 1 + P Σ w/σ²``."""
+    S[i, OFFSET_DB] = b + p * swe / s2 / a
+    S[i, OFFSET_VAR_DB2] = p / a
+
+
 @numba.njit(cache=True)
 def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cover - compiled
     """Add each particle's log-likelihood of one packet to ``logw`` and update its
@@ -248,16 +283,10 @@ def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cov
     s2 = sigma_db * sigma_db
     e = np.empty(h)
     for i in range(n):
-        b = S[i, OFFSET_DB]
-        p = S[i, OFFSET_VAR_DB2]
-        sum_e = 0.0
-        for q in range(h):
-            e[q] = rss[q] - pred[i, q] - b
-            sum_e += e[q]
-        if math.isnan(sum_e):
+        b, p, ebar = _offset_residuals(S, i, pred, rss, s2, e)
+        if math.isnan(ebar):
             logw[i] = -np.inf
             continue
-        ebar = p * sum_e / s2 / (1.0 + p * h / s2)
         sw = 0.0
         swe = 0.0
         cost = 0.0
@@ -268,8 +297,7 @@ def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cov
             swe += w * e[q]
         a = 1.0 + p * sw / s2
         logw[i] += -cost + 0.5 * p * (swe / s2) ** 2 / a - 0.5 * math.log(a)
-        S[i, OFFSET_DB] = b + p * swe / s2 / a
-        S[i, OFFSET_VAR_DB2] = p / a
+        _update_offset(S, i, b, p, swe, s2, a)
 
 
 @numba.njit(cache=True)
@@ -545,16 +573,10 @@ def measurement_update_huber(S, pred, rss, sigma_db, huber_c, logw):  # pragma: 
     s2 = sigma_db * sigma_db
     e = np.empty(h)
     for i in range(n):
-        b = S[i, OFFSET_DB]
-        p = S[i, OFFSET_VAR_DB2]
-        sum_e = 0.0
-        for q in range(h):
-            e[q] = rss[q] - pred[i, q] - b
-            sum_e += e[q]
-        if math.isnan(sum_e):
+        b, p, ebar = _offset_residuals(S, i, pred, rss, s2, e)
+        if math.isnan(ebar):
             logw[i] = -np.inf
             continue
-        ebar = p * sum_e / s2 / (1.0 + p * h / s2)
         sw = 0.0
         swe = 0.0
         swee = 0.0
@@ -566,8 +588,7 @@ def measurement_update_huber(S, pred, rss, sigma_db, huber_c, logw):  # pragma: 
             swee += w * e[q] * e[q]
         a = 1.0 + p * sw / s2
         logw[i] += -0.5 * (swee / s2 - p * (swe / s2) ** 2 / a) - 0.5 * math.log(a)
-        S[i, OFFSET_DB] = b + p * swe / s2 / a
-        S[i, OFFSET_VAR_DB2] = p / a
+        _update_offset(S, i, b, p, swe, s2, a)
 
 
 @numba.njit(cache=True)

@@ -67,15 +67,7 @@ def expected3d_into(
         sp = math.sin(S[i, K.PITCH_RAD])
         cr = math.cos(S[i, K.ROLL_RAD])
         sr = math.sin(S[i, K.ROLL_RAD])
-        r00 = ca * cr - sa * sp * sr
-        r01 = -sa * cp
-        r02 = ca * sr + sa * sp * cr
-        r10 = sa * cr + ca * sp * sr
-        r11 = ca * cp
-        r12 = sa * sr - ca * sp * cr
-        r20 = -cp * sr
-        r21 = sp
-        r22 = cp * cr
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = K.body_rotation(ca, sa, cp, sp, cr, sr)
         for q in range(heard.shape[0]):
             r = heard[q]
             ddx = rx[r, 0] - x
