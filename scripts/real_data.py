@@ -48,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--tracks", nargs="*", default=None, help="Only these tracks (names).")
     args = ap.parse_args(argv)
+    if args.out.is_dir():  # checked before the ~10 min run, not after it
+        ap.error(f"--out {args.out}: a directory; give the Markdown file to write")
     if args.quick:
         X.FILTER_CANDIDATES = X.FILTER_CANDIDATES[1:2] + X.FILTER_CANDIDATES[4:5]
     t0 = time.perf_counter()
