@@ -21,7 +21,7 @@ from radiopose.likelihood import MemoScorer, Scorer, candidate_space, make_score
 from radiopose.packets import group_packets
 from radiopose.simulate import Simulation
 from radiopose.tracker import METHOD_NAMES, METHODS, RunSummary, TrackerConfig, locate
-from radiopose.tracker import needs_scorer as tracker_needs_scorer
+from radiopose.tracker.filter import reads_site_scorer
 from radiopose.units import FloatArray
 
 __all__ = ["MethodRun", "build_scorer", "run_methods"]
@@ -89,9 +89,8 @@ def run_methods(
     """
     cfg = config or TrackerConfig()
     tx = sim.site.devices[0].transmitter
-    needs_scorer = any(tracker_needs_scorer(METHODS[m]) for m in methods)
     scorers = None
-    if needs_scorer:
+    if any(reads_site_scorer(METHODS[m], sim.site) for m in methods):
         inner = scorer if scorer is not None else build_scorer(sim, cfg.kernel)
         scorers = {tx: MemoScorer(inner)}
     n_packets = len(group_packets(sim.packets))

@@ -48,7 +48,7 @@ from radiopose.parallel import WORKER_ENV as WORKER_ENV  # re-exported: the old 
 from radiopose.parallel import connect_scheduler as connect_scheduler  # re-exported
 from radiopose.parallel import default_workers, run_on_dask
 from radiopose.simulate import ScenarioConfig
-from radiopose.tracker import METHODS, TrackerConfig, needs_scorer
+from radiopose.tracker import METHODS, TrackerConfig
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -202,17 +202,14 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     from radiopose.likelihood import MemoScorer, candidate_space
     from radiopose.packets import group_packets
     from radiopose.simulate import simulate
-    from radiopose.tracker.filter import uses_site_scorer
+    from radiopose.tracker.filter import reads_site_scorer
 
     t0 = time.perf_counter()
     sim = simulate(task.scenario, task.seed)
     scorer = None
     kernel_name = ""
     scoring_s = 0.0
-    # pose3d: the filter at a 3-D site scores its own coarse grid (uses_site_scorer)
-    scored = {
-        m: needs_scorer(METHODS[m]) and uses_site_scorer(METHODS[m], sim.site) for m in task.methods
-    }
+    scored = {m: reads_site_scorer(METHODS[m], sim.site) for m in task.methods}
     if any(scored.values()):
         tx = sim.site.devices[0].transmitter
         inner = fastest_scorer(task.kernel, candidate_space(sim.site, tx))

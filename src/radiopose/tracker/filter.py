@@ -26,7 +26,15 @@ from radiopose.filtering import FilterEstimate, FilterModel, FilterState, Partic
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
-from radiopose.tracker.protocol import Delayed, Device, Evidence, Outcome, Step
+from radiopose.tracker.protocol import (
+    Delayed,
+    Device,
+    Evidence,
+    Method,
+    Outcome,
+    Step,
+    needs_scorer,
+)
 from radiopose.tracker.reasons import (
     PENDING,
     SKIP_NO_TRACK,
@@ -102,11 +110,12 @@ def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
     )
 
 
-def uses_site_scorer(method: object, site: Site) -> bool:
-    """pose3d: whether ``method`` reads the site's scorer at ``site`` — not the
-    ``filter`` at a 3-D site (it scores its own coarse grid; the site's full
-    3-D candidate table would take minutes and gigabytes to build)."""
-    return not (isinstance(method, FilterMethod) and site_is_3d(site))
+def reads_site_scorer(method: Method, site: Site) -> bool:
+    """Whether ``method`` reads the site's scorer at ``site``, so that one must be
+    built: a method that needs one (:func:`~radiopose.tracker.protocol.needs_scorer`),
+    except the ``filter`` at a 3-D site (it scores its own coarse grid; the
+    site's full 3-D candidate table would take minutes and gigabytes to build)."""
+    return needs_scorer(method) and not (isinstance(method, FilterMethod) and site_is_3d(site))
 
 
 def filter_seed(seed: int, transmitter_key: str) -> int:

@@ -20,8 +20,8 @@ from radiopose.likelihood import Scorer, candidate_space, make_scorer
 from radiopose.packets import PacketObservation
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
-from radiopose.tracker.filter import uses_site_scorer
-from radiopose.tracker.protocol import Delayed, Device, Method, Outcome, needs_scorer
+from radiopose.tracker.filter import reads_site_scorer
+from radiopose.tracker.protocol import Delayed, Device, Method, Outcome
 from radiopose.tracker.reasons import SKIP_UNKNOWN_TRANSMITTER
 from radiopose.tracker.registry import get_method
 
@@ -79,12 +79,7 @@ class Tracker:
         if dev is None:
             scorer = self._scorers.get(key)
             space = scorer.space if scorer is not None else candidate_space(self.site, transmitter)
-            # pose3d: the 3-D filter builds no scorer (uses_site_scorer)
-            if (
-                scorer is None
-                and needs_scorer(self.impl)
-                and uses_site_scorer(self.impl, self.site)
-            ):
+            if scorer is None and reads_site_scorer(self.impl, self.site):
                 scorer = make_scorer(self.config.kernel, space)
             dev = Device(
                 self.site,
