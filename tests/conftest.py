@@ -31,6 +31,7 @@ TIERS: dict[str, str] = {
     "test_capture_records": "property",
     "test_geometry": "property",
     "test_module_seams": "property",
+    "test_pose3d_settings": "property",
     "test_pose3d_site": "property",
     "test_patterns_importers": "property",
     "test_patterns_io": "property",
