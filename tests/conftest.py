@@ -69,6 +69,7 @@ TIERS: dict[str, str] = {
     "test_server_dashboard": "live",
     "test_server_live": "live",
     "test_server_live_lag": "live",
+    "test_server_pose3d": "live",
     # lint: the code base's own checks
     "test_style": "lint",
 }
