@@ -5,6 +5,8 @@
   same values are stored in the database, every packet is answered, and the
   export replays exactly with ``locate`` and the live lag (the site's height
   range and pitch/roll lists survive the database);
+* the dashboard's transmitter table shows the height, pitch and roll (headless
+  Chromium, as ``test_server_dashboard``);
 * a pipeline restarted half-way from its checkpoint (the 3-D filter's particles,
   random state and smoother lineage pickled in ``PipelineState``) stores exactly
   the estimates of a pipeline that never stopped, each once.
@@ -35,6 +37,7 @@ from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.site import load_site, site_is_3d
 from radiopose.tracker import TrackerConfig, locate
 from server_support import db_url, fast_live, frame_dicts, pg_server, run_server, wait_for
+from test_server_dashboard import page  # the headless browser (skips without one)
 
 LAG_S = 0.25
 SCENE = HandheldConfig(
@@ -173,3 +176,34 @@ def test_a_restart_half_way_gives_the_same_estimates(site3d: Site3d, tmp_path: P
     assert len({r[0] for r in restarted}) == len(restarted)  # nothing twice
     assert sorted(restarted) == sorted(straight)
     assert redos[1] > 0  # the restart did re-derive batches processed but not committed
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+def test_dashboard_shows_height_pitch_and_roll(site3d: Site3d, db_url: str, page) -> None:
+    """The dashboard's transmitter table gives the full pose of the latest estimate."""
+    db = Database(db_url)
+    import_site_dir(db, site3d.site_dir)
+    tokens = {r: create_token(db, "receiver", r) for r in site3d.receivers}
+    viewer = create_token(db, "viewer")
+    with run_server(db, fast_live(method="filter", live_lag_s=LAG_S)) as srv:
+        page.goto(f"{srv.url}/#token={viewer}")
+        page.wait_for_function("document.body.dataset.receivers === '6'", timeout=30_000)
+        clients = {r: srv.client(tokens[r]) for r in site3d.receivers}
+        for r, bid, f in _batches(site3d, 20):
+            body = {"receiver_id": r, "batch_id": bid, "frames": frame_dicts(f)}
+            assert clients[r].post("/api/v1/reports", json=body).status_code < 300
+        wait_for(lambda: len(db.estimates(limit=10**6)) == site3d.n_packets, 120)
+        page.wait_for_function(
+            f"Number(document.body.dataset.moves || 0) >= {site3d.n_packets}", timeout=30_000
+        )
+        page.wait_for_timeout(1500)  # the table is redrawn on a timer
+        last = page.evaluate("[...window.radiopose.tracks.values()][0].trail.slice(-1)[0]")
+        cells = page.locator("#tx-table tbody tr").first.locator("td").all_inner_texts()
+        heads = page.locator("#tx-table thead th").all_inner_texts()
+    db.close()
+    assert heads[1:3] == ["x, y, z (m)", "azimuth, pitch, roll"]
+    assert cells[1] == f"{last['x_m']:.2f}, {last['y_m']:.2f}, {last['z_m']:.2f}"
+    angles = [float(a.strip().rstrip("°")) for a in cells[2].split(",")]
+    expect = [last["azimuth_deg"], last["pitch_deg"], last["roll_deg"]]
+    assert angles == pytest.approx(expect, abs=0.5)
+    assert last["z_m"] != SCENE.z_min_m and angles[1] != 0.0  # a 3-D pose, not the 2-D defaults
