@@ -49,6 +49,7 @@ TIERS: dict[str, str] = {
     "test_detection": "e2e",
     "test_detection_wiring": "e2e",
     "test_evaluate_experiments": "e2e",
+    "test_evaluate_pose3d": "e2e",
     "test_evaluate_report": "e2e",
     "test_evaluate_runner": "e2e",
     "test_filter": "e2e",
