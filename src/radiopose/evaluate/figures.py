@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 
-from radiopose.evaluate.experiments import FigureSpec
+from radiopose.evaluate.experiments import FigureSpec, Quantity
 from radiopose.evaluate.statistics import AXIS_SUMMARY, figure_table
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -191,10 +191,13 @@ def plot_axis_errors(
         fig.suptitle(f"Per-axis mean errors of {method} (3-D pose)", fontsize=11)
     out = []
     for ax, (col, _name, label) in zip(axes, AXIS_SUMMARY, strict=True):
-        quantity = "position" if col.endswith("_m") else "orientation"
+        quantity: Quantity = "position" if col.endswith("_m") else "orientation"
         spec = FigureSpec("error", x, quantity, hue=hue, methods=(method,), title=label)
         plot_spec(results, spec, ax=ax, column=col)
         ax.set_ylabel(f"mean {label.replace(' (', ' error (')}")
         ax.set_ylim(bottom=0.0)
+        legend = ax.get_legend()
+        if out and legend is not None:  # one legend (the first panel's) is enough
+            legend.remove()
         out.append(ax)
     return out
