@@ -165,6 +165,40 @@ def test_bad_settings_are_one_line_errors(tmp_path: Path, line, lineno, key, wha
     assert what in msg
 
 
+_TOML_VALUES = (
+    st.integers(-(2**70), 2**70).map(str)
+    | st.floats(allow_nan=True, allow_infinity=True).map(
+        lambda x: "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf") if math.isinf(x)
+        else repr(x)
+    )
+    | st.booleans().map(lambda b: "true" if b else "false")
+    | st.text(st.characters(codec="utf-8", exclude_characters='"\\'), max_size=8).map(
+        lambda t: f'"{t}"'
+    )
+    | st.lists(st.integers(-5, 5), max_size=3).map(str)
+)  # fmt: skip
+
+
+@settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    key=st.sampled_from(sorted(FIELDS)) | st.from_regex(r"[a-z_]{1,12}", fullmatch=True),
+    value=_TOML_VALUES,
+)
+def test_any_value_reads_or_is_a_one_line_error(tmp_path: Path, key: str, value: str):
+    """Fuzz: whatever one key of the table holds, the reader accepts it (a value
+    Pose3dConfig takes) or raises one InputError naming the file; nothing else."""
+    p = _write(tmp_path, f"[filter.pose3d]\n{key} = {value}\n")
+    try:
+        s = read_tracker_settings(p)
+    except InputError as exc:
+        assert exc.path == str(p) and "\n" not in str(exc)
+        return
+    assert s.pose3d_overrides.keys() == {key}
+    assert getattr(s.pose3d(), key) == s.pose3d_overrides[key]
+
+
 def test_the_table_must_be_a_table(tmp_path: Path):
     p = _write(tmp_path, "[filter]\nhuber_c = 1.0\npose3d = 3\n")
     with pytest.raises(InputError, match="expected a table") as exc:
