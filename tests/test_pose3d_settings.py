@@ -269,3 +269,20 @@ def test_locate_reads_the_table_and_names_a_bad_key(scene, tmp_path: Path):
     (line,) = r.stderr.strip().splitlines()
     assert "tracker.toml" in line and ":3" in line and "filter.pose3d.acquisition_tilts" in line
     assert "Traceback" not in r.stderr
+
+
+def test_serve_names_a_bad_key_before_it_starts(scene, tmp_path: Path):
+    _sim, root = scene
+    site = tmp_path / "site"
+    site.mkdir()
+    for f in (root / "site").rglob("*"):
+        if f.is_file() and f.name != "tracker.toml":
+            dest = site / f.relative_to(root / "site")
+            dest.parent.mkdir(parents=True, exist_ok=True)
+            dest.write_bytes(f.read_bytes())
+    (site / "tracker.toml").write_text('[filter.pose3d]\nheight_noise_mps = "fast"\n')
+    r = _cli("serve", str(site), "--db", f"sqlite:///{tmp_path / 'x.db'}", "--port", "1")
+    assert r.returncode == 2, r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert "tracker.toml:2" in line and "filter.pose3d.height_noise_mps" in line
+    assert not (tmp_path / "x.db").exists()  # stopped before opening the database
