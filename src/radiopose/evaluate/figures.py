@@ -189,7 +189,7 @@ def plot_axis_errors(
         fig, grid = plt.subplots(1, 4, figsize=(14.0, 3.6), layout="constrained")
         axes = list(grid)
         fig.suptitle(f"Per-axis mean errors of {method} (3-D pose)", fontsize=11)
-    out = []
+    out: list[Axes] = []
     for ax, (col, _name, label) in zip(axes, AXIS_SUMMARY, strict=True):
         quantity: Quantity = "position" if col.endswith("_m") else "orientation"
         spec = FigureSpec("error", x, quantity, hue=hue, methods=(method,), title=label)
