@@ -31,6 +31,7 @@ TIERS: dict[str, str] = {
     "test_capture_records": "property",
     "test_geometry": "property",
     "test_module_seams": "property",
+    "test_pose3d_settings": "property",
     "test_pose3d_site": "property",
     "test_patterns_importers": "property",
     "test_patterns_io": "property",
@@ -48,6 +49,7 @@ TIERS: dict[str, str] = {
     "test_detection": "e2e",
     "test_detection_wiring": "e2e",
     "test_evaluate_experiments": "e2e",
+    "test_evaluate_pose3d": "e2e",
     "test_evaluate_report": "e2e",
     "test_evaluate_runner": "e2e",
     "test_filter": "e2e",
@@ -68,6 +70,7 @@ TIERS: dict[str, str] = {
     "test_server_dashboard": "live",
     "test_server_live": "live",
     "test_server_live_lag": "live",
+    "test_server_pose3d": "live",
     # lint: the code base's own checks
     "test_style": "lint",
 }

@@ -162,6 +162,14 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     assert any(r.startswith("| 6 | 1 |") for r in rows)
 
 
+def test_live_pose3d(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--duration-s", "1.5", "--size-m", "6", "--receivers", "4", "--seed", "5"]
+    printed = _run(SCRIPTS / "live_pose3d.py", argv, capsys)
+    rows = _table_rows(printed)
+    assert any(r.startswith("| 2d | 75 |") for r in rows)
+    assert any(r.startswith("| 3d | 75 |") for r in rows)
+
+
 def test_pose3d_identifiability(capsys: pytest.CaptureFixture[str]) -> None:
     printed = _run(SCRIPTS / "pose3d_identifiability.py", ["--starts", "5", "--seed", "5"], capsys)
     assert "offset known:" in printed and "offset free:" in printed
@@ -181,6 +189,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "live_lag_accuracy": test_live_lag_accuracy,
     "mirror_diagnosis": test_mirror_diagnosis,
     "orientation_outliers": test_orientation_outliers,
+    "live_pose3d": test_live_pose3d,
     "pose3d_accuracy": test_pose3d_accuracy,
     "pose3d_identifiability": test_pose3d_identifiability,
     "real_data": test_real_data,

@@ -11,8 +11,14 @@ optional; ``radiopose locate`` reads it when present and says so. Format::
     huber_c = 1.0
     sigma_prior_db = 5.0
 
-Every key is checked: an unknown key or a value out of range is a one-line
-error naming the file, line and key.
+    [filter.pose3d]             # the 3-D filter (a site with a height range or
+    n_particles = 3000          # several pitches/rolls): any field of
+    acquisition_step_m = 2.0    # radiopose.filtering.particle3d.Pose3dConfig
+
+Every key is checked: an unknown key, a value of the wrong type, a non-finite
+number or a value out of range is a one-line error naming the file, line and
+key. ``[filter.pose3d]`` is read at every site but used only at a 3-D one
+(docs/pose3d.md, "Settings").
 """
 
 from __future__ import annotations
@@ -22,12 +28,16 @@ import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from radiopose.config import Section, load_toml
+from radiopose.config import Section, find_key_line, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.particle import LIKELIHOODS
+from radiopose.filtering.particle3d import Pose3dConfig
+
+if TYPE_CHECKING:  # the tracker package loads the registry: imported only when asked
+    from radiopose.tracker.config import TrackerConfig
 
 FILE_NAME = "tracker.toml"
 
@@ -40,27 +50,84 @@ _STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS}
 """The values a string field of FilterConfig may take."""
 
 
+POSE3D_TABLE = "pose3d"
+"""The sub-table of ``[filter]`` holding :class:`Pose3dConfig` fields (``[filter.pose3d]``)."""
+
+POSE3D_RANGES: dict[str, tuple[float, float]] = {
+    "n_particles": (10, 1_000_000),
+    "height_noise_mps": (0.0, 10.0),
+    "tilt_noise_dps": (0.0, 3600.0),
+    "acquisition_step_m": (0.0, 100.0),
+    "acquisition_azimuth_step_deg": (0.0, 360.0),
+    "acquisition_heights": (1, 1000),
+    "acquisition_sigma_db": (0.0, 60.0),
+    "acquisition_k": (1, 10_000_000),
+    "acquisition_tilts": (1, 1000),
+    "reentry_interval_s": (0.0, 3600.0),
+    "proposal_window_s": (0.0, 3600.0),
+    "sigma_floor_db": (0.0, 60.0),
+    "refine_steps": (0, 100),
+    "max_table_entries": (1000, 1_000_000_000),
+}
+"""Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
+``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
+density, step, σ or interval). A field without a row here (one added to
+:class:`Pose3dConfig` later) is read as a positive number of its type, and the
+dataclass's own checks apply to every value."""
+
+
 def _filter_fields() -> dict[str, type]:
     return {f.name: type(f.default) for f in dataclasses.fields(FilterConfig)}
 
 
-def read_tracker_toml(
-    path: str | os.PathLike[str],
-) -> tuple[FilterOverrides, float | None]:
-    """``(filter overrides, smoothing_lag_s or None)`` from a ``tracker.toml``.
+def _pose3d_fields() -> dict[str, type]:
+    return {f.name: type(f.default) for f in dataclasses.fields(Pose3dConfig)}
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackerSettings:
+    """What a ``tracker.toml`` sets (every value checked; see the module docstring).
+
+    Attributes
+    ----------
+    filter_overrides
+        ``[filter]``: :class:`FilterConfig` field -> value.
+    pose3d_overrides
+        ``[filter.pose3d]``: :class:`Pose3dConfig` field -> value.
+    smoothing_lag_s
+        The filter's fixed lag in batch runs, seconds (``None``: not set).
+    live_method
+        The live server's method at this site (``None``: not set).
+    """
+
+    filter_overrides: FilterOverrides = dataclasses.field(default_factory=dict)
+    pose3d_overrides: FilterOverrides = dataclasses.field(default_factory=dict)
+    smoothing_lag_s: float | None = None
+    live_method: str | None = None
+
+    def pose3d(self) -> Pose3dConfig:
+        """The 3-D filter's settings: the defaults with ``[filter.pose3d]`` applied."""
+        return dataclasses.replace(Pose3dConfig(), **self.pose3d_overrides)
+
+
+def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
+    """Every setting of a ``tracker.toml`` (:class:`TrackerSettings`).
 
     Raises
     ------
     InputError
-        Syntax errors, unknown keys, non-numbers, values FilterConfig rejects.
+        Syntax errors, unknown keys, values of the wrong type, non-finite or
+        out-of-range values, values FilterConfig or Pose3dConfig rejects
+        (file, line and key named).
     """
     doc = load_toml(path)
     root = Section(doc, path)
     lag = root.number("smoothing_lag_s", None, low=0.0, high=3600.0)
-    _live_method(root)
+    live = _live_method(root)
     sec = root.section("filter", required=False)
     kinds = _filter_fields()
     overrides: FilterOverrides = {}
+    pose3d: FilterOverrides = {}
     for key in list(sec.data):
         kind = kinds.get(key)
         if kind is int:
@@ -71,13 +138,51 @@ def read_tracker_toml(
             overrides[key] = sec.boolean(key)
         elif kind is str:
             overrides[key] = sec.string(key, choices=_STRING_CHOICES.get(key))
+        elif key == POSE3D_TABLE:
+            pose3d = _read_pose3d(sec.section(POSE3D_TABLE))
     sec.finish()
     root.finish()
     try:
         dataclasses.replace(FilterConfig(), **overrides)
     except InputError as exc:  # the dataclass names the field; add the file
         raise InputError(exc.reason, path=path, column="filter") from None
-    return overrides, lag
+    try:
+        dataclasses.replace(Pose3dConfig(), **pose3d)
+    except InputError as exc:
+        line = find_key_line(("filter", POSE3D_TABLE), doc.key_lines)
+        raise InputError(exc.reason, path=path, line=line, column="filter.pose3d") from None
+    return TrackerSettings(overrides, pose3d, lag, live)
+
+
+def _read_pose3d(sec: Section) -> FilterOverrides:
+    """The keys of ``[filter.pose3d]``, each typed and range-checked (:data:`POSE3D_RANGES`)."""
+    out: FilterOverrides = {}
+    kinds = _pose3d_fields()
+    for key in list(sec.data):
+        kind = kinds.get(key)
+        if kind is int:
+            lo, hi = POSE3D_RANGES.get(key, (1, 10**9))
+            out[key] = sec.integer(key, low=int(lo), high=int(hi))
+        elif kind is float:
+            lo, hi = POSE3D_RANGES.get(key, (0.0, 1e6))
+            out[key] = sec.number(key, positive=lo == 0.0, low=lo, high=hi)
+    sec.finish()
+    return out
+
+
+def read_tracker_toml(
+    path: str | os.PathLike[str],
+) -> tuple[FilterOverrides, float | None]:
+    """``(filter overrides, smoothing_lag_s or None)`` from a ``tracker.toml``
+    (:func:`read_tracker_settings` has the rest: ``[filter.pose3d]``, ``live_method``).
+
+    Raises
+    ------
+    InputError
+        As :func:`read_tracker_settings`.
+    """
+    s = read_tracker_settings(path)
+    return s.filter_overrides, s.smoothing_lag_s
 
 
 def _live_method(root: Section) -> str | None:
@@ -102,6 +207,32 @@ def load_site_live_method(site_dir: str | os.PathLike[str]) -> str | None:
     return _live_method(Section(load_toml(p), p))
 
 
+def load_site_settings(
+    site_dir: str | os.PathLike[str],
+) -> tuple[TrackerSettings, Path | None]:
+    """Every setting of ``SITE/tracker.toml`` and its path (empty settings and ``None``
+    if there is none)."""
+    p = Path(site_dir) / FILE_NAME
+    if not p.is_file():
+        return TrackerSettings(), None
+    return read_tracker_settings(p), p
+
+
+def apply_tracker_settings(
+    config: TrackerConfig, settings: TrackerSettings, *, batch: bool = True
+) -> TrackerConfig:
+    """``config`` with a site's settings applied: ``[filter]`` and ``[filter.pose3d]``
+    over its own, and (``batch``: offline :func:`~radiopose.tracker.locate`) the
+    fixed lag ``smoothing_lag_s`` when set."""
+    lag = settings.smoothing_lag_s
+    return dataclasses.replace(
+        config,
+        filter=dataclasses.replace(config.filter, **settings.filter_overrides),
+        pose3d=dataclasses.replace(config.pose3d, **settings.pose3d_overrides),
+        smoothing_lag_s=lag if batch and lag is not None else config.smoothing_lag_s,
+    )
+
+
 def load_site_tracker_settings(
     site_dir: str | os.PathLike[str],
 ) -> tuple[FilterOverrides, float | None, Path | None]:
@@ -118,17 +249,31 @@ def write_tracker_toml(
     overrides: Mapping[str, float | int | str | bool],
     smoothing_lag_s: float | None = None,
     comment: str = "",
+    pose3d: Mapping[str, float | int] | None = None,
 ) -> None:
-    """Write a ``tracker.toml`` (values must be FilterConfig fields)."""
-    kinds = _filter_fields()
+    """Write a ``tracker.toml``: ``overrides`` (FilterConfig fields) under ``[filter]``,
+    ``pose3d`` (Pose3dConfig fields) under ``[filter.pose3d]``; read back by
+    :func:`read_tracker_settings` as given (round trip tested)."""
     lines = [f"# {comment}"] if comment else []
     if smoothing_lag_s is not None:
         lines.append(f"smoothing_lag_s = {float(smoothing_lag_s)!r}")
     lines.append("")
     lines.append("[filter]")
-    for key, value in overrides.items():
+    lines += _toml_lines(overrides, _filter_fields(), "FilterConfig")
+    if pose3d:
+        lines += ["", f"[filter.{POSE3D_TABLE}]"]
+        lines += _toml_lines(pose3d, _pose3d_fields(), "Pose3dConfig")
+    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def _toml_lines(
+    values: Mapping[str, float | int | str | bool], kinds: Mapping[str, type], owner: str
+) -> list[str]:
+    """``key = value`` lines of ``values`` (fields of ``owner``, typed by ``kinds``)."""
+    lines = []
+    for key, value in values.items():
         if key not in kinds:
-            raise ValueError(f"{key!r} is not a FilterConfig field")
+            raise ValueError(f"{key!r} is not a {owner} field")
         if kinds[key] is bool:
             lines.append(f"{key} = {'true' if value else 'false'}")
             continue
@@ -139,4 +284,4 @@ def write_tracker_toml(
         if isinstance(v, float) and not math.isfinite(v):
             raise ValueError(f"{key} = {v!r} is not finite")
         lines.append(f"{key} = {v!r}")
-    Path(path).write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return lines

@@ -51,7 +51,7 @@ def locate(
     from radiopose.site_io import load_site
     from radiopose.tracker import METHODS, TrackerConfig
     from radiopose.tracker import locate as run_locate
-    from radiopose.tracker_settings import load_site_tracker_settings
+    from radiopose.tracker_settings import apply_tracker_settings, load_site_settings
 
     if method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -60,13 +60,9 @@ def locate(
     the_site = load_site(site)
     pk = read_packets_csv(packets)
     config = TrackerConfig(kernel=kernel)
-    overrides, lag_s, settings_path = load_site_tracker_settings(site)
-    if settings_path is not None:
-        config = replace(
-            config,
-            filter=replace(config.filter, **overrides),
-            smoothing_lag_s=config.smoothing_lag_s if lag_s is None else lag_s,
-        )
+    settings, settings_path = load_site_settings(site)
+    if settings_path is not None:  # [filter], [filter.pose3d] and the lag
+        config = apply_tracker_settings(config, settings)
         print(f"tracker settings from {settings_path}", file=sys.stderr)
     if acquisition_window_ms is not None:
         config = replace(config, acquisition_window_s=acquisition_window_ms / 1000.0)

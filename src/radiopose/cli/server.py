@@ -89,23 +89,25 @@ def serve(
     log_level: Annotated[str, typer.Option("--log-level", help="Log level.")] = "info",
 ) -> None:
     """The central server: API, live localisation and dashboard (Ctrl-C stops)."""
-    from dataclasses import replace
 
     from radiopose.server.app import create_app, import_site_dir
     from radiopose.server.jsonlog import configure_logging
     from radiopose.server.live import MAX_LIVE_LAG_S, LiveConfig
     from radiopose.tracker import DEFAULT_LIVE_METHOD, METHODS, TrackerConfig
-    from radiopose.tracker_settings import load_site_live_method, load_site_tracker_settings
+    from radiopose.tracker_settings import (
+        apply_tracker_settings,
+        load_site_live_method,
+        load_site_settings,
+    )
 
     if method is not None and method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     # the method: --method, else the site's tracker.toml live_method, else the default
     method = method or load_site_live_method(site) or DEFAULT_LIVE_METHOD
     tracker = None
-    overrides, _lag_s, settings_path = load_site_tracker_settings(site)
-    if settings_path is not None:  # the site's priors for the filter
-        base = TrackerConfig()
-        tracker = replace(base, filter=replace(base.filter, **overrides))
+    settings, settings_path = load_site_settings(site)
+    if settings_path is not None:  # the site's priors for the filter ([filter], [filter.pose3d])
+        tracker = apply_tracker_settings(TrackerConfig(), settings, batch=False)
     if not 0 <= live_lag_s <= MAX_LIVE_LAG_S:
         raise InputError(f"--live-lag-s must lie in [0, {MAX_LIVE_LAG_S}], got {live_lag_s!r}")
     k, n = _partition(partition)

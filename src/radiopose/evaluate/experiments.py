@@ -609,3 +609,9 @@ def load_experiment(
     exp = parse_experiment(doc, str(path), quick=quick)
     parse_experiment(doc, str(path), quick=not quick)  # both variants must be valid
     return exp if runs is None else exp.with_runs(runs)
+
+
+def is_3d(experiment: Experiment) -> bool:
+    """Whether the experiment simulates the 3-D hand-held scenario (``pose = "3d"`` in
+    every condition; docs/pose3d.md): its rows carry per-axis errors."""
+    return all(c.scenario.pose == "3d" for c in experiment.conditions)

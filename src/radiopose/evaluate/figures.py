@@ -9,14 +9,15 @@ its figures agree.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
 
-from radiopose.evaluate.experiments import FigureSpec
-from radiopose.evaluate.statistics import figure_table
+from radiopose.evaluate.experiments import FigureSpec, Quantity
+from radiopose.evaluate.statistics import AXIS_SUMMARY, figure_table
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -86,6 +87,7 @@ def plot_spec(
     spec: FigureSpec,
     ax: Axes | None = None,
     rng: np.random.Generator | None = None,
+    column: str | None = None,
 ) -> Axes:
     """Draw one figure: a line (with 95 % CI error bars) per method or per hue value.
 
@@ -100,10 +102,13 @@ def plot_spec(
     rng
         Random generator of the bootstrap intervals (``reduction``, ``relative``);
         default ``np.random.default_rng(0)``.
+    column
+        Per-run error column to draw instead of the quantity's (:func:`figure_table`).
     """
     if ax is None:
         _, ax = plt.subplots(figsize=(6.4, 4.0), layout="constrained")
-    table = figure_table(results, spec, rng if rng is not None else np.random.default_rng(0))
+    rng = rng if rng is not None else np.random.default_rng(0)
+    table = figure_table(results, spec, rng, column)
     xs = list(dict.fromkeys(table["x"].tolist()))
     hues = list(dict.fromkeys(table["hue"].tolist()))
     numeric = _numeric(xs)
@@ -152,3 +157,47 @@ def plot_spec(
     if hues:
         ax.legend(fontsize=8)
     return ax
+
+
+def plot_axis_errors(
+    results: pd.DataFrame,
+    method: str,
+    x: str = "n_receivers",
+    hue: str = "noise_db",
+    axes: Sequence[Axes] | None = None,
+) -> list[Axes]:
+    """The per-axis errors of 3-D runs (height, azimuth, pitch, roll), one panel each:
+    mean over runs of each run's mean absolute error against ``x``, a line per
+    ``hue`` value, 95 % CI error bars (as :func:`plot_spec` draws an ``error`` figure).
+
+    Parameters
+    ----------
+    results
+        Tidy results of one 3-D experiment (with ``height_mean_m`` ... columns).
+    method
+        The method drawn.
+    x, hue
+        Swept parameters on the horizontal axis and as lines.
+    axes
+        Four Axes to draw on (a new 1 × 4 figure when ``None``).
+
+    Returns
+    -------
+    The four Axes.
+    """
+    if axes is None:
+        fig, grid = plt.subplots(1, 4, figsize=(14.0, 3.6), layout="constrained")
+        axes = list(grid)
+        fig.suptitle(f"Per-axis mean errors of {method} (3-D pose)", fontsize=11)
+    out: list[Axes] = []
+    for ax, (col, _name, label) in zip(axes, AXIS_SUMMARY, strict=True):
+        quantity: Quantity = "position" if col.endswith("_m") else "orientation"
+        spec = FigureSpec("error", x, quantity, hue=hue, methods=(method,), title=label)
+        plot_spec(results, spec, ax=ax, column=col)
+        ax.set_ylabel(f"mean {label.replace(' (', ' error (')}")
+        ax.set_ylim(bottom=0.0)
+        legend = ax.get_legend()
+        if out and legend is not None:  # one legend (the first panel's) is enough
+            legend.remove()
+        out.append(ax)
+    return out

@@ -21,8 +21,14 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from radiopose.evaluate.blocks import Block, render_html, render_markdown
-from radiopose.evaluate.experiments import Experiment
-from radiopose.evaluate.statistics import condition_summary, figure_table, mean_ci, ratio_ci
+from radiopose.evaluate.experiments import Experiment, is_3d
+from radiopose.evaluate.statistics import (
+    AXIS_SUMMARY,
+    condition_summary,
+    figure_table,
+    mean_ci,
+    ratio_ci,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -372,14 +378,12 @@ def _experiment_blocks(
     if exp.description:
         blocks.append(("p", exp.description))
     df = results[results["experiment"] == exp.name]
-    sc = exp.conditions[0].scenario
     blocks.append(
         (
             "p",
             (
                 f"{len(exp.conditions)} conditions × {exp.runs} runs (experiment seed {exp.seed}), "
-                f"methods {', '.join(exp.methods)}; {sc.size_m:g} m area, {sc.step_m:g} m / "
-                f"{sc.azimuth_step_deg:g}° candidates, {sc.duration_s:g} s traces"
+                f"methods {', '.join(exp.methods)}; {scenario_text(exp)}"
                 f"{' ([quick] settings)' if exp.quick_applied else ''}. Mean errors are means over "
                 f"runs of each run's mean error, ± half the 95 % confidence interval (Student t); "
                 f"reductions and ratios use a paired bootstrap over runs."
@@ -429,6 +433,88 @@ def _experiment_blocks(
         ("p", "**Coverage (%)** — estimates ÷ packets, mean over runs:"),
         ("table", head, rows),
     ]
+    if is_3d(exp):
+        b, w = _axis_blocks(exp, df, summary, out)
+        blocks += b
+        written += w
+    return blocks, written
+
+
+def scenario_text(exp: Experiment) -> str:
+    """The scenario of an experiment's first condition, in words: the 2-D grid, or for a
+    3-D experiment the hand-held scenario's candidate heights, pitches and rolls."""
+    sc = exp.conditions[0].scenario
+    if sc.pose != "3d":
+        return (
+            f"{sc.size_m:g} m area, {sc.step_m:g} m / {sc.azimuth_step_deg:g}° candidates, "
+            f"{sc.duration_s:g} s traces"
+        )
+    from radiopose.simulate.handheld import HandheldConfig
+
+    h = HandheldConfig.from_scenario(sc)
+
+    def span(v: tuple[float, ...]) -> str:
+        step = f" every {v[1] - v[0]:g}°" if len(v) > 2 else ""
+        return f"{v[0]:g}…{v[-1]:g}°{step}"
+
+    return (
+        f"3-D hand-held phone ({h.height_range_m[0]:g}–{h.height_range_m[1]:g} m high, pitch "
+        f"{h.pitch_range_deg[0]:g}–{h.pitch_range_deg[1]:g}°, roll within "
+        f"±{h.roll_amplitude_deg:g}°), receivers at mixed heights, {h.size_m:g} m area; site "
+        f"candidates {h.step_m:g} m, heights {h.z_min_m:g}–{h.z_max_m:g} m every "
+        f"{h.z_step_m:g} m, azimuths every {h.azimuth_step_deg:g}°, pitches "
+        f"{span(h.pitch_deg)}, rolls {span(h.roll_deg)} (the `filter` tracks "
+        f"continuously inside these ranges); a packet every {h.interval_ms:g} ms, "
+        f"{h.duration_s:g} s traces"
+    )
+
+
+def _axis_blocks(
+    exp: Experiment, df: pd.DataFrame, summary: pd.DataFrame, out: Path
+) -> tuple[list[Block], list[Path]]:
+    """A 3-D experiment's per-axis errors: a table per method (± half the 95 % CI)
+    and a figure (one panel per axis, error against receivers, a line per σ)."""
+    import matplotlib.pyplot as plt
+
+    from radiopose.evaluate.figures import plot_axis_errors
+
+    blocks: list[Block] = []
+    written: list[Path] = []
+    names = [name for _col, name, _label in AXIS_SUMMARY]
+    if not set(names) <= set(summary.columns):
+        return blocks, written
+    for m in dict.fromkeys(summary["method"].tolist()):
+        g = summary[summary["method"] == m]
+        if not np.isfinite(g["height_m"].to_numpy(float)).any():
+            continue  # a method without orientation
+        rows = []
+        for r in g.itertuples():
+            row = [str(r.condition)]
+            for name in names:
+                base, unit = name.rsplit("_", 1)
+                digits = 2 if unit == "m" else 1
+                row.append(
+                    _pm(getattr(r, name), getattr(r, f"{base}_low_{unit}"),
+                        getattr(r, f"{base}_high_{unit}"), digits)
+                )  # fmt: skip
+            rows.append(row)
+        blocks += [
+            (
+                "p",
+                f"**Per-axis mean errors of `{m}`**, ± half the 95 % CI (mean over runs of each "
+                "run's mean absolute error: height, and the wrapped azimuth, pitch and roll "
+                "differences; the orientation error above is the angle of the relative rotation):",
+            ),
+            ("table", ["condition", *[label for _c, _n, label in AXIS_SUMMARY]], rows),
+        ]
+        axes = plot_axis_errors(df, m)
+        rel = Path("figures") / f"{exp.name}-axis-errors-{m}.png"
+        (out / rel).parent.mkdir(parents=True, exist_ok=True)
+        fig = cast("Figure", axes[0].figure)
+        fig.savefig(out / rel, dpi=110)
+        plt.close(fig)
+        written.append(out / rel)
+        blocks.append(("img", rel.as_posix(), f"Per-axis mean errors of {m}, 95 % CIs"))
     return blocks, written
 
 

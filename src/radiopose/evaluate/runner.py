@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.evaluate.experiments import KERNEL_AUTO, Experiment, format_value
+from radiopose.evaluate.experiments import KERNEL_AUTO, Experiment, format_value, is_3d
 from radiopose.parallel import WORKER_ENV as WORKER_ENV  # re-exported: the old path
 from radiopose.parallel import connect_scheduler as connect_scheduler  # re-exported
 from radiopose.parallel import default_workers, run_on_dask
@@ -53,7 +53,9 @@ from radiopose.tracker import METHODS, TrackerConfig
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
 
+    from radiopose.evaluate.method_runs import MethodRun
     from radiopose.likelihood import CandidateSpace, Scorer
+    from radiopose.simulate import Simulation
 
 DESCRIPTOR_COLUMNS: tuple[str, ...] = (
     "noise_db",
@@ -75,6 +77,15 @@ METRIC_COLUMNS: tuple[str, ...] = (
     "orientation_median_deg",
     "orientation_p95_deg",
 )
+AXIS_COLUMNS: tuple[str, ...] = (
+    "height_mean_m",
+    "azimuth_mean_deg",
+    "pitch_mean_deg",
+    "roll_mean_deg",
+)
+"""Per-axis mean absolute errors of a 3-D run (``ScenarioConfig.pose = "3d"``; empty
+for a method without orientation): height, and the wrapped azimuth, pitch and roll
+differences (:mod:`radiopose.evaluate.pose3d`). Only 3-D experiments have them."""
 TIMING_COLUMNS: tuple[str, ...] = ("run_time_s", "scoring_s", "task_s")
 """Wall times: differ between runs of the same task (everything else is identical)."""
 
@@ -245,6 +256,7 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
         r = runs[m]
         pos = error_stats(r.position_error_m)
         ori = error_stats(r.orientation_error_deg)
+        axes = _axis_means(sim, r) if sc.pose == "3d" else {}
         rows.append(
             {
                 **base,
@@ -260,6 +272,7 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
                 "orientation_mean_deg": _nan(ori.mean),
                 "orientation_median_deg": _nan(ori.median),
                 "orientation_p95_deg": _nan(ori.p95),
+                **axes,
                 "run_time_s": r.summary.elapsed_s,
                 "scoring_s": scoring_s if scored[m] else 0.0,
                 "task_s": task_s,
@@ -270,14 +283,31 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     return rows
 
 
+def _axis_means(sim: Simulation, run: MethodRun) -> dict[str, float]:
+    """:data:`AXIS_COLUMNS` of one method's run on a 3-D trace (NaN without orientation)."""
+    from radiopose.evaluate.pose3d import axis_errors_of
+
+    if run.orientation_error_deg.size == 0:
+        return dict.fromkeys(AXIS_COLUMNS, math.nan)
+    est, ok = run.estimates, run.truth_index
+    e = axis_errors_of(
+        est.position_m, est.orientation_deg,
+        sim.truth.position_m[ok], sim.truth.orientation_deg[ok],
+    )  # fmt: skip
+    means = [e.height_m, e.azimuth_deg, e.pitch_deg, e.roll_deg]
+    return {k: float(np.mean(v)) for k, v in zip(AXIS_COLUMNS, means, strict=True)}
+
+
 def columns_for(experiment: Experiment) -> list[str]:
-    """Columns of an experiment's result rows (swept parameters after the descriptors)."""
+    """Columns of an experiment's result rows (swept parameters after the descriptors;
+    :data:`AXIS_COLUMNS` after the metrics for a 3-D experiment)."""
     extra = [k for k in experiment.sweep_keys if k not in DESCRIPTOR_COLUMNS]
     return [
         *_ID_COLUMNS,
         *DESCRIPTOR_COLUMNS,
         *extra,
         *METRIC_COLUMNS,
+        *(AXIS_COLUMNS if is_3d(experiment) else ()),
         *TIMING_COLUMNS,
         *_TAIL_COLUMNS,
     ]

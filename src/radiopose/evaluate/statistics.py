@@ -124,16 +124,23 @@ def spec_methods(spec: FigureSpec, methods: list[str]) -> list[str]:
     return chosen
 
 
-def figure_table(results: pd.DataFrame, spec: FigureSpec, rng: np.random.Generator) -> pd.DataFrame:
+def figure_table(
+    results: pd.DataFrame,
+    spec: FigureSpec,
+    rng: np.random.Generator,
+    column: str | None = None,
+) -> pd.DataFrame:
     """The numbers behind a figure: one row per (x, hue).
 
     Columns ``x, hue, value, low, high, n``: mean error (``error``; the
     interval's lower end clipped at 0), reduction in percent (``reduction``)
     or error ratio (``relative``) with its 95 % interval and the runs used.
+    ``column`` replaces the quantity's per-run error column (e.g. a 3-D run's
+    ``height_mean_m``, :data:`AXIS_SUMMARY`).
     """
     import pandas as pd
 
-    col = METRIC_COLUMN[spec.quantity]
+    col = column or METRIC_COLUMN[spec.quantity]
     df = _select(results, spec.where)
     methods = spec_methods(spec, _ordered(df["method"]))
     rows = []
@@ -175,8 +182,20 @@ def _runs(df: pd.DataFrame, method: str, col: str) -> pd.Series:
     return sub.set_index("seed")[col].astype(float)
 
 
+AXIS_SUMMARY: tuple[tuple[str, str, str], ...] = (
+    ("height_mean_m", "height_m", "height (m)"),
+    ("azimuth_mean_deg", "azimuth_deg", "azimuth (°)"),
+    ("pitch_mean_deg", "pitch_deg", "pitch (°)"),
+    ("roll_mean_deg", "roll_deg", "roll (°)"),
+)
+"""A 3-D run's per-axis error columns (:data:`radiopose.evaluate.runner.AXIS_COLUMNS`):
+``(per-run column, summary column, label)``."""
+
+
 def condition_summary(results: pd.DataFrame) -> pd.DataFrame:
-    """Per experiment, condition and method: runs, coverage and mean errors with 95 % CIs."""
+    """Per experiment, condition and method: runs, coverage and mean errors with 95 % CIs
+    (and, where the results have them, the per-axis errors of 3-D runs:
+    ``height_m``, ``height_low_m``, ``height_high_m``, ... as :data:`AXIS_SUMMARY`)."""
     import pandas as pd
 
     rows = []
@@ -201,6 +220,20 @@ def condition_summary(results: pd.DataFrame) -> pd.DataFrame:
                 "orientation_high_deg": o.high,
                 "orientation_runs": o.n,
                 "run_time_s": float(g["run_time_s"].mean()),
+                **_axis_summary(g),
             }
         )
     return pd.DataFrame(rows)
+
+
+def _axis_summary(g: pd.DataFrame) -> dict[str, float]:
+    """Mean and 95 % CI of each per-axis error column present in ``g`` (runs of one
+    condition and method)."""
+    out: dict[str, float] = {}
+    for col, name, _label in AXIS_SUMMARY:
+        if col not in g.columns:
+            continue
+        e = mean_ci(g[col].to_numpy(float))
+        base, unit = name.rsplit("_", 1)
+        out |= {name: e.value, f"{base}_low_{unit}": e.low, f"{base}_high_{unit}": e.high}
+    return out

@@ -8,6 +8,7 @@ from typing import Literal
 
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.particle3d import Pose3dConfig
 from radiopose.motion import MovementModel, RotationModel
 
 
@@ -77,6 +78,10 @@ class TrackerConfig:
         Parameters of the ``filter`` method (:class:`radiopose.filtering.FilterConfig`);
         its motion prior's support is ``max_speed_mps`` and twice the rotation
         bound (:func:`filter_config`).
+    pose3d
+        What the ``filter`` adds at a 3-D site (a height range or several
+        pitches or rolls; :class:`radiopose.filtering.particle3d.Pose3dConfig`,
+        ``[filter.pose3d]`` of a site's ``tracker.toml``); unused elsewhere.
     smoothing_lag_s
         A lagged method (``filter``) in batch :func:`locate`: the fixed-lag
         smoother's lag, seconds (``None``: causal). The streaming
@@ -105,6 +110,7 @@ class TrackerConfig:
     search: Literal["full", "bounded"] = "full"
     acquisition_window_s: float = 0.1
     filter: FilterConfig = field(default_factory=FilterConfig)
+    pose3d: Pose3dConfig = field(default_factory=Pose3dConfig)
     smoothing_lag_s: float | None = 1.0
     seed: int = 0
 

@@ -58,9 +58,9 @@ class FilterMethod:
     def prepare(self, device: Device) -> None:
         # pose3d: a site with a height range or several pitches/rolls gets the 3-D filter
         if site_is_3d(device.site):
-            from radiopose.filtering.particle3d import FilterModel3d, ParticleFilter3d, Pose3dConfig
+            from radiopose.filtering.particle3d import FilterModel3d, ParticleFilter3d
 
-            p3 = Pose3dConfig()
+            p3 = device.config.pose3d  # [filter.pose3d] of the site's tracker.toml
             model3d = FilterModel3d.build3d(device.site, device.space, p3)
             cfg = filter_config(device.config)
             device.engine = ParticleFilter3d(model3d, cfg, device.lag_s, p3)

@@ -132,7 +132,9 @@ function renderTables() {
   const tb = document.querySelector("#tx-table tbody"); tb.innerHTML = "";
   for (const [tx, t] of state.tracks) {
     const e = t.trail[t.trail.length - 1], tr = document.createElement("tr");
-    tr.innerHTML = `<td>${tx}</td><td>${e.x_m.toFixed(2)}, ${e.y_m.toFixed(2)}</td><td>${e.azimuth_deg.toFixed(0)}°</td><td>${fmtAge((Date.now() - t.seen) / 1000)}</td>`;
+    // the full pose: height, pitch and roll matter at a 3-D site (docs/pose3d.md)
+    tr.innerHTML = `<td>${tx}</td><td>${e.x_m.toFixed(2)}, ${e.y_m.toFixed(2)}, ${e.z_m.toFixed(2)}</td>` +
+      `<td>${e.azimuth_deg.toFixed(0)}°, ${e.pitch_deg.toFixed(0)}°, ${e.roll_deg.toFixed(0)}°</td><td>${fmtAge((Date.now() - t.seen) / 1000)}</td>`;
     tb.appendChild(tr);
   }
   const h = state.health; if (!h) return;
