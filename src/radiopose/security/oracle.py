@@ -148,7 +148,12 @@ def fit_smooth_path(
     best: PathFit | None = None
     for i in np.argsort(costs)[:keep]:
         sol = least_squares(
-            fun, np.asarray(starts[i], float), jac=jac, method="lm", max_nfev=max_nfev
+            fun,
+            np.asarray(starts[i], float),
+            jac=jac,
+            method="lm",
+            max_nfev=max_nfev,
+            x_scale="jac",
         )
         sse = float(np.sum(sol.fun**2))
         if best is None or sse < best.sse_db2:
