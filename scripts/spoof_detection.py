@@ -19,9 +19,19 @@ with the same ``--out`` reuses them, so an interrupted run resumes) and writes
   against the noise level from consecutive differences; the common-mode power
   jump), each as detection within 0.5 s against false alarms per hour.
 
+* with ``--oracle RUNS``: only the oracle bound of attacks 1–2 (``fixed``,
+  ``moving``; tuning seeds from 7000, σ 1 dB; :data:`ORACLE_CASES` receivers ×
+  windows) in ``OUT/oracle.csv`` and ``OUT/oracle.md``
+  (:mod:`radiopose.security.oracle`);
+* with ``--split RUNS CHUNKS``: only the continuity (split) test against
+  ``fixed`` and ``moving`` at σ 1 dB on the plan's seeds (``RUNS`` runs per
+  attack, ``CHUNKS`` genuine chunks of 30 s) in ``OUT/split.md``.
+
     python scripts/spoof_detection.py --plan tuning --calibrate --grid --out /tmp/det-tuning
     python scripts/spoof_detection.py --plan tuning-filter --out /tmp/det-tuning-filter
     python scripts/spoof_detection.py --plan quick --out /tmp/det-quick
+    python scripts/spoof_detection.py --oracle 10 --out /tmp/det-oracle
+    python scripts/spoof_detection.py --plan tuning --split 8 12 --out /tmp/det-split
 
 Plans: ``tuning`` — seeds from 7000, σ 0.5, 1, 3 dB, 8 runs of each of the
 five attacks, 120 genuine chunks of 30 s per σ (1 h per σ; linear, periodic and
