@@ -47,6 +47,7 @@ TIERS: dict[str, str] = {
     "test_demo": "e2e",
     "test_demo_walk": "e2e",
     "test_detection": "e2e",
+    "test_detection_oracle": "e2e",
     "test_detection_wiring": "e2e",
     "test_evaluate_experiments": "e2e",
     "test_evaluate_pose3d": "e2e",

@@ -131,12 +131,19 @@ def test_filter_scenarios(capsys: pytest.CaptureFixture[str]) -> None:
 
 @pytest.mark.slow
 def test_spoof_detection(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["--plan", "quick", "--workers", "1", "--out", str(tmp_path)]
+    argv = ["--plan", "quick", "--out", str(tmp_path)]
     _run(SCRIPTS / "spoof_detection.py", argv, capsys)
     text = (tmp_path / "summary.md").read_text(encoding="utf-8")
     assert (
         text.startswith("# Spoofing detector, plan `quick`") and "## ROC over the threshold" in text
     )
+    # attacks 1-2: the oracle bound (one case, one run) and the continuity test
+    module = _load(SCRIPTS / "spoof_detection.py")
+    module.ORACLE_CASES = ((4, 0.5, 1.0),)
+    assert module.main(["--oracle", "1", "--out", str(tmp_path)]) == 0
+    assert "| fixed | 4 | 0.5 | 1 |" in (tmp_path / "oracle.md").read_text(encoding="utf-8")
+    assert module.main(["--plan", "tuning", "--split", "1", "0", "--out", str(tmp_path)]) == 0
+    assert _table_rows((tmp_path / "split.md").read_text(encoding="utf-8"))
 
 
 @pytest.mark.slow

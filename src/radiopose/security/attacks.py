@@ -97,7 +97,8 @@ class AttackConfig:
 @dataclass(frozen=True, eq=False)
 class PacketStream:
     """Packets of one transmitter address: times ``(n,)`` s, RSS ``(n, n_rx)`` dBm,
-    which source sent each (``0`` genuine, ``1`` attacker) and the true sender pose."""
+    which source sent each (``0`` genuine, ``1`` attacker), the true sender pose and
+    its transmit power offset from the enrolled power (dB; ``None``: 0 throughout)."""
 
     t_s: FloatArray
     rss_dbm: FloatArray
@@ -105,6 +106,7 @@ class PacketStream:
     sender_position_m: FloatArray
     sender_orientation_deg: FloatArray
     t_attack_s: float
+    sender_power_offset_db: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,6 +359,7 @@ def attack_stream(
         a_pos = np.repeat(p0[None, :], n_att, axis=0)
     a_ori = np.column_stack([a_az, zeros, zeros])
     a_rss = site.rss_dbm(a_pos, a_ori, a_off, noise_db, rng)
+    a_off = np.broadcast_to(np.asarray(a_off, float), (n_att,))
     if attack == "silent":  # only the packets it matches within match_rms_db
         mse, _ = _mismatch_db2(site.expected_dbm(a_pos, a_az), target, cfg.power_range_db)
         send = np.nan_to_num(mse, nan=np.inf) <= cfg.match_rms_db**2
@@ -369,6 +372,7 @@ def attack_stream(
             np.vstack([pos[:n_pre], a_pos])[keep],
             np.vstack([ori[:n_pre], a_ori])[keep],
             t_attack,
+            np.concatenate([np.zeros(n_pre), a_off])[keep],
         )
     if attack == "clone":  # both send: the attacker between the genuine packets
         t_all = np.concatenate([t, t[n_pre:] + 0.5 * dt])
@@ -377,8 +381,15 @@ def attack_stream(
         p_all = np.vstack([pos, a_pos])
         o_all = np.vstack([ori, a_ori])
         order = np.argsort(t_all, kind="stable")
+        off_all = np.concatenate([np.zeros(t.size), a_off])
         return PacketStream(
-            t_all[order], rss_all[order], src[order], p_all[order], o_all[order], t_attack
+            t_all[order],
+            rss_all[order],
+            src[order],
+            p_all[order],
+            o_all[order],
+            t_attack,
+            off_all[order],
         )
     src = np.concatenate([np.zeros(n_pre, np.int8), np.ones(n_att, np.int8)])
     return PacketStream(
@@ -388,6 +399,7 @@ def attack_stream(
         np.vstack([pos[:n_pre], a_pos]),
         np.vstack([ori[:n_pre], a_ori]),
         t_attack,
+        np.concatenate([np.zeros(n_pre), a_off]),
     )
 
 
