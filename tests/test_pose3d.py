@@ -343,3 +343,60 @@ def test_axis_errors():
                     np.array(["filter"], dtype=object))  # fmt: skip
     got = axis_errors(truth, est)
     assert got.coverage == 0.5 and got.height_m[0] == pytest.approx(0.3)
+
+
+# ----------------------------------------------------------------------------- the mode estimate
+def _rows(pos_m: np.ndarray, ori_deg: np.ndarray) -> np.ndarray:
+    """Pose rows (x, y, z, cos a, sin a, pitch, cos r, sin r) of poses."""
+    a, p, r = np.deg2rad(ori_deg).T
+    return np.column_stack([pos_m, np.cos(a), np.sin(a), p, np.cos(r), np.sin(r)])
+
+
+def _mode(rows: np.ndarray, w: np.ndarray, radius_deg: float = 30.0) -> np.ndarray:
+    from radiopose.filtering.kernels3d import mode_pose
+
+    out = np.empty(7)
+    mode_pose(rows, w, 32, 1.0, math.cos(math.radians(0.5 * radius_deg)), 2, out)
+    return out
+
+
+def test_mode_of_one_pose_is_that_pose():
+    """The matrix → (azimuth, pitch, roll) conversion inverts the contract's
+    ``R = Rz(a)·Rx(p)·Ry(r)`` (azimuth and roll in [0, 360), pitch in [−90, 90])."""
+    rng = np.random.default_rng(77)
+    for _ in range(20):
+        ori = rng.uniform([0.0, -85.0, -180.0], [360.0, 85.0, 180.0])
+        out = _mode(_rows(np.array([[1.0, 2.0, 1.2]]), ori[None, :]), np.ones(1))
+        np.testing.assert_allclose(out[:3], [1.0, 2.0, 1.2])
+        got = np.degrees(out[3:6])
+        assert relative_rotation_angle_deg(got, ori)[0] < 1e-6
+        assert 0.0 <= got[0] < 360.0 and 0.0 <= got[2] < 360.0 and out[6] == 1.0
+
+
+def test_mode_takes_the_heavier_of_two_modes():
+    """A bimodal cloud (60 % at one pose, 40 % at a pose 180° of azimuth and 40°
+    of roll away, 0.5 m apart): the per-axis mean lands between the modes, the
+    mode estimate on the heavier one, its rotation the chordal mean of that
+    mode's rotations (scipy's ``Rotation.mean``)."""
+    rng = np.random.default_rng(5)
+    n_a, n_b = 600, 400
+    ori_a = np.array([30.0, 40.0, 20.0]) + rng.normal(0.0, 4.0, (n_a, 3))
+    ori_b = np.array([210.0, 40.0, -20.0]) + rng.normal(0.0, 4.0, (n_b, 3))
+    pos = np.concatenate([rng.normal([5.0, 5.0, 1.2], 0.1, (n_a, 3)),
+                          rng.normal([5.5, 5.0, 1.2], 0.1, (n_b, 3))])  # fmt: skip
+    ori = np.concatenate([ori_a, ori_b])
+    w = rng.uniform(0.5, 1.5, n_a + n_b)
+    out = _mode(_rows(pos, ori), w)
+    assert out[6] == pytest.approx(w[:n_a].sum() / w.sum())
+    np.testing.assert_allclose(out[:3], np.average(pos[:n_a], axis=0, weights=w[:n_a]))
+    want = Rotation.from_euler("ZXY", ori_a, degrees=True).mean(weights=w[:n_a])
+    got = Rotation.from_euler("ZXY", np.degrees(out[3:6]), degrees=True)
+    assert (want.inv() * got).magnitude() < 1e-6
+    # the per-axis mean (circular azimuth and roll, linear pitch) lands between
+    a, p, r = np.deg2rad(ori).T
+    mean = [math.degrees(math.atan2(np.sum(w * np.sin(a)), np.sum(w * np.cos(a)))),
+            math.degrees(np.sum(w * p) / w.sum()),
+            math.degrees(math.atan2(np.sum(w * np.sin(r)), np.sum(w * np.cos(r))))]  # fmt: skip
+    truth_a = [30.0, 40.0, 20.0]
+    assert relative_rotation_angle_deg(mean, truth_a)[0] > 10.0  # 15.6°: roll pulled to 4°
+    assert relative_rotation_angle_deg(np.degrees(out[3:6]), truth_a)[0] < 2.0

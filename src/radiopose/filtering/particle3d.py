@@ -46,6 +46,8 @@ from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column
 from radiopose.filtering.kernels3d import (
     coarse_costs,
     expected3d_into,
+    heading_prior,
+    mode_pose,
     packet_update3d,
     tilt_height_step,
 )
@@ -62,6 +64,9 @@ from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site
 from radiopose.survey_height import HeightModel, build_height_model
 from radiopose.units import FloatArray
+
+ESTIMATES = ("mode", "mean")
+"""The values of :attr:`Pose3dConfig.estimate`."""
 
 
 @dataclass(frozen=True)
@@ -104,6 +109,34 @@ class Pose3dConfig:
     max_table_entries
         Bound on the coarse table (poses × receivers); the position step is
         widened until it fits.
+    estimate
+        ``"mode"``: each estimate (causal and smoothed) is the posterior's
+        main mode — the heaviest cluster of particles (within
+        ``mode_radius_m`` and a rotation angle ``mode_radius_deg``), its mean
+        position and the chordal L2 mean of its rotations
+        (:func:`~radiopose.filtering.kernels3d.mode_pose`); ``"mean"``: the
+        2-D filter's per-axis summary (weighted mean position, circular mean
+        azimuth and roll, mean pitch), which lands between the modes of a
+        bimodal cloud.
+    mode_radius_m, mode_radius_deg
+        Extent of a cluster for ``estimate = "mode"``: position, metres, and
+        rotation angle, degrees.
+    mode_centres
+        Candidate cluster centres drawn by weight.
+    heading_prior_deg
+        Optional hand-held motion prior (``0``: off): the phone's azimuth
+        follows its walking direction (the top ahead, as a phone held in front
+        while walking) within a von Mises spread of this many degrees, its
+        weight growing with speed (:func:`~radiopose.filtering.kernels3d.heading_prior`).
+        A modelling assumption about hand-held use, not about radio: wrong
+        for a phone carried sideways, pocketed or looked at while walking
+        backwards.
+    heading_prior_time_s
+        Correlation time of the heading's deviation from the walking
+        direction, s: each packet applies ``dt / τ`` of the prior, so it
+        counts once per ``τ`` of data, not once per packet.
+    heading_prior_speed_mps
+        Speed at which the coupling reaches half its strength, m/s.
     """
 
     n_particles: int = 2000
@@ -120,11 +153,19 @@ class Pose3dConfig:
     sigma_floor_db: float = 0.5
     refine_steps: int = 6
     max_table_entries: int = 20_000_000
+    estimate: str = "mode"
+    mode_radius_m: float = 1.0
+    mode_radius_deg: float = 30.0
+    mode_centres: int = 32
+    heading_prior_deg: float = 0.0
+    heading_prior_time_s: float = 1.0
+    heading_prior_speed_mps: float = 0.3
 
     def __post_init__(self) -> None:
         for name in (
             "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
-            "acquisition_azimuth_step_deg", "acquisition_sigma_db",
+            "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
+            "heading_prior_time_s", "heading_prior_speed_mps",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -133,6 +174,16 @@ class Pose3dConfig:
             raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
+        if self.estimate not in ESTIMATES:
+            raise InputError(
+                f"3-D filter setting estimate = {self.estimate!r} is not one of {ESTIMATES}"
+            )
+        if not (0 <= self.heading_prior_deg < math.inf):
+            raise InputError(
+                f"3-D filter setting heading_prior_deg = {self.heading_prior_deg!r} must be >= 0"
+            )
+        if not (0 < self.mode_radius_deg <= 180 and self.mode_centres >= 1):
+            raise InputError("3-D filter settings: mode_radius_deg in (0, 180], mode_centres >= 1")
 
 
 # ----------------------------------------------------------------------------- model
@@ -439,10 +490,59 @@ class ParticleFilter3d(ParticleFilter):
             st.rng.standard_normal(out=noise_z)
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
+        p3 = self.pose3d
+        if p3.heading_prior_deg > 0 and dt > 0:
+            heading_prior(
+                S, logw, dt / p3.heading_prior_time_s,
+                1.0 / math.radians(p3.heading_prior_deg) ** 2, p3.heading_prior_speed_mps,
+            )  # fmt: skip
         lse0, lse1 = packet_update3d(
             S, logw, work.noise, noise_z, dt, self._motion, mod.box_m, mod.tilt_rad, mod.z_box_m,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.arrays3d(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
             self._likelihood_parameter(sigma), pred, work.w,
         )  # fmt: skip
-        return self._finish_step(st, t_s, heard, key, pred, lse0, lse1)
+        est = self._finish_step(st, t_s, heard, key, pred, lse0, lse1)
+        if est is None or self.pose3d.estimate != "mode" or self.lag_s is not None:
+            return est  # (smoothing: the smoother's estimates take the mode, _emit)
+        work = self._buffers(st.particles.shape[0] if st.particles is not None else n)
+        return self._mode_estimate(work.rows, work.w, est)
+
+    # ------------------------------------------------------------------ estimates
+    def _mode_estimate(
+        self, rows: FloatArray, w: FloatArray, est: FilterEstimate
+    ) -> FilterEstimate:
+        """``est`` with its pose replaced by the main mode of the pose rows
+        ``rows`` weighted by ``w`` (:func:`~radiopose.filtering.kernels3d.mode_pose`);
+        its spread, offset and σ are kept."""
+        p3 = self.pose3d
+        out = np.empty(7)
+        mode_pose(
+            rows, w, p3.mode_centres, p3.mode_radius_m,
+            math.cos(math.radians(0.5 * p3.mode_radius_deg)), 2, out,
+        )  # fmt: skip
+        x, y, z, az, pitch, roll, _ = out.tolist()
+        return replace(
+            est,
+            position_m=(x, y, z),
+            orientation_deg=(math.degrees(az), math.degrees(pitch), math.degrees(roll)),
+        )
+
+    def _emit(self, st: FilterState, w: FloatArray, upto_s: float | None) -> None:
+        """The smoother's estimates (as :meth:`ParticleFilter._emit`), each
+        replaced by the main mode of its packet's ancestors under ``estimate =
+        "mode"``."""
+        lin = st.lineage
+        if self.pose3d.estimate != "mode" or lin is None:
+            super()._emit(st, w, upto_s)
+            return
+        moments = self._buffers(lin.n).lineage_moments
+        while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
+            k = lin.head
+            rows = lin.rows[k, : int(lin.n_rows[k])]
+            wa = np.bincount(lin.anc[k], weights=w, minlength=rows.shape[0])
+            _, key, causal = st.pending.popleft()
+            est = self._mode_estimate(rows, wa, causal)  # before the slot is reused
+            lin.pop_moments(w, moments)
+            # the spread, offset and σ are the filter's own at that packet (as in 2-D)
+            self._smoothed.append((key, est))
