@@ -137,6 +137,17 @@ class Pose3dConfig:
         counts once per ``τ`` of data, not once per packet.
     heading_prior_speed_mps
         Speed at which the coupling reaches half its strength, m/s.
+    offset_bank_db
+        Optional device-level power offset (empty: off): one member filter per
+        listed offset (dB from the offset prior's centre), each with
+        ``n_particles / len(offset_bank_db)`` particles and a tight offset
+        prior (``offset_bank_sd_db``) around its offset; the estimate is the
+        member with the largest marginal likelihood over the track so far
+        (its summed per-packet evidence, plus the device prior's
+        ``log N(b; 0, offset_prior_sd_db²)``). Members never exchange
+        particles, so each keeps searching its own poses.
+    offset_bank_sd_db
+        Offset prior σ within a member, dB.
     """
 
     n_particles: int = 2000
@@ -160,12 +171,14 @@ class Pose3dConfig:
     heading_prior_deg: float = 0.0
     heading_prior_time_s: float = 1.0
     heading_prior_speed_mps: float = 0.3
+    offset_bank_db: tuple[float, ...] = ()
+    offset_bank_sd_db: float = 1.5
 
     def __post_init__(self) -> None:
         for name in (
             "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
             "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
-            "heading_prior_time_s", "heading_prior_speed_mps",
+            "heading_prior_time_s", "heading_prior_speed_mps", "offset_bank_sd_db",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -181,6 +194,13 @@ class Pose3dConfig:
         if not (0 <= self.heading_prior_deg < math.inf):
             raise InputError(
                 f"3-D filter setting heading_prior_deg = {self.heading_prior_deg!r} must be >= 0"
+            )
+        if not all(math.isfinite(b) for b in self.offset_bank_db) or (
+            self.offset_bank_db and self.n_particles // len(self.offset_bank_db) < 10
+        ):
+            raise InputError(
+                f"3-D filter setting offset_bank_db = {self.offset_bank_db!r}: finite offsets, "
+                "at least 10 particles each"
             )
         if not (0 < self.mode_radius_deg <= 180 and self.mode_centres >= 1):
             raise InputError("3-D filter settings: mode_radius_deg in (0, 180], mode_centres >= 1")
@@ -343,6 +363,17 @@ class _NoScorer:
     """The 3-D filter scores its own coarse grid, never the site's scorer."""
 
 
+@dataclass(eq=False)
+class FilterState3d(FilterState):
+    """:class:`FilterState` with the offset bank (:attr:`Pose3dConfig.offset_bank_db`):
+    ``bank`` the members' states, ``bank_log_evidence`` their summed evidence;
+    ``last_log_evidence`` the log evidence of this state's last packet."""
+
+    bank: list[FilterState3d] = field(default_factory=list)
+    bank_log_evidence: FloatArray = field(default_factory=lambda: np.zeros(0))
+    last_log_evidence: float = 0.0
+
+
 class ParticleFilter3d(ParticleFilter):
     """The 3-D filter for one device (see the module docstring).
 
@@ -386,6 +417,76 @@ class ParticleFilter3d(ParticleFilter):
                 self.pose3d.height_noise_mps,
             ]
         )
+        bank = self.pose3d.offset_bank_db
+        member = replace(
+            self.pose3d, offset_bank_db=(), n_particles=self.pose3d.n_particles // max(len(bank), 1)
+        )
+        member_cfg = replace(config, offset_prior_sd_db=self.pose3d.offset_bank_sd_db)
+        self._members = [ParticleFilter3d(model, member_cfg, lag_s, member) for _ in bank]
+
+    def new_state(self, seed: int = 0) -> FilterState3d:
+        base = super().new_state(seed)
+        st = FilterState3d(**{f: getattr(base, f) for f in FilterState.__dataclass_fields__})
+        if self._members:
+            seeds = np.random.SeedSequence(seed).spawn(len(self._members))
+            st.bank = [
+                m.new_state(int(s.generate_state(1, np.uint64)[0] >> np.uint64(1)))
+                for m, s in zip(self._members, seeds, strict=True)
+            ]
+            for b, ms in zip(self.pose3d.offset_bank_db, st.bank, strict=True):
+                ms.offset_prior_db = st.offset_prior_db + b
+            sd = self.config.offset_prior_sd_db
+            st.bank_log_evidence = np.array(
+                [-0.5 * (b / sd) ** 2 for b in self.pose3d.offset_bank_db]
+            )
+        return st
+
+    # ------------------------------------------------------------------ offset bank
+    def _best_member(self, st: FilterState3d) -> int:
+        return int(np.argmax(st.bank_log_evidence))
+
+    def _bank_step(
+        self, st: FilterState3d, t_s: float, heard: HeardRss, key: object
+    ) -> FilterEstimate | None:
+        """One packet through every member; the estimate (and the smoothed ones
+        emitted now) of the member with the largest marginal likelihood."""
+        ests = []
+        for j, (m, ms) in enumerate(zip(self._members, st.bank, strict=True)):
+            ms.last_log_evidence = 0.0
+            ests.append(m.step(ms, t_s, heard, key))
+            st.bank_log_evidence[j] += ms.last_log_evidence
+        st.last_time_s = t_s
+        self._take_bank_smoothed(st)
+        return ests[self._best_member(st)]
+
+    def _take_bank_smoothed(self, st: FilterState3d) -> None:
+        """The members emit the same packets (they see the same ones): the best
+        member's smoothed estimates are this filter's."""
+        emitted = [m.take_smoothed() for m in self._members]
+        self._smoothed.extend(emitted[self._best_member(st)])
+
+    def flush(self, st: FilterState) -> None:
+        """Emit every pending smoothed estimate (end of the data)."""
+        if isinstance(st, FilterState3d) and self._members:
+            for m, ms in zip(self._members, st.bank, strict=True):
+                m.flush(ms)
+            self._take_bank_smoothed(st)
+            return
+        super().flush(st)
+
+    def _finish_step(
+        self,
+        st: FilterState,
+        t_s: float,
+        heard: HeardRss,
+        key: object,
+        pred: FloatArray,
+        lse0: float,
+        lse1: float,
+    ) -> FilterEstimate | None:
+        if isinstance(st, FilterState3d) and math.isfinite(lse1):
+            st.last_log_evidence += lse1 - lse0
+        return super()._finish_step(st, t_s, heard, key, pred, lse0, lse1)
 
     # ------------------------------------------------------------------ acquisition
     def _draw(
@@ -475,6 +576,8 @@ class ParticleFilter3d(ParticleFilter):
         self, st: FilterState, t_s: float, heard: HeardRss, key: object = None
     ) -> FilterEstimate | None:
         """Process one packet (as :meth:`ParticleFilter.step`, with the 3-D kernels)."""
+        if self._members and isinstance(st, FilterState3d):
+            return self._bank_step(st, t_s, heard, key)
         mod = self.model3d
         dt_s = self._advance_clock(st, t_s, heard)
         if dt_s is None:
@@ -540,7 +643,7 @@ class ParticleFilter3d(ParticleFilter):
         while st.pending and (upto_s is None or st.pending[0][0] <= upto_s):
             k = lin.head
             rows = lin.rows[k, : int(lin.n_rows[k])]
-            wa = np.bincount(lin.anc[k], weights=w, minlength=rows.shape[0])
+            wa = np.bincount(lin.anc[k], weights=w, minlength=rows.shape[0]).astype(np.float64)
             _, key, causal = st.pending.popleft()
             est = self._mode_estimate(rows, wa, causal)  # before the slot is reused
             lin.pop_moments(w, moments)
