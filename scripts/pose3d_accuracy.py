@@ -16,12 +16,16 @@ The standard row is the 3-D filter with its defaults (``Pose3dConfig()``).
 ``--heading-prior-deg X`` adds, per (receivers, σ), a clearly labelled extra
 row with the optional hand-held heading prior (the phone's top follows the
 walking direction within X°; docs/pose3d.md), on the same seeds.
+``--power-error-db E`` adds a row where ``devices.csv`` understates the
+phone's transmit power by ``E`` dB (the same simulation; only the site's
+enrolled power is changed): the filter's offset handling away from the
+simulation's exact power.
 
 Usage::
 
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
-        [--heading-prior-deg 30] [--out FILE.md]
+        [--heading-prior-deg 30] [--power-error-db 4] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -50,11 +54,18 @@ def run_one(
     causal: bool,
     offset_sd_db: float,
     pose3d: dict[str, Any] | None = None,
+    power_error_db: float = 0.0,
 ) -> AxisErrors:
     """One run's errors; ``pose3d`` overrides :class:`Pose3dConfig`'s defaults
-    (a variant row) for the registry's ``filter`` method."""
+    (a variant row) for the registry's ``filter`` method; ``power_error_db``
+    lowers the site's enrolled transmit power below the simulated one."""
     cfg = replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma_db, duration_s=duration_s)
     sim = simulate_handheld(cfg, seed=seed)
+    if power_error_db:
+        site = sim.site
+        devices = tuple(replace(d, tx_power_dbm=d.tx_power_dbm - power_error_db)
+                        for d in site.devices)  # fmt: skip
+        sim = replace(sim, site=replace(site, devices=devices))
     tcfg = TrackerConfig(smoothing_lag_s=None) if causal else TrackerConfig()
     tcfg = replace(tcfg, filter=replace(tcfg.filter, offset_prior_sd_db=offset_sd_db))
     if not pose3d:
@@ -96,6 +107,12 @@ def main(argv: list[str] | None = None) -> int:
         default=0.0,
         help="also run each condition with the hand-held heading prior at this spread (0: no)",
     )
+    ap.add_argument(
+        "--power-error-db",
+        type=float,
+        default=0.0,
+        help="also run each condition with devices.csv's power this many dB too low (0: no)",
+    )
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -104,20 +121,19 @@ def main(argv: list[str] | None = None) -> int:
         "pitch ° | roll ° | worst run: position m / rotation ° |"
     )
     lines = [head, "|" + "---|" * 11]
-    variants: list[tuple[str, dict[str, Any]]] = [("standard", {})]
+    variants: list[tuple[str, dict[str, Any], float]] = [("standard", {}, 0.0)]
     if args.heading_prior_deg > 0:
         h = args.heading_prior_deg
-        variants.append((f"+ heading prior {h:g}°", {"heading_prior_deg": h}))
+        variants.append((f"+ heading prior {h:g}°", {"heading_prior_deg": h}, 0.0))
+    if args.power_error_db:
+        e = args.power_error_db
+        variants.append((f"devices.csv power {e:g} dB low", {}, e))
     t0 = time.time()
     for n_rx in args.receivers:
         for sigma in args.sigmas:
-            for label, p3 in variants:
-                runs = [
-                    run_one(
-                        n_rx, sigma, s, args.duration_s, args.causal, args.offset_prior_sd_db, p3
-                    )
-                    for s in seeds
-                ]
+            for label, p3, err in variants:
+                args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err)
+                runs = [run_one(n_rx, sigma, s, *args_one) for s in seeds]
                 p = pooled(runs)
                 lines.append(
                     f"| {n_rx} | {sigma:g} | {label} | {p['position_m']:.2f} | "
