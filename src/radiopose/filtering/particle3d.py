@@ -171,7 +171,7 @@ class Pose3dConfig:
     heading_prior_deg: float = 0.0
     heading_prior_time_s: float = 1.0
     heading_prior_speed_mps: float = 0.3
-    offset_bank_db: tuple[float, ...] = ()
+    offset_bank_db: tuple[float, ...] = (-6.0, -3.0, 0.0, 3.0, 6.0)
     offset_bank_sd_db: float = 1.5
 
     def __post_init__(self) -> None:
