@@ -28,9 +28,17 @@ Beyond the paper (docs/pose3d.md). The state, likelihood, power-offset belief,
   shrinking jitter. The per-packet cost is then that of the 2-D filter (the
   expected RSS per particle and receiver, plus the height correction).
 
+* **Device-level power offset** (the offset bank, on by default): one
+  member filter per offset hypothesis (``offset_bank_db``, each with a tight
+  offset prior and its share of the particles); the members never exchange
+  particles, and the estimate is that of the member with the largest
+  marginal likelihood over the track (:class:`FilterState3d`).
+
 Estimates: weighted mean position (height included), circular mean azimuth
 and roll and mean pitch (the 2-D filter's summary, valid away from pitch
-±90°, which hand-held motion does not reach).
+±90°, which hand-held motion does not reach), or the posterior's main mode
+(``estimate = "mode"``). An optional hand-held heading prior couples azimuth
+and walking direction (``heading_prior_deg``; off by default).
 """
 
 from __future__ import annotations
