@@ -6,7 +6,7 @@ phone pattern, a packet every 5 ms), the registry's ``filter`` method through
 ``radiopose.tracker.locate`` (offline: the fixed-lag smoother, 1 s lag;
 ``--causal`` for the causal filter), σ told to nobody. Held-out seeds that no
 test uses and that were not used for tuning (default 1100–1109; tuning used
-7100–7111).
+7100–7119).
 
 Per (receivers, σ): errors pooled over runs — mean 3-D position error, mean
 rotation-angle error (the contract's orientation score), coverage — and the
