@@ -446,3 +446,35 @@ def test_offset_bank_picks_the_member_the_data_favour(static_sim):
     assert pos_m < POS_BOUND_M and rot_deg < ROT_BOUND_DEG
     pos_m, rot_deg = errors(wrong)
     assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
+
+
+# ------------------------------------------------------------------- heading prior, settings
+def test_heading_prior_penalises_a_phone_not_facing_its_walk():
+    """Walking along +x (walking azimuth −90°: the top, body +y, points along
+    the velocity): a particle facing its walk keeps its weight, one turned 90°
+    loses ``weight · κ · v²/(v² + v0²)``, one at rest nothing."""
+    from radiopose.filtering.kernels3d import heading_prior
+
+    S = _particles([-90.0, 0.0, 0.0], [40.0] * 3, [0.0] * 3)
+    S[:2, K.VX_MPS] = 1.0  # the third stands still
+    logw = np.zeros(3)
+    kappa = 1.0 / math.radians(30.0) ** 2
+    heading_prior(S, logw, 0.5, kappa, 0.3)
+    assert logw[0] == pytest.approx(0.0, abs=1e-12)
+    assert logw[1] == pytest.approx(-0.5 * kappa * 1.0 / (1.0 + 0.09))
+    assert logw[2] == 0.0
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"estimate": "median"}, "estimate"),
+        ({"offset_bank_db": (0.0, math.nan)}, "offset_bank_db"),
+        ({"offset_bank_db": tuple(range(300))}, "offset_bank_db"),
+        ({"heading_prior_deg": -1.0}, "heading_prior_deg"),
+        ({"offset_bank_sd_db": 0.0}, "offset_bank_sd_db"),
+    ],
+)
+def test_bad_pose3d_settings_are_one_line_errors(changes, match):
+    with pytest.raises(InputError, match=match):
+        Pose3dConfig(**changes)
