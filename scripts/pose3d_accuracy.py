@@ -6,16 +6,26 @@ phone pattern, a packet every 5 ms), the registry's ``filter`` method through
 ``radiopose.tracker.locate`` (offline: the fixed-lag smoother, 1 s lag;
 ``--causal`` for the causal filter), σ told to nobody. Held-out seeds that no
 test uses and that were not used for tuning (default 1100–1109; tuning used
-7100–7111).
+7100–7119).
 
 Per (receivers, σ): errors pooled over runs — mean 3-D position error, mean
 rotation-angle error (the contract's orientation score), coverage — and the
 per-axis means (height, azimuth, pitch, roll; :mod:`radiopose.evaluate.pose3d`).
 
+The standard row is the 3-D filter with its defaults (``Pose3dConfig()``).
+``--heading-prior-deg X`` adds, per (receivers, σ), a clearly labelled extra
+row with the optional hand-held heading prior (the phone's top follows the
+walking direction within X°; docs/pose3d.md), on the same seeds.
+``--power-error-db E`` adds a row where ``devices.csv`` understates the
+phone's transmit power by ``E`` dB (the same simulation; only the site's
+enrolled power is changed): the filter's offset handling away from the
+simulation's exact power.
+
 Usage::
 
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
-        [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6] [--out FILE.md]
+        [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
+        [--heading-prior-deg 30] [--power-error-db 4] [--out FILE.md]
 """
 
 from __future__ import annotations
@@ -25,23 +35,45 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
+from unittest import mock
 
 import numpy as np
 
 from radiopose.evaluate.pose3d import AxisErrors, axis_errors
-from radiopose.filtering import FilterConfig
+from radiopose.filtering import FilterConfig, particle3d
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 
 
 def run_one(
-    n_rx: int, sigma_db: float, seed: int, duration_s: float, causal: bool, offset_sd_db: float
+    n_rx: int,
+    sigma_db: float,
+    seed: int,
+    duration_s: float,
+    causal: bool,
+    offset_sd_db: float,
+    pose3d: dict[str, Any] | None = None,
+    power_error_db: float = 0.0,
 ) -> AxisErrors:
+    """One run's errors; ``pose3d`` overrides :class:`Pose3dConfig`'s defaults
+    (a variant row) for the registry's ``filter`` method; ``power_error_db``
+    lowers the site's enrolled transmit power below the simulated one."""
     cfg = replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma_db, duration_s=duration_s)
     sim = simulate_handheld(cfg, seed=seed)
+    if power_error_db:
+        site = sim.site
+        devices = tuple(replace(d, tx_power_dbm=d.tx_power_dbm - power_error_db)
+                        for d in site.devices)  # fmt: skip
+        sim = replace(sim, site=replace(site, devices=devices))
     tcfg = TrackerConfig(smoothing_lag_s=None) if causal else TrackerConfig()
     tcfg = replace(tcfg, filter=replace(tcfg.filter, offset_prior_sd_db=offset_sd_db))
-    res = locate(sim.site, sim.packets, "filter", tcfg)
+    if not pose3d:
+        res = locate(sim.site, sim.packets, "filter", tcfg)
+    else:
+        p3 = particle3d.Pose3dConfig(**pose3d)
+        with mock.patch.object(particle3d, "Pose3dConfig", lambda: p3):
+            res = locate(sim.site, sim.packets, "filter", tcfg)
     return axis_errors(sim.truth, res.estimates)
 
 
@@ -69,29 +101,48 @@ def main(argv: list[str] | None = None) -> int:
         default=FilterConfig().offset_prior_sd_db,
         help="prior σ of the transmit-power offset (default: the filter's)",
     )
+    ap.add_argument(
+        "--heading-prior-deg",
+        type=float,
+        default=0.0,
+        help="also run each condition with the hand-held heading prior at this spread (0: no)",
+    )
+    ap.add_argument(
+        "--power-error-db",
+        type=float,
+        default=0.0,
+        help="also run each condition with devices.csv's power this many dB too low (0: no)",
+    )
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args(argv)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     head = (
-        "| receivers | σ dB | position m | rotation ° | coverage | height m | azimuth ° | "
+        "| receivers | σ dB | filter | position m | rotation ° | coverage | height m | azimuth ° | "
         "pitch ° | roll ° | worst run: position m / rotation ° |"
     )
-    lines = [head, "|" + "---|" * 10]
+    lines = [head, "|" + "---|" * 11]
+    variants: list[tuple[str, dict[str, Any], float]] = [("standard", {}, 0.0)]
+    if args.heading_prior_deg > 0:
+        h = args.heading_prior_deg
+        variants.append((f"+ heading prior {h:g}°", {"heading_prior_deg": h}, 0.0))
+    if args.power_error_db:
+        e = args.power_error_db
+        variants.append((f"devices.csv power {e:g} dB low", {}, e))
     t0 = time.time()
     for n_rx in args.receivers:
         for sigma in args.sigmas:
-            runs = [
-                run_one(n_rx, sigma, s, args.duration_s, args.causal, args.offset_prior_sd_db)
-                for s in seeds
-            ]
-            p = pooled(runs)
-            lines.append(
-                f"| {n_rx} | {sigma:g} | {p['position_m']:.2f} | {p['rotation_deg']:.1f} | "
-                f"{100 * p['coverage']:.1f} % | {p['height_m']:.2f} | {p['azimuth_deg']:.1f} | "
-                f"{p['pitch_deg']:.1f} | {p['roll_deg']:.1f} | "
-                f"{p['worst_run_position_m']:.2f} / {p['worst_run_rotation_deg']:.1f} |"
-            )
-            print(lines[-1], flush=True)
+            for label, p3, err in variants:
+                args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err)
+                runs = [run_one(n_rx, sigma, s, *args_one) for s in seeds]
+                p = pooled(runs)
+                lines.append(
+                    f"| {n_rx} | {sigma:g} | {label} | {p['position_m']:.2f} | "
+                    f"{p['rotation_deg']:.1f} | "
+                    f"{100 * p['coverage']:.1f} % | {p['height_m']:.2f} | {p['azimuth_deg']:.1f} | "
+                    f"{p['pitch_deg']:.1f} | {p['roll_deg']:.1f} | "
+                    f"{p['worst_run_position_m']:.2f} / {p['worst_run_rotation_deg']:.1f} |"
+                )
+                print(lines[-1], flush=True)
     mode = "causal filter" if args.causal else "offline (fixed-lag smoother, 1 s)"
     mode += f", offset prior σ {args.offset_prior_sd_db:g} dB"
     text = "\n".join(

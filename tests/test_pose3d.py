@@ -343,3 +343,138 @@ def test_axis_errors():
                     np.array(["filter"], dtype=object))  # fmt: skip
     got = axis_errors(truth, est)
     assert got.coverage == 0.5 and got.height_m[0] == pytest.approx(0.3)
+
+
+# ----------------------------------------------------------------------------- the mode estimate
+def _rows(pos_m: np.ndarray, ori_deg: np.ndarray) -> np.ndarray:
+    """Pose rows (x, y, z, cos a, sin a, pitch, cos r, sin r) of poses."""
+    a, p, r = np.deg2rad(ori_deg).T
+    return np.column_stack([pos_m, np.cos(a), np.sin(a), p, np.cos(r), np.sin(r)])
+
+
+def _mode(rows: np.ndarray, w: np.ndarray, radius_deg: float = 30.0) -> np.ndarray:
+    from radiopose.filtering.kernels3d import mode_pose
+
+    out = np.empty(7)
+    mode_pose(rows, w, 32, 1.0, math.cos(math.radians(0.5 * radius_deg)), 2, out)
+    return out
+
+
+def test_mode_of_one_pose_is_that_pose():
+    """The matrix → (azimuth, pitch, roll) conversion inverts the contract's
+    ``R = Rz(a)·Rx(p)·Ry(r)`` (azimuth and roll in [0, 360), pitch in [−90, 90])."""
+    rng = np.random.default_rng(77)
+    for _ in range(20):
+        ori = rng.uniform([0.0, -85.0, -180.0], [360.0, 85.0, 180.0])
+        out = _mode(_rows(np.array([[1.0, 2.0, 1.2]]), ori[None, :]), np.ones(1))
+        np.testing.assert_allclose(out[:3], [1.0, 2.0, 1.2])
+        got = np.degrees(out[3:6])
+        assert relative_rotation_angle_deg(got, ori)[0] < 1e-6
+        assert 0.0 <= got[0] < 360.0 and 0.0 <= got[2] < 360.0 and out[6] == 1.0
+
+
+def test_mode_takes_the_heavier_of_two_modes():
+    """A bimodal cloud (60 % at one pose, 40 % at a pose 180° of azimuth and 40°
+    of roll away, 0.5 m apart): the per-axis mean lands between the modes, the
+    mode estimate on the heavier one, its rotation the chordal mean of that
+    mode's rotations (scipy's ``Rotation.mean``)."""
+    rng = np.random.default_rng(5)
+    n_a, n_b = 600, 400
+    ori_a = np.array([30.0, 40.0, 20.0]) + rng.normal(0.0, 4.0, (n_a, 3))
+    ori_b = np.array([210.0, 40.0, -20.0]) + rng.normal(0.0, 4.0, (n_b, 3))
+    pos = np.concatenate([rng.normal([5.0, 5.0, 1.2], 0.1, (n_a, 3)),
+                          rng.normal([5.5, 5.0, 1.2], 0.1, (n_b, 3))])  # fmt: skip
+    ori = np.concatenate([ori_a, ori_b])
+    w = rng.uniform(0.5, 1.5, n_a + n_b)
+    out = _mode(_rows(pos, ori), w)
+    assert out[6] == pytest.approx(w[:n_a].sum() / w.sum())
+    np.testing.assert_allclose(out[:3], np.average(pos[:n_a], axis=0, weights=w[:n_a]))
+    want = Rotation.from_euler("ZXY", ori_a, degrees=True).mean(weights=w[:n_a])
+    got = Rotation.from_euler("ZXY", np.degrees(out[3:6]), degrees=True)
+    assert (want.inv() * got).magnitude() < 1e-6
+    # the per-axis mean (circular azimuth and roll, linear pitch) lands between
+    a, p, r = np.deg2rad(ori).T
+    mean = [math.degrees(math.atan2(np.sum(w * np.sin(a)), np.sum(w * np.cos(a)))),
+            math.degrees(np.sum(w * p) / w.sum()),
+            math.degrees(math.atan2(np.sum(w * np.sin(r)), np.sum(w * np.cos(r))))]  # fmt: skip
+    truth_a = [30.0, 40.0, 20.0]
+    assert relative_rotation_angle_deg(mean, truth_a)[0] > 10.0  # 15.6°: roll pulled to 4°
+    assert relative_rotation_angle_deg(np.degrees(out[3:6]), truth_a)[0] < 2.0
+
+
+# ----------------------------------------------------------------------------- the offset bank
+def test_offset_bank_picks_the_member_the_data_favour(static_sim):
+    """Members at −8, 0 and +8 dB (σ 1 dB each) on the noise-free static scene
+    (true offset 0): the 0 dB member has the largest marginal likelihood by far,
+    its estimate is the filter's and meets the bound; the −8 dB member's own
+    estimate does not (so picking the member matters)."""
+    from radiopose.filtering.particle3d import FilterState3d
+
+    site = static_sim.site
+    p3 = Pose3dConfig(offset_bank_db=(-8.0, 0.0, 8.0), offset_bank_sd_db=1.0, n_particles=6000)
+    model = FilterModel3d.build3d(site, candidate_space(site, site.devices[0].transmitter), p3)
+    pf = ParticleFilter3d(model, FilterConfig(), None, p3)
+    st = pf.new_state(3)
+    assert isinstance(st, FilterState3d) and len(st.bank) == 3
+    assert [m.offset_prior_db for m in st.bank] == [-8.0, 0.0, 8.0]
+    # the −8 dB member on its own
+    alone = ParticleFilter3d(
+        model, replace(FilterConfig(), offset_prior_sd_db=1.0), None,
+        replace(p3, offset_bank_db=(), n_particles=2000),
+    )  # fmt: skip
+    st_alone = alone.new_state(3)
+    st_alone.offset_prior_db = -8.0
+    ids = list(site.receiver_ids)
+    picked, wrong = [], []
+    for o in group_packets(static_sim.packets):
+        idx = np.array([ids.index(r) for r in o.receiver_ids])
+        heard = HeardRss(idx, np.asarray(o.rss_dbm, float))
+        picked.append(pf.step(st, o.timestamp_s, heard))
+        wrong.append(alone.step(st_alone, o.timestamp_s, heard))
+    ev = st.bank_log_evidence
+    assert int(np.argmax(ev)) == 1 and ev[1] - max(ev[0], ev[2]) > 50.0
+    half = len(picked) // 2
+    truth = static_sim.truth
+
+    def errors(ests):
+        pos = np.array([e.position_m for e in ests])[half:]
+        ori = np.array([e.orientation_deg for e in ests])[half:]
+        pe = np.linalg.norm(pos - truth.position_m[half:], axis=1).mean()
+        return pe, relative_rotation_angle_deg(ori, truth.orientation_deg[half:]).mean()
+
+    pos_m, rot_deg = errors(picked)
+    assert pos_m < POS_BOUND_M and rot_deg < ROT_BOUND_DEG
+    pos_m, rot_deg = errors(wrong)
+    assert pos_m >= POS_BOUND_M or rot_deg >= ROT_BOUND_DEG
+
+
+# ------------------------------------------------------------------- heading prior, settings
+def test_heading_prior_penalises_a_phone_not_facing_its_walk():
+    """Walking along +x (walking azimuth −90°: the top, body +y, points along
+    the velocity): a particle facing its walk keeps its weight, one turned 90°
+    loses ``weight · κ · v²/(v² + v0²)``, one at rest nothing."""
+    from radiopose.filtering.kernels3d import heading_prior
+
+    S = _particles([-90.0, 0.0, 0.0], [40.0] * 3, [0.0] * 3)
+    S[:2, K.VX_MPS] = 1.0  # the third stands still
+    logw = np.zeros(3)
+    kappa = 1.0 / math.radians(30.0) ** 2
+    heading_prior(S, logw, 0.5, kappa, 0.3)
+    assert logw[0] == pytest.approx(0.0, abs=1e-12)
+    assert logw[1] == pytest.approx(-0.5 * kappa * 1.0 / (1.0 + 0.09))
+    assert logw[2] == 0.0
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"estimate": "median"}, "estimate"),
+        ({"offset_bank_db": (0.0, math.nan)}, "offset_bank_db"),
+        ({"offset_bank_db": tuple(range(300))}, "offset_bank_db"),
+        ({"heading_prior_deg": -1.0}, "heading_prior_deg"),
+        ({"offset_bank_sd_db": 0.0}, "offset_bank_sd_db"),
+    ],
+)
+def test_bad_pose3d_settings_are_one_line_errors(changes, match):
+    with pytest.raises(InputError, match=match):
+        Pose3dConfig(**changes)

@@ -163,10 +163,14 @@ def test_real_data(tmp_path: Path) -> None:
 
 def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
-    printed = _run(SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3"], capsys)
+    variants = ["--heading-prior-deg", "30", "--power-error-db", "4"]
+    printed = _run(
+        SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3", *variants], capsys
+    )
     rows = _table_rows(printed)
     assert any(r.startswith("| receivers |") for r in rows)
-    assert any(r.startswith("| 6 | 1 |") for r in rows)
+    for label in ("standard", "+ heading prior 30°", "devices.csv power 4 dB low"):
+        assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 
 
 def test_live_pose3d(capsys: pytest.CaptureFixture[str]) -> None:

@@ -180,3 +180,169 @@ def coarse_costs(table, heard, rss, sigma_db, prior_db, prior_sd_db, out):  # pr
         for q in range(h):
             c += (e[q] - b) ** 2
         out[i] = 0.5 * lam * c + 0.5 * lam0 * (b - prior_db) ** 2
+
+
+@numba.njit(cache=True)
+def _row_rotation(rows, i, out):  # pragma: no cover - compiled
+    """``R = Rz(a)·Rx(p)·Ry(r)`` of pose row ``i`` (:data:`kernels.POSE_ROW`) into ``out[:9]``."""
+    ca, sa = rows[i, 3], rows[i, 4]
+    na = math.hypot(ca, sa)
+    if na > 0.0:
+        ca, sa = ca / na, sa / na
+    else:
+        ca, sa = 1.0, 0.0
+    cr, sr = rows[i, 6], rows[i, 7]
+    nr = math.hypot(cr, sr)
+    if nr > 0.0:
+        cr, sr = cr / nr, sr / nr
+    else:
+        cr, sr = 1.0, 0.0
+    p = rows[i, 5]
+    r = K.body_rotation(ca, sa, math.cos(p), math.sin(p), cr, sr)
+    for c in range(9):
+        out[c] = r[c]
+
+
+@numba.njit(cache=True)
+def mode_pose(rows, w, n_centres, radius_m, cos_half_radius, iterations, out):  # pragma: no cover
+    """The posterior's main mode from weighted pose rows, into ``out`` ``(7,)``.
+
+    ``rows`` ``(n, POSE_ROW)`` (x, y, z, cos a, sin a, pitch, cos r, sin r) with
+    weights ``w`` ``(n,)`` (any non-negative scale). Candidate centres are
+    ``n_centres`` rows drawn systematically by weight (fixed phase ½: no random
+    numbers are used); a centre's mass is the weight of the rows within
+    ``radius_m`` of its position and within a rotation angle θ of its rotation,
+    ``cos(θ/2) ≥ cos_half_radius`` (``tr(RcᵀR) ≥ 4 cos²(θ/2) − 1``). From the
+    heaviest centre, ``iterations`` mean-shift steps: the weighted mean position
+    of its members and the chordal L2 mean of their rotations (the weighted sum
+    of the matrices projected onto SO(3) by an SVD), then the members again
+    around that mean.
+
+    ``out`` = ``[x, y, z, azimuth, pitch, roll, mass]`` (m, radians with azimuth
+    and roll in ``[0, 2π)``, pitch in ``[−π/2, π/2]``; ``mass`` the members'
+    share of the total weight).
+    """
+    n = rows.shape[0]
+    total = 0.0
+    for i in range(n):
+        total += w[i]
+    rot = np.empty((n, 9))
+    for i in range(n):
+        if w[i] > 0.0:
+            _row_rotation(rows, i, rot[i])
+    r2 = radius_m * radius_m
+    tr_min = 4.0 * cos_half_radius * cos_half_radius - 1.0
+    # systematic draw of the centres (fixed phase)
+    centres = np.empty(n_centres, np.int64)
+    step = total / n_centres
+    u = 0.5 * step
+    acc = 0.0
+    j = 0
+    for i in range(n):
+        if w[i] <= 0.0:
+            continue
+        acc += w[i]
+        while j < n_centres and u < acc:
+            centres[j] = i
+            j += 1
+            u += step
+    last = n - 1
+    while last > 0 and w[last] <= 0.0:
+        last -= 1
+    while j < n_centres:
+        centres[j] = last
+        j += 1
+    best_mass = -1.0
+    best = 0
+    for q in range(n_centres):
+        c = centres[q]
+        if q > 0 and c == centres[q - 1]:
+            continue
+        mass = 0.0
+        for i in range(n):
+            if w[i] <= 0.0:
+                continue
+            dx = rows[i, 0] - rows[c, 0]
+            dy = rows[i, 1] - rows[c, 1]
+            dz = rows[i, 2] - rows[c, 2]
+            if dx * dx + dy * dy + dz * dz > r2:
+                continue
+            tr = 0.0
+            for e in range(9):
+                tr += rot[c, e] * rot[i, e]
+            if tr >= tr_min:
+                mass += w[i]
+        if mass > best_mass:
+            best_mass = mass
+            best = c
+    cx, cy, cz = rows[best, 0], rows[best, 1], rows[best, 2]
+    cr = rot[best].copy()
+    mass = 0.0
+    for _ in range(max(iterations, 1)):
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        mass = 0.0
+        msum = np.zeros((3, 3))
+        for i in range(n):
+            if w[i] <= 0.0:
+                continue
+            dx = rows[i, 0] - cx
+            dy = rows[i, 1] - cy
+            dz = rows[i, 2] - cz
+            if dx * dx + dy * dy + dz * dz > r2:
+                continue
+            tr = 0.0
+            for e in range(9):
+                tr += cr[e] * rot[i, e]
+            if tr < tr_min:
+                continue
+            wi = w[i]
+            mass += wi
+            sx += wi * rows[i, 0]
+            sy += wi * rows[i, 1]
+            sz += wi * rows[i, 2]
+            for e in range(9):
+                msum[e // 3, e % 3] += wi * rot[i, e]
+        if mass <= 0.0:
+            break
+        cx, cy, cz = sx / mass, sy / mass, sz / mass
+        u_, _, vt = np.linalg.svd(msum)
+        rm = u_ @ vt
+        if np.linalg.det(rm) < 0.0:
+            for a in range(3):
+                u_[a, 2] = -u_[a, 2]
+            rm = u_ @ vt
+        for e in range(9):
+            cr[e] = rm[e // 3, e % 3]
+    # R = Rz(a)·Rx(p)·Ry(r): row z = (−cp sr, sp, cp cr), column y = (−sa cp, ca cp, sp)
+    out[0] = cx
+    out[1] = cy
+    out[2] = cz
+    out[3] = math.atan2(-cr[1], cr[4]) % _TWO_PI
+    out[4] = math.asin(min(max(cr[7], -1.0), 1.0))
+    out[5] = math.atan2(-cr[6], cr[8]) % _TWO_PI
+    out[6] = mass / total if total > 0.0 else 0.0
+
+
+@numba.njit(cache=True)
+def heading_prior(S, logw, weight, kappa, v0_mps):  # pragma: no cover - compiled
+    """Add the hand-held heading prior to ``logw`` in place.
+
+    ``weight · κ · g(v) · (cos Δ − 1)`` per particle, ``Δ`` the angle between
+    its azimuth and its walking direction (the azimuth that points the body
+    ``+y``, the phone's top, along the velocity: ``atan2(vy, vx) − π/2``),
+    ``g(v) = v² / (v² + v0²)`` (no coupling at rest), ``κ`` the von Mises
+    concentration and ``weight`` the fraction of the prior's correlation time
+    that the step covers (``dt / τ``).
+    """
+    half_pi = 0.5 * math.pi
+    v02 = v0_mps * v0_mps
+    for i in range(S.shape[0]):
+        vx = S[i, K.VX_MPS]
+        vy = S[i, K.VY_MPS]
+        v2 = vx * vx + vy * vy
+        if v2 == 0.0:
+            continue
+        walk = math.atan2(vy, vx) - half_pi
+        logw[i] += weight * kappa * (v2 / (v2 + v02)) * (math.cos(S[i, K.AZIMUTH_RAD] - walk) - 1.0)
