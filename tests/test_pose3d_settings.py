@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from radiopose.errors import InputError
@@ -57,7 +57,8 @@ def test_the_ranges_name_fields_and_admit_the_defaults():
     assert set(POSE3D_RANGES) <= set(FIELDS)
     for name, (lo, hi) in POSE3D_RANGES.items():
         default = getattr(Pose3dConfig(), name)
-        assert lo <= default <= hi, name
+        values = default if isinstance(default, tuple) else (default,)
+        assert all(lo <= v <= hi for v in values), name
 
 
 def test_a_field_without_a_row_is_read_as_a_positive_number(tmp_path: Path, monkeypatch):
@@ -75,24 +76,36 @@ def test_a_field_without_a_row_is_read_as_a_positive_number(tmp_path: Path, monk
         read_tracker_settings(p)
 
 
-def _value(name: str) -> st.SearchStrategy[float | int]:
+def _value(name: str) -> st.SearchStrategy[float | int | tuple[float, ...]]:
     lo, hi = POSE3D_RANGES[name]
+    if (
+        FIELDS[name] is tuple
+    ):  # the offset bank: a few distinct offsets (at most 5 of 2,000 particles)
+        item = st.floats(lo, hi, allow_nan=False, allow_infinity=False)
+        return st.lists(item, max_size=5, unique=True).map(tuple)
     if FIELDS[name] is int:
         return st.integers(int(lo), int(min(hi, 10**7)))
     return st.floats(lo, hi, exclude_min=True, allow_nan=False, allow_infinity=False)
 
 
 @st.composite
-def _overrides(draw: st.DrawFn) -> dict[str, float | int]:
+def _overrides(draw: st.DrawFn) -> dict[str, float | int | tuple[float, ...]]:
     names = draw(st.lists(st.sampled_from(sorted(POSE3D_RANGES)), unique=True))
-    return {n: draw(_value(n)) for n in names}
+    out = {n: draw(_value(n)) for n in names}
+    try:  # keys valid one by one can still clash (a small n_particles for a 5-member bank)
+        replace(Pose3dConfig(), **out)
+    except InputError:
+        assume(False)
+    return out
 
 
 @settings(
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
 )
 @given(pose3d=_overrides(), lag=st.none() | st.floats(0.0, 3600.0))
-def test_round_trip(tmp_path: Path, pose3d: dict[str, float | int], lag: float | None):
+def test_round_trip(
+    tmp_path: Path, pose3d: dict[str, float | int | tuple[float, ...]], lag: float | None
+):
     p = tmp_path / "tracker.toml"
     write_tracker_toml(p, {"huber_c": 1.5}, lag, "written by a test", pose3d=pose3d)
     s = read_tracker_settings(p)
@@ -150,7 +163,26 @@ BAD = [
     ("acquisition_azimuth_step_deg = 400.0", 3, "acquisition_azimuth_step_deg", "out of range"),
     ('acquisition_sigma_db = "3"', 3, "acquisition_sigma_db", "expected a number"),
     ("tilt_noise_dps = [1.0]", 3, "tilt_noise_dps", "expected a number"),
+    ('estimate = "median"', 3, "estimate", "expected one of"),
+    ("estimate = 1", 3, "estimate", "expected a non-empty string"),
+    ("heading_prior_deg = -1.0", 3, "heading_prior_deg", "out of range"),
+    ("offset_bank_db = 3.0", 3, "offset_bank_db", "write [3.0]"),
+    ("offset_bank_db = [0.0, nan]", 3, "offset_bank_db", "item 1 is not a finite number"),
+    ("offset_bank_db = [0.0, 99.0]", 3, "offset_bank_db", "out of range"),
 ]
+
+
+def test_strings_lists_and_zero_where_zero_switches_off(tmp_path: Path):
+    """The estimate (a choice), the offset bank (a list; empty: no bank) and the
+    heading prior (0: off) are read with their types."""
+    p = _write(
+        tmp_path,
+        '[filter.pose3d]\nestimate = "mode"\noffset_bank_db = []\nheading_prior_deg = 0\n',
+    )
+    cfg = read_tracker_settings(p).pose3d()
+    assert cfg.estimate == "mode" and cfg.offset_bank_db == () and cfg.heading_prior_deg == 0.0
+    p = _write(tmp_path, "[filter.pose3d]\noffset_bank_db = [-4.5, 0, 4.5]\n")
+    assert read_tracker_settings(p).pose3d().offset_bank_db == (-4.5, 0.0, 4.5)
 
 
 @pytest.mark.parametrize(("line", "lineno", "key", "what"), BAD)
@@ -247,7 +279,9 @@ def test_the_tracker_runs_the_3d_filter_with_the_settings(scene):
     assert pf.pose3d == replace(Pose3dConfig(), **SMALL_P3)
     assert pf.config.n_particles == 200  # Pose3dConfig's replaces FilterConfig's
     (state,) = tr.states.values()
-    assert state.particles.shape[0] == 200
+    members = state.bank or [state]  # the offset bank splits the particles over its members
+    assert len(members) == len(Pose3dConfig().offset_bank_db)
+    assert sum(m.particles.shape[0] for m in members) == 200
     # the coarse grid follows acquisition_step_m: 6 m at 2 m → 4 × 4 positions per height
     xy = np.unique(pf.model3d.coarse.positions_m[:, :2], axis=0)
     assert len(xy) == 16

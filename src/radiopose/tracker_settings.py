@@ -34,6 +34,7 @@ from radiopose.config import Section, find_key_line, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.particle import LIKELIHOODS
+from radiopose.filtering.particle3d import ESTIMATES as POSE3D_ESTIMATES
 from radiopose.filtering.particle3d import Pose3dConfig
 
 if TYPE_CHECKING:  # the tracker package loads the registry: imported only when asked
@@ -68,12 +69,21 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "sigma_floor_db": (0.0, 60.0),
     "refine_steps": (0, 100),
     "max_table_entries": (1000, 1_000_000_000),
+    "heading_prior_deg": (0.0, 180.0),
+    "mode_radius_deg": (0.0, 180.0),
+    "offset_bank_db": (-60.0, 60.0),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
 density, step, σ or interval). A field without a row here (one added to
 :class:`Pose3dConfig` later) is read as a positive number of its type, and the
 dataclass's own checks apply to every value."""
+
+
+POSE3D_ZERO_ALLOWED = frozenset({"heading_prior_deg"})
+"""Real ``[filter.pose3d]`` keys for which 0 is a value (it switches the part off)."""
+
+_POSE3D_STRING_CHOICES: dict[str, tuple[str, ...]] = {"estimate": POSE3D_ESTIMATES}
 
 
 def _filter_fields() -> dict[str, type]:
@@ -165,7 +175,13 @@ def _read_pose3d(sec: Section) -> FilterOverrides:
             out[key] = sec.integer(key, low=int(lo), high=int(hi))
         elif kind is float:
             lo, hi = POSE3D_RANGES.get(key, (0.0, 1e6))
-            out[key] = sec.number(key, positive=lo == 0.0, low=lo, high=hi)
+            zero_ok = key in POSE3D_ZERO_ALLOWED
+            out[key] = sec.number(key, positive=lo == 0.0 and not zero_ok, low=lo, high=hi)
+        elif kind is str:
+            out[key] = sec.string(key, choices=_POSE3D_STRING_CHOICES.get(key))
+        elif kind is tuple:
+            lo, hi = POSE3D_RANGES.get(key, (-1e6, 1e6))
+            out[key] = sec.numbers(key, low=lo, high=hi, nonempty=False, scalar=False)
     sec.finish()
     return out
 
@@ -249,7 +265,7 @@ def write_tracker_toml(
     overrides: Mapping[str, float | int | str | bool],
     smoothing_lag_s: float | None = None,
     comment: str = "",
-    pose3d: Mapping[str, float | int] | None = None,
+    pose3d: Mapping[str, float | int | str | tuple[float, ...]] | None = None,
 ) -> None:
     """Write a ``tracker.toml``: ``overrides`` (FilterConfig fields) under ``[filter]``,
     ``pose3d`` (Pose3dConfig fields) under ``[filter.pose3d]``; read back by
@@ -267,7 +283,9 @@ def write_tracker_toml(
 
 
 def _toml_lines(
-    values: Mapping[str, float | int | str | bool], kinds: Mapping[str, type], owner: str
+    values: Mapping[str, float | int | str | bool | tuple[float, ...]],
+    kinds: Mapping[str, type],
+    owner: str,
 ) -> list[str]:
     """``key = value`` lines of ``values`` (fields of ``owner``, typed by ``kinds``)."""
     lines = []
@@ -279,6 +297,12 @@ def _toml_lines(
             continue
         if kinds[key] is str:
             lines.append(f'{key} = "{value}"')
+            continue
+        if isinstance(value, tuple):
+            items = [float(x) for x in value]
+            if not all(math.isfinite(x) for x in items):
+                raise ValueError(f"{key} = {value!r} is not finite")
+            lines.append(f"{key} = [{', '.join(repr(x) for x in items)}]")
             continue
         v = int(value) if kinds[key] is int else float(value)
         if isinstance(v, float) and not math.isfinite(v):
