@@ -160,9 +160,6 @@ def select_offset(
         passes.append(OffsetPass(c, ll))
         if ll > best_ll:
             best, best_ll = est, ll
-    import os, sys  # TEMP-DEBUG
-    if os.environ.get("RP_DEBUG_OFFSET"):  # TEMP-DEBUG
-        print("PASSES", [(round(p.centre_db, 2), round(p.log_evidence, 1)) for p in passes], file=sys.stderr)  # TEMP-DEBUG
     return best, passes
 
 
