@@ -14,6 +14,12 @@ smoothed estimates of the earlier packets at or before ``t − L``; a new track
 emit the rest. Offline :func:`~radiopose.tracker.locate` uses
 ``TrackerConfig.smoothing_lag_s`` (1 s); the live server ``LiveConfig.live_lag_s``
 (0.25 s).
+
+Offline (``Device.offline``, batch ``locate`` with a lag) the step also keeps
+each packet, and :meth:`FilterMethod.flush` may replay them around candidate
+device-level power offsets and re-emit every packet's estimate from the pass
+whose marginal likelihood of the whole file is largest
+(:mod:`radiopose.filtering.offset`; issue 15, unknown transmit power).
 """
 
 from __future__ import annotations
@@ -134,8 +140,9 @@ def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed,
 
 def _selects_offset(device: Device) -> bool:
     """Whether the offline offset selection runs for ``device``: offline (batch
-    ``locate``), switched on (``FilterConfig.offline_offset_selection``), a 2-D
-    filter (the 3-D filter has its own offset handling)."""
+    ``locate``) with a smoothing lag, switched on
+    (``FilterConfig.offline_offset_selection``), a 2-D filter (the 3-D filter
+    has its own offset handling)."""
     return (
         device.offline
         and device.lag_s is not None
