@@ -13,7 +13,12 @@ Rows per σ:
 * ``filter`` — offline (batch ``locate``, fixed-lag smoother, 1 s lag);
 * ``filter, causal`` — what the live server shows (no smoothing);
 * ``filter, +6 dB`` / ``filter, +6 dB, causal`` — the device sending 6 dB above
-  its enrolled power (``devices.csv`` unchanged: the filter estimates the offset);
+  its enrolled power (``devices.csv`` unchanged: the filter estimates the offset;
+  offline, the device-level offset is then chosen by the whole file's marginal
+  likelihood, ``FilterConfig.offline_offset_selection``, docs/filter.md
+  "Accuracy round 4");
+* ``filter, +6 dB, one pass`` — the same offline without that selection (the
+  filter's single pass, the design before round 4);
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -56,11 +61,13 @@ from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
 
 OFFLINE = TrackerConfig()
+ONE_PASS = TrackerConfig(filter=FilterConfig(offline_offset_selection=False))
 CAUSAL = TrackerConfig(smoothing_lag_s=None)
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, causal": (CAUSAL, "", "filter"),
     "filter, +6 dB": (OFFLINE, "loud", "filter"),
+    "filter, +6 dB, one pass": (ONE_PASS, "loud", "filter"),
     "filter, +6 dB, causal": (CAUSAL, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),

@@ -95,6 +95,22 @@ class FilterConfig:
         particle whose motion it copied gets its own pose moved back as its past
         for the smoother; ``False``: every re-entered hypothesis inherits that
         particle's past (the previous design).
+    offline_offset_selection
+        Offline only (batch ``locate``; the live server and the causal
+        ``Tracker`` ignore it): after the filter's pass over the whole file,
+        run it again around a few candidate device-level power offsets with a
+        tight offset prior and keep the pass whose marginal likelihood of the
+        whole file is largest (:mod:`radiopose.filtering.offset`;
+        docs/filter.md, "Accuracy round 4"). Costs up to three more passes,
+        only for a device whose offset is found away from its enrolled power.
+    offset_selection_sd_db
+        Standard deviation of the offset prior of those passes around their
+        candidate, dB.
+    offset_selection_merge_db
+        Candidate offsets closer than this to an earlier one are not run, dB.
+    offset_selection_trigger_db
+        The further passes run only if a candidate lies this far or further
+        from the prior's centre (``devices.csv``'s power), dB (``0``: always).
     """
 
     n_particles: int = 2000
@@ -131,12 +147,18 @@ class FilterConfig:
     # defaults are the current behaviour
     likelihood: str = "mixture"
     jump_own_past: bool = True
+    # issue 15 (unknown transmit power): the offline device-level offset
+    offline_offset_selection: bool = True
+    offset_selection_sd_db: float = 1.0
+    offset_selection_merge_db: float = 0.75
+    offset_selection_trigger_db: float = 1.5
 
     def __post_init__(self) -> None:
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
+            "offset_selection_sd_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -164,6 +186,10 @@ class FilterConfig:
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+        for name in ("offset_selection_merge_db", "offset_selection_trigger_db"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise InputError(f"filter setting {name} = {v!r} must be >= 0")
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"

@@ -108,6 +108,13 @@ class FilterState:
     window: deque = field(default_factory=deque)
     lineage: Lineage | None = None
     pending: deque = field(default_factory=deque)
+    # issue 15: Σ_t log p(y_t | y_1:t-1) of the packets so far (nats, up to a
+    # constant), for the offline offset selection (radiopose.filtering.offset)
+    log_evidence: float = 0.0
+    # offline offset selection: every packet ``(t_s, heard, key)`` and the causal
+    # offset belief at it (``None`` unless the offline tracker records them)
+    records: list | None = None
+    beliefs_db: list | None = None
 
 
 class ParticleFilter:
@@ -403,6 +410,9 @@ class ParticleFilter:
             st.particles = None
             return self.step(st, t_s, heard, key)
         st.window.append((t_s, heard, lse1 - lse0))
+        # the packet's evidence with the Gaussian's −h log σ, which the weights
+        # leave out (σ differs between the offline offset passes)
+        st.log_evidence += lse1 - lse0 - 0.5 * heard.n_heard * math.log(st.sigma2_db2)
         while st.window and st.window[0][0] <= t_s - cfg.proposal_window_s:
             st.window.popleft()
         w = work.w

@@ -146,7 +146,7 @@ def locate(
     t0 = time.perf_counter()
     obs = _check_packets(site, packets)
     cfg = config or TrackerConfig()
-    tracker = Tracker(site, method, cfg, scorers, lag_s=cfg.smoothing_lag_s)
+    tracker = Tracker(site, method, cfg, scorers, lag_s=cfg.smoothing_lag_s, offline=True)
     found: dict[tuple[str, str], PoseEstimate] = {}
     reasons: list[str | None] = []
     for i, o in enumerate(obs):

@@ -14,15 +14,25 @@ smoothed estimates of the earlier packets at or before ``t − L``; a new track
 emit the rest. Offline :func:`~radiopose.tracker.locate` uses
 ``TrackerConfig.smoothing_lag_s`` (1 s); the live server ``LiveConfig.live_lag_s``
 (0.25 s).
+
+Offline (``Device.offline``, batch ``locate`` with a lag) the step also keeps
+each packet, and :meth:`FilterMethod.flush` may replay them around candidate
+device-level power offsets and re-emit every packet's estimate from the pass
+whose marginal likelihood of the whole file is largest
+(:mod:`radiopose.filtering.offset`; issue 15, unknown transmit power).
 """
 
 from __future__ import annotations
 
+import math
 import zlib
 from dataclasses import dataclass, field
 from typing import cast
 
+import numpy as np
+
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
+from radiopose.filtering.offset import select_offset
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
@@ -82,6 +92,11 @@ class FilterMethod:
         if heard.n_heard == 0:
             return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
         est = pf.step(state, t_s, heard, (packet_id, t_s))
+        if _selects_offset(device):  # issue 15: the offline offset selection's record
+            if state.records is None or state.beliefs_db is None:
+                state.records, state.beliefs_db = [], []
+            state.records.append((t_s, heard, (packet_id, t_s)))
+            state.beliefs_db.append(est.offset_db if est is not None else math.nan)
         earlier = _delayed(pf)
         if est is None:
             return Step(state, Outcome(reason=SKIP_NO_TRACK), earlier)
@@ -92,7 +107,16 @@ class FilterMethod:
     def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
         pf: ParticleFilter = device.engine
         pf.flush(state)
-        return _delayed(pf)
+        if not (_selects_offset(device) and state.records):
+            return _delayed(pf)
+        # issue 15: offline, the device-level offset chosen by the whole file's
+        # marginal likelihood (radiopose.filtering.offset); re-emits every packet
+        records, beliefs = state.records, np.asarray(state.beliefs_db, dtype=float)
+        state.records = state.beliefs_db = None
+        first = pf.take_smoothed()  # pass 1's rest: its earlier packets went out already
+        seed = filter_seed(device.config.seed, device.key)
+        chosen, _ = select_offset(pf, state, seed, records, first, beliefs)
+        return _as_delayed(chosen)
 
 
 def _outcome(est: FilterEstimate) -> Outcome:
@@ -102,11 +126,28 @@ def _outcome(est: FilterEstimate) -> Outcome:
 
 
 def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
+    return _as_delayed(pf.take_smoothed())
+
+
+def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed, ...]:
     return tuple(
         Delayed(t_s, packet_id, _outcome(est))
         for (packet_id, t_s), est in cast(
-            "list[tuple[tuple[str, float], FilterEstimate]]", pf.take_smoothed()
+            "list[tuple[tuple[str, float], FilterEstimate]]", smoothed
         )
+    )
+
+
+def _selects_offset(device: Device) -> bool:
+    """Whether the offline offset selection runs for ``device``: offline (batch
+    ``locate``) with a smoothing lag, switched on
+    (``FilterConfig.offline_offset_selection``), a 2-D filter (the 3-D filter
+    has its own offset handling)."""
+    return (
+        device.offline
+        and device.lag_s is not None
+        and device.config.filter.offline_offset_selection
+        and type(device.engine) is ParticleFilter
     )
 
 

@@ -131,6 +131,10 @@ class Device:
         Resources shared by the devices of one tracker (e.g. a site fit), by name.
     engine
         The method's own per-device resources (:meth:`Method.prepare`).
+    offline
+        Whether the whole file is at hand (batch :func:`~radiopose.tracker.locate`):
+        a method may then run several passes at :meth:`Method.flush` (the
+        ``filter``'s offline offset selection); never in the live server.
     """
 
     site: Site
@@ -142,6 +146,7 @@ class Device:
     lag_s: float | None = None
     shared: MutableMapping[str, Any] = field(default_factory=dict)
     engine: Any = None
+    offline: bool = False
 
 
 @runtime_checkable

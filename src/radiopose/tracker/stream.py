@@ -43,6 +43,10 @@ class Tracker:
     lag_s
         Fixed lag for lagged methods, seconds (``None``: causal; ignored by
         the others).
+    offline
+        The whole file is at hand (batch :func:`~radiopose.tracker.locate`;
+        ``Device.offline``): the methods may run several passes at
+        :meth:`flush`, which then re-emits every packet's estimate.
 
     Notes
     -----
@@ -58,6 +62,7 @@ class Tracker:
         config: TrackerConfig | None = None,
         scorers: Mapping[str, Scorer] | None = None,
         lag_s: float | None = None,
+        offline: bool = False,
     ) -> None:
         self.impl: Method = get_method(method) if isinstance(method, str) else method
         if lag_s is not None and not 0 <= lag_s < math.inf:
@@ -72,6 +77,7 @@ class Tracker:
         self._shared: dict[str, Any] = {}
         self._delayed: list[PoseEstimate] = []
         self._last_s: dict[str, float] = {}  # last packet time per device (for release)
+        self.offline = offline  # batch locate: the whole file (issue 15, offset selection)
 
     def _device(self, transmitter: str) -> Device:
         key = transmitter.lower()
@@ -90,6 +96,7 @@ class Tracker:
                 self.config,
                 self.lag_s,
                 self._shared,
+                offline=self.offline,
             )
             self.impl.prepare(dev)
             self._devices[key] = dev
