@@ -27,6 +27,7 @@ from typing import Any
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.config import SMOOTHERS
 from radiopose.filtering.particle import LIKELIHOODS
 
 FILE_NAME = "tracker.toml"
@@ -36,7 +37,7 @@ FilterOverrides = dict[str, Any]
 fields at run time, so the values are typed ``Any`` for ``dataclasses.replace(**overrides)``."""
 
 
-_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS}
+_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS, "smoother": SMOOTHERS}
 """The values a string field of FilterConfig may take."""
 
 

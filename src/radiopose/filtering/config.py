@@ -15,6 +15,9 @@ from radiopose.errors import InputError
 LIKELIHOODS = ("mixture", "huber")
 """The values of :attr:`FilterConfig.likelihood`."""
 
+SMOOTHERS = ("lineage", "backward")
+"""The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -95,6 +98,20 @@ class FilterConfig:
         particle whose motion it copied gets its own pose moved back as its past
         for the smoother; ``False``: every re-entered hypothesis inherits that
         particle's past (the previous design).
+    smoother
+        The smoother of a run with a lag (offline ``locate``): ``"lineage"``
+        (the particles' genealogy, :mod:`radiopose.filtering.lineage`) or
+        ``"backward"`` (marginal backward smoothing over kept particles,
+        :mod:`radiopose.filtering.smoother`; docs/filter.md, "Smoother").
+    smoother_particles
+        Particles the backward smoother keeps per packet.
+    smoother_bandwidth_scale
+        The backward smoother's kernel bandwidth, as a fraction of each
+        packet's particle spread (position and azimuth).
+    smoother_floor_nats
+        The backward smoother's jump floor: a particle farther than about
+        ``sqrt(2 · floor)`` bandwidths from every particle of the packet before
+        hands its mass back by the filtering weights alone, nats.
     """
 
     n_particles: int = 2000
@@ -131,12 +148,18 @@ class FilterConfig:
     # defaults are the current behaviour
     likelihood: str = "mixture"
     jump_own_past: bool = True
+    # issue 15 (smoother): the offline smoother's choice and its settings
+    smoother: str = "lineage"
+    smoother_particles: int = 200
+    smoother_bandwidth_scale: float = 0.5
+    smoother_floor_nats: float = 12.5
 
     def __post_init__(self) -> None:
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
+            "smoother_bandwidth_scale", "smoother_floor_nats",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -167,6 +190,12 @@ class FilterConfig:
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
+        if self.smoother not in SMOOTHERS:
+            raise InputError(f"filter setting smoother = {self.smoother!r} is not one of {SMOOTHERS}")
+        if not 2 <= self.smoother_particles <= 100_000:
+            raise InputError(
+                f"filter setting smoother_particles = {self.smoother_particles!r} is out of range"
             )
 
 

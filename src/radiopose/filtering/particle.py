@@ -62,6 +62,7 @@ from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column
 from radiopose.filtering.config import LIKELIHOODS, FilterConfig, FilterEstimate
 from radiopose.filtering.lineage import Lineage
 from radiopose.filtering.model import FilterModel
+from radiopose.filtering.smoother import BackwardSettings, BackwardStore
 from radiopose.likelihood import HeardRss, profile_offset_db
 from radiopose.likelihood.compiled import spare_core, thread_pool
 from radiopose.units import FloatArray
@@ -108,6 +109,7 @@ class FilterState:
     window: deque = field(default_factory=deque)
     lineage: Lineage | None = None
     pending: deque = field(default_factory=deque)
+    backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 
 class ParticleFilter:
@@ -141,6 +143,16 @@ class ParticleFilter:
             ]
         )
         self._work: _Work | None = None
+        # smoother: the backward smoother replaces the genealogy when chosen (and lagged)
+        self._backward = (
+            BackwardSettings(
+                n_particles=config.smoother_particles,
+                bandwidth_scale=config.smoother_bandwidth_scale,
+                floor_nats=config.smoother_floor_nats,
+            )
+            if config.smoother == "backward" and lag_s is not None
+            else None
+        )
 
     def _log_eps(self, sigma_db: float) -> float:
         """``log ε′`` of the per-receiver outlier mixture (:func:`kernels.measurement_update`)."""
@@ -414,7 +426,13 @@ class ParticleFilter:
         moments = work.moments
         K.posterior_moments(S, w, work.rows, moments)
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
-        if self.lag_s is not None:
+        if self._backward is not None:  # smoother: the backward smoother's store
+            if st.backward is None:
+                st.backward = BackwardStore(self._backward)
+            st.backward.push(t_s, S, w, float(st.rng.uniform()))
+            st.pending.append((t_s, key, est))
+            self._emit_backward(st, final=False)
+        elif self.lag_s is not None:
             if st.lineage is None:
                 st.lineage = Lineage(n, extra_rows=self._lineage_extra_rows(n))
             st.lineage.push(t_s, work.rows)
@@ -532,7 +550,29 @@ class ParticleFilter:
                 )
             )
 
+    def _emit_backward(self, st: FilterState, final: bool) -> None:
+        """Smoother: the backward smoother's estimates of the packets ``lag_s``
+        older than the newest, once the kept packets span ``2 · lag_s`` (all of
+        them if ``final``)."""
+        store = st.backward
+        if store is None or store.size == 0:
+            return
+        assert self.lag_s is not None and len(st.pending) == store.size
+        newest = float(store.times_s[store.size - 1])
+        if not final and newest - store.oldest_time_s() < 2.0 * self.lag_s:
+            return
+        moments = store.smooth()
+        k = 0
+        while st.pending and (final or st.pending[0][0] <= newest - self.lag_s):
+            _, key, causal = st.pending.popleft()
+            self._smoothed.append((key, _summary(moments[k], causal.offset_db, causal.sigma_db)))
+            k += 1
+        store.drop(k)
+
     def _flush_into(self, st: FilterState, w: FloatArray) -> None:
+        if self._backward is not None:  # smoother
+            self._emit_backward(st, final=True)
+            st.backward = None
         if self.lag_s is not None and st.lineage is not None:
             self._emit(st, w, None)
         st.lineage = None
