@@ -101,17 +101,17 @@ class FilterConfig:
     smoother
         The smoother of a run with a lag (offline ``locate``): ``"lineage"``
         (the particles' genealogy, :mod:`radiopose.filtering.lineage`) or
-        ``"backward"`` (marginal backward smoothing over kept particles,
+        ``"backward"`` (the filter's particle sets smoothed backward, a
+        re-entered hypothesis's past found among the particles before it,
         :mod:`radiopose.filtering.smoother`; docs/filter.md, "Smoother").
-    smoother_particles
-        Particles the backward smoother keeps per packet.
-    smoother_bandwidth_scale
-        The backward smoother's kernel bandwidth, as a fraction of each
-        packet's particle spread (position and azimuth).
-    smoother_floor_nats
-        The backward smoother's jump floor: a particle farther than about
-        ``sqrt(2 · floor)`` bandwidths from every particle of the packet before
-        hands its mass back by the filtering weights alone, nats.
+    smoother_position_bandwidth_m, smoother_azimuth_bandwidth_deg
+        The backward smoother's kernel widths (a re-entered hypothesis's
+        ancestors are the particles before it within ``smoother_reach`` of them).
+    smoother_reach
+        In bandwidths (see above).
+    smoother_ghost_s
+        How far back a re-entered hypothesis with no particle within reach
+        travels on its own motion before its past is the filter's, seconds.
     """
 
     n_particles: int = 2000
@@ -150,16 +150,17 @@ class FilterConfig:
     jump_own_past: bool = True
     # issue 15 (smoother): the offline smoother's choice and its settings
     smoother: str = "lineage"
-    smoother_particles: int = 200
-    smoother_bandwidth_scale: float = 0.5
-    smoother_floor_nats: float = 12.5
+    smoother_position_bandwidth_m: float = 0.25
+    smoother_azimuth_bandwidth_deg: float = 8.0
+    smoother_reach: float = 3.0
+    smoother_ghost_s: float = 0.5
 
     def __post_init__(self) -> None:
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
-            "smoother_bandwidth_scale", "smoother_floor_nats",
+            "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -192,10 +193,12 @@ class FilterConfig:
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
             )
         if self.smoother not in SMOOTHERS:
-            raise InputError(f"filter setting smoother = {self.smoother!r} is not one of {SMOOTHERS}")
-        if not 2 <= self.smoother_particles <= 100_000:
             raise InputError(
-                f"filter setting smoother_particles = {self.smoother_particles!r} is out of range"
+                f"filter setting smoother = {self.smoother!r} is not one of {SMOOTHERS}"
+            )
+        if not (math.isfinite(self.smoother_ghost_s) and self.smoother_ghost_s >= 0):
+            raise InputError(
+                f"filter setting smoother_ghost_s = {self.smoother_ghost_s!r} must be >= 0"
             )
 
 

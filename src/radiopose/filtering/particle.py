@@ -146,9 +146,10 @@ class ParticleFilter:
         # smoother: the backward smoother replaces the genealogy when chosen (and lagged)
         self._backward = (
             BackwardSettings(
-                n_particles=config.smoother_particles,
-                bandwidth_scale=config.smoother_bandwidth_scale,
-                floor_nats=config.smoother_floor_nats,
+                config.smoother_position_bandwidth_m,
+                config.smoother_azimuth_bandwidth_deg,
+                config.smoother_reach,
+                config.smoother_ghost_s,
             )
             if config.smoother == "backward" and lag_s is not None
             else None
@@ -306,6 +307,8 @@ class ParticleFilter:
         st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
             self._inject_lineage(st, t_s, new, slots, donors, donor_rows)
+        if st.backward is not None:  # smoother: no ancestors in the previous set
+            st.backward.reentered(slots)
 
     def _inject_lineage(
         self,
@@ -428,8 +431,8 @@ class ParticleFilter:
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
         if self._backward is not None:  # smoother: the backward smoother's store
             if st.backward is None:
-                st.backward = BackwardStore(self._backward)
-            st.backward.push(t_s, S, w, float(st.rng.uniform()))
+                st.backward = BackwardStore(self._backward, n)
+            st.backward.push(t_s, S, w)
             st.pending.append((t_s, key, est))
             self._emit_backward(st, final=False)
         elif self.lag_s is not None:
@@ -443,6 +446,8 @@ class ParticleFilter:
             logw[:] = 0.0
             if st.lineage is not None:
                 st.lineage.remap(work.idx)
+            if st.backward is not None:  # smoother
+                st.backward.remap(work.idx)
         return est
 
     def _lineage_extra_rows(self, n: int) -> int:
