@@ -123,3 +123,23 @@ def test_the_smoother_setting_is_checked() -> None:
         FilterConfig(smoother="magic")
     with pytest.raises(InputError, match="smoother_ghost_s"):
         FilterConfig(smoother_ghost_s=-1.0)
+
+
+def test_estimates_are_due_once_the_kept_packets_span_twice_the_lag() -> None:
+    from collections import deque
+
+    st = BackwardStore(BackwardSettings(), n_particles=4)
+    pending: deque = deque()
+    S = np.zeros((4, K.N_COLUMNS))
+    S[:, K.X_M] = [0.0, 1.0, 2.0, 3.0]
+    due = []
+    for k in range(5):
+        t = 0.1 * k
+        st.push(t, S, np.full(4, 0.25))
+        pending.append((t, f"p{k}", None))
+        due.append([key for key, _, _ in st.due(pending, 0.2, final=False)])
+    # nothing until the span reaches 0.4 s; then the packets at least 0.2 s old
+    assert due == [[], [], [], [], ["p0", "p1", "p2"]]
+    rest = st.due(pending, 0.2, final=True)
+    assert [key for key, _, _ in rest] == ["p3", "p4"] and st.size == 0 and not pending
+    np.testing.assert_allclose(rest[0][2][0], 1.5)  # the mean x of equal weights

@@ -556,23 +556,10 @@ class ParticleFilter:
             )
 
     def _emit_backward(self, st: FilterState, final: bool) -> None:
-        """Smoother: the backward smoother's estimates of the packets ``lag_s``
-        older than the newest, once the kept packets span ``2 · lag_s`` (all of
-        them if ``final``)."""
-        store = st.backward
-        if store is None or store.size == 0:
-            return
-        assert self.lag_s is not None and len(st.pending) == store.size
-        newest = float(store.times_s[store.size - 1])
-        if not final and newest - store.oldest_time_s() < 2.0 * self.lag_s:
-            return
-        moments = store.smooth()
-        k = 0
-        while st.pending and (final or st.pending[0][0] <= newest - self.lag_s):
-            _, key, causal = st.pending.popleft()
-            self._smoothed.append((key, _summary(moments[k], causal.offset_db, causal.sigma_db)))
-            k += 1
-        store.drop(k)
+        """Smoother: the backward smoother's estimates that are due (:meth:`BackwardStore.due`)."""
+        if st.backward is not None and self.lag_s is not None:
+            for key, causal, m in st.backward.due(st.pending, self.lag_s, final):
+                self._smoothed.append((key, _summary(m, causal.offset_db, causal.sigma_db)))
 
     def _flush_into(self, st: FilterState, w: FloatArray) -> None:
         if self._backward is not None:  # smoother

@@ -46,7 +46,9 @@ packets) and at the end of a track.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+from typing import Any
 
 import numba
 import numpy as np
@@ -340,6 +342,26 @@ class BackwardStore:
         backward_moments(
             self.x[:n], self.logw[:n], self.anc[:n], self.times_s[:n], s.kernel(), s.ghost_s, out
         )
+        return out
+
+    def due(self, pending: deque, lag_s: float, final: bool) -> list[tuple[Any, Any, FloatArray]]:
+        """The packets whose smoothed estimate is due, as ``(key, causal estimate,
+        moments)``, popped from ``pending`` (one ``(t_s, key, causal estimate)`` per
+        kept packet, oldest first) and dropped from the store: once the kept
+        packets span ``2 · lag_s``, those at least ``lag_s`` older than the
+        newest; if ``final``, all of them (end of the track)."""
+        if self.size == 0:
+            return []
+        assert len(pending) == self.size
+        newest = float(self.times_s[self.size - 1])
+        if not final and newest - self.oldest_time_s() < 2.0 * lag_s:
+            return []
+        moments = self.smooth()
+        out = []
+        while pending and (final or pending[0][0] <= newest - lag_s):
+            _, key, causal = pending.popleft()
+            out.append((key, causal, moments[len(out)]))
+        self.drop(len(out))
         return out
 
     def drop(self, k: int) -> None:
