@@ -46,7 +46,9 @@ cloud's spread as ``position_std_m`` (root of the trace of the horizontal
 covariance) and ``azimuth_std_deg`` (circular standard deviation). Offline,
 a **fixed-lag smoother** reads each packet's estimate from the ancestors, at
 that packet, of the particles ``lag_s`` later (the particles' genealogy;
-hypotheses that re-entered carry their pose back over the past as static).
+hypotheses that re-entered carry their pose back over the past as static);
+``FilterConfig.smoother = "backward"`` smooths the kept particle sets backward
+instead (:mod:`radiopose.filtering.smoother`).
 """
 
 from __future__ import annotations
