@@ -143,3 +143,18 @@ def test_estimates_are_due_once_the_kept_packets_span_twice_the_lag() -> None:
     rest = st.due(pending, 0.2, final=True)
     assert [key for key, _, _ in rest] == ["p3", "p4"] and st.size == 0 and not pending
     np.testing.assert_allclose(rest[0][2][0], 1.5)  # the mean x of equal weights
+
+
+def test_the_store_survives_a_checkpoint() -> None:
+    import pickle
+    from collections import deque
+
+    st = BackwardStore(BackwardSettings(), n_particles=2)
+    S = np.zeros((2, K.N_COLUMNS))
+    for k in range(3):
+        S[:, K.X_M] = [k, k + 1.0]
+        st.push(0.1 * k, S, np.array([0.25, 0.75]))
+    back = pickle.loads(pickle.dumps(st))
+    a = st.due(deque((0.1 * k, k, None) for k in range(3)), 1.0, final=True)
+    b = back.due(deque((0.1 * k, k, None) for k in range(3)), 1.0, final=True)
+    np.testing.assert_array_equal(np.array([m for _, _, m in a]), np.array([m for _, _, m in b]))
