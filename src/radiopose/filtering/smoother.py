@@ -357,7 +357,7 @@ class BackwardStore:
         if not final and newest - self.oldest_time_s() < 2.0 * lag_s:
             return []
         moments = self.smooth()
-        out = []
+        out: list[tuple[Any, Any, FloatArray]] = []
         while pending and (final or pending[0][0] <= newest - lag_s):
             _, key, causal = pending.popleft()
             out.append((key, causal, moments[len(out)]))
