@@ -158,3 +158,16 @@ def test_the_store_survives_a_checkpoint() -> None:
     a = st.due(deque((0.1 * k, k, None) for k in range(3)), 1.0, final=True)
     b = back.due(deque((0.1 * k, k, None) for k in range(3)), 1.0, final=True)
     np.testing.assert_array_equal(np.array([m for _, _, m in a]), np.array([m for _, _, m in b]))
+
+
+def test_tracker_toml_chooses_the_smoother(tmp_path) -> None:
+    from radiopose.tracker_settings import read_tracker_toml
+
+    p = tmp_path / "tracker.toml"
+    p.write_text('[filter]\nsmoother = "backward"\nsmoother_ghost_s = 1.0\n')
+    overrides, _ = read_tracker_toml(p)
+    assert FilterConfig(**overrides).smoother == "backward"
+    p.write_text('[filter]\nsmoother = "magic"\n')
+    with pytest.raises(InputError, match=r"tracker\.toml") as err:
+        read_tracker_toml(p)
+    assert "\n" not in str(err.value)
