@@ -33,6 +33,7 @@ from typing import TYPE_CHECKING, Any
 from radiopose.config import Section, find_key_line, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.config import SMOOTHERS
 from radiopose.filtering.particle import LIKELIHOODS
 from radiopose.filtering.particle3d import ESTIMATES as POSE3D_ESTIMATES
 from radiopose.filtering.particle3d import Pose3dConfig
@@ -47,7 +48,7 @@ FilterOverrides = dict[str, Any]
 fields at run time, so the values are typed ``Any`` for ``dataclasses.replace(**overrides)``."""
 
 
-_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS}
+_STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS, "smoother": SMOOTHERS}
 """The values a string field of FilterConfig may take."""
 
 

@@ -15,6 +15,9 @@ from radiopose.errors import InputError
 LIKELIHOODS = ("mixture", "huber")
 """The values of :attr:`FilterConfig.likelihood`."""
 
+SMOOTHERS = ("lineage", "backward")
+"""The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -111,6 +114,20 @@ class FilterConfig:
     offset_selection_trigger_db
         The further passes run only if a candidate lies this far or further
         from the prior's centre (``devices.csv``'s power), dB (``0``: always).
+    smoother
+        The smoother of a run with a lag (offline ``locate``): ``"lineage"``
+        (the particles' genealogy, :mod:`radiopose.filtering.lineage`) or
+        ``"backward"`` (the filter's particle sets smoothed backward, a
+        re-entered hypothesis's past found among the particles before it,
+        :mod:`radiopose.filtering.smoother`; docs/filter.md, "Smoother").
+    smoother_position_bandwidth_m, smoother_azimuth_bandwidth_deg
+        The backward smoother's kernel widths (a re-entered hypothesis's
+        ancestors are the particles before it within ``smoother_reach`` of them).
+    smoother_reach
+        In bandwidths (see above).
+    smoother_ghost_s
+        How far back a re-entered hypothesis with no particle within reach
+        travels on its own motion before its past is the filter's, seconds.
     """
 
     n_particles: int = 2000
@@ -152,6 +169,12 @@ class FilterConfig:
     offset_selection_sd_db: float = 1.0
     offset_selection_merge_db: float = 0.75
     offset_selection_trigger_db: float = 1.5
+    # issue 15 (smoother): the offline smoother's choice and its settings
+    smoother: str = "lineage"
+    smoother_position_bandwidth_m: float = 0.25
+    smoother_azimuth_bandwidth_deg: float = 8.0
+    smoother_reach: float = 3.0
+    smoother_ghost_s: float = 0.5
 
     def __post_init__(self) -> None:
         positive = (
@@ -159,6 +182,7 @@ class FilterConfig:
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
             "offset_selection_sd_db",
+            "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -193,6 +217,14 @@ class FilterConfig:
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
+        if self.smoother not in SMOOTHERS:
+            raise InputError(
+                f"filter setting smoother = {self.smoother!r} is not one of {SMOOTHERS}"
+            )
+        if not (math.isfinite(self.smoother_ghost_s) and self.smoother_ghost_s >= 0):
+            raise InputError(
+                f"filter setting smoother_ghost_s = {self.smoother_ghost_s!r} must be >= 0"
             )
 
 

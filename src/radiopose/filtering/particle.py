@@ -46,7 +46,9 @@ cloud's spread as ``position_std_m`` (root of the trace of the horizontal
 covariance) and ``azimuth_std_deg`` (circular standard deviation). Offline,
 a **fixed-lag smoother** reads each packet's estimate from the ancestors, at
 that packet, of the particles ``lag_s`` later (the particles' genealogy;
-hypotheses that re-entered carry their pose back over the past as static).
+hypotheses that re-entered carry their pose back over the past as static);
+``FilterConfig.smoother = "backward"`` smooths the kept particle sets backward
+instead (:mod:`radiopose.filtering.smoother`).
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column
 from radiopose.filtering.config import LIKELIHOODS, FilterConfig, FilterEstimate
 from radiopose.filtering.lineage import Lineage
 from radiopose.filtering.model import FilterModel
+from radiopose.filtering.smoother import BackwardSettings, BackwardStore
 from radiopose.likelihood import HeardRss, profile_offset_db
 from radiopose.likelihood.compiled import spare_core, thread_pool
 from radiopose.units import FloatArray
@@ -115,6 +118,7 @@ class FilterState:
     # offset belief at it (``None`` unless the offline tracker records them)
     records: list | None = None
     beliefs_db: list | None = None
+    backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 
 class ParticleFilter:
@@ -148,6 +152,17 @@ class ParticleFilter:
             ]
         )
         self._work: _Work | None = None
+        # smoother: the backward smoother replaces the genealogy when chosen (and lagged)
+        self._backward = (
+            BackwardSettings(
+                config.smoother_position_bandwidth_m,
+                config.smoother_azimuth_bandwidth_deg,
+                config.smoother_reach,
+                config.smoother_ghost_s,
+            )
+            if config.smoother == "backward" and lag_s is not None
+            else None
+        )
 
     def _log_eps(self, sigma_db: float) -> float:
         """``log ε′`` of the per-receiver outlier mixture (:func:`kernels.measurement_update`)."""
@@ -301,6 +316,8 @@ class ParticleFilter:
         st.log_weights[slots] = lse + math.log(cfg.jump_probability / m) + ll - evidence + prior
         if self.lag_s is not None:
             self._inject_lineage(st, t_s, new, slots, donors, donor_rows)
+        if st.backward is not None:  # smoother: no ancestors in the previous set
+            st.backward.reentered(slots)
 
     def _inject_lineage(
         self,
@@ -424,7 +441,13 @@ class ParticleFilter:
         moments = work.moments
         K.posterior_moments(S, w, work.rows, moments)
         est = _summary(moments, float(moments[9]), math.sqrt(st.sigma2_db2))
-        if self.lag_s is not None:
+        if self._backward is not None:  # smoother: the backward smoother's store
+            if st.backward is None:
+                st.backward = BackwardStore(self._backward, n)
+            st.backward.push(t_s, S, w)
+            st.pending.append((t_s, key, est))
+            self._emit_backward(st, final=False)
+        elif self.lag_s is not None:
             if st.lineage is None:
                 st.lineage = Lineage(n, extra_rows=self._lineage_extra_rows(n))
             st.lineage.push(t_s, work.rows)
@@ -435,6 +458,8 @@ class ParticleFilter:
             logw[:] = 0.0
             if st.lineage is not None:
                 st.lineage.remap(work.idx)
+            if st.backward is not None:  # smoother
+                st.backward.remap(work.idx)
         return est
 
     def _lineage_extra_rows(self, n: int) -> int:
@@ -542,7 +567,16 @@ class ParticleFilter:
                 )
             )
 
+    def _emit_backward(self, st: FilterState, final: bool) -> None:
+        """Smoother: the backward smoother's estimates that are due (:meth:`BackwardStore.due`)."""
+        if st.backward is not None and self.lag_s is not None:
+            for key, causal, m in st.backward.due(st.pending, self.lag_s, final):
+                self._smoothed.append((key, _summary(m, causal.offset_db, causal.sigma_db)))
+
     def _flush_into(self, st: FilterState, w: FloatArray) -> None:
+        if self._backward is not None:  # smoother
+            self._emit_backward(st, final=True)
+            st.backward = None
         if self.lag_s is not None and st.lineage is not None:
             self._emit(st, w, None)
         st.lineage = None
