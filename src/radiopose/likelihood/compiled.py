@@ -152,14 +152,16 @@ def _rotated_rows(
     error_db
         The resampling error bound (0 when every combination is the identity).
     """
-    from radiopose.geometry import orientation_matrices
+    from radiopose.geometry import stored_orientation_matrices
 
     n = round(360.0 / row_step_deg)
     phi = np.arange(n) * row_step_deg
     out = []
     err = 0.0
-    for pitch, roll in qs_deg:
-        a = orientation_matrices(0.0, pitch, roll)[0]
+    qs = np.asarray(qs_deg, dtype=np.float64).reshape(-1, 2)
+    # all combinations at once, memoised (the same matrices as one call each)
+    mats = stored_orientation_matrices(np.column_stack([np.zeros(len(qs)), qs]))
+    for (pitch, roll), a in zip(qs.tolist(), mats, strict=True):
 
         def lookup(ph: NDArray, th: NDArray, a: NDArray = a) -> NDArray:
             p, t = np.deg2rad(ph), np.deg2rad(th)
