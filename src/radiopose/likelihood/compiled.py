@@ -90,6 +90,9 @@ from radiopose.likelihood.shift_kernels import (
 from radiopose.likelihood.shift_kernels import (
     shift_topk_serial as _shift_topk_serial,
 )
+from radiopose.likelihood.shift_kernels import (
+    shift_topk_shared as _shift_topk_shared,
+)
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.patterns.pattern import Pattern
 from radiopose.units import wrap_deg
@@ -494,16 +497,20 @@ class ShiftScorer(ScorerBase):
                 run_pos = _prefilter(
                     w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
                 )
-            out_v, out_i = self._kernel(
-                w, r, *self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0)
-            )
+            args = (*self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0))
+            if self.parallel:
+                out_v, out_i = self._kernel(w, r, *args)
+                thr_used = float(thr0)
+            else:  # one thread: the chunks share their threshold (speed only)
+                out_v, out_i, thr_used = _shift_topk_shared(w, r, *args)
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
             i = out_i.ravel()[ok]
-            # Every candidate not kept scored above `excluded`: above the prune bound, or
-            # dropped by a chunk whose heap was full (so above its worst kept value).
+            # Every candidate not kept scored above `excluded`: above the prune bound
+            # (the last one, with shared thresholds), or dropped by a chunk whose heap
+            # was full (so above its worst kept value).
             full = np.isfinite(out_v).sum(axis=1) == kk_eff
-            excluded = float(thr0)
+            excluded = float(thr_used)
             if full.any():
                 excluded = min(excluded, float(out_v[full].max(axis=1).min()))
             if not np.isfinite(excluded):
