@@ -102,7 +102,7 @@ def memo_arrays(
         fd, tmp = tempfile.mkstemp(dir=where, prefix=f".{namespace}-", suffix=".npz")
         try:
             with os.fdopen(fd, "wb") as f:
-                np.savez(f, **out)
+                np.savez(f, **out)  # type: ignore[arg-type]  # (numpy stubs: allow_pickle)
             os.replace(tmp, path)  # atomic: a concurrent reader sees all or nothing
         except BaseException:
             os.unlink(tmp)
