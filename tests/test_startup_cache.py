@@ -67,6 +67,13 @@ def test_memo_recomputes_a_damaged_entry_and_can_be_turned_off(tmp_path, monkeyp
     assert len(calls) == 4
 
 
+def test_key_follows_the_computing_modules_source():
+    survey = diskcache.cache_key("unit", (1,), "radiopose.survey")
+    assert survey == diskcache.cache_key("unit", (1,), "radiopose.survey")
+    assert survey != diskcache.cache_key("unit", (1,), "radiopose.geometry")
+    assert survey != diskcache.cache_key("unit", (2,), "radiopose.survey")
+
+
 def test_memo_runs_without_a_writable_directory(tmp_path, monkeypatch):
     blocker = tmp_path / "a-file"
     blocker.write_text("x")

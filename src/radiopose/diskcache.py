@@ -6,7 +6,9 @@ importing those two packages costs ≈ 0.45 CPU-seconds, a tenth of a whole
 ``radiopose locate`` over 2,000 packets, while the work itself takes a few
 milliseconds. :func:`memo_arrays` keeps such results on disk, keyed by a
 SHA-256 of every input (dtype, shape and bytes of each array), the function's
-name, this module's format version and the numpy and scipy versions, so a
+name, the source file of the module that computes it (so an edit of the
+computation is never answered from an old entry), this module's format
+version and the numpy and scipy versions, so a
 second load of the same site reads back the identical float64 arrays without
 importing scipy (docs/performance.md, "Start-up").
 
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Iterable
 from functools import lru_cache
@@ -52,10 +55,23 @@ def _versions() -> str:
     return f"numpy {np.__version__}; scipy {scipy_version}; format {_FORMAT}"
 
 
-def cache_key(namespace: str, parts: Iterable[object]) -> str:
-    """SHA-256 (hex) of ``namespace``, the library versions and ``parts`` (arrays by
-    dtype, shape and bytes; anything else by its ``repr``)."""
-    h = hashlib.sha256(f"{namespace}\0{_versions()}\0".encode())
+@lru_cache(maxsize=16)
+def _source_digest(module: str) -> str:
+    """SHA-256 of the source file of ``module`` (empty if it has none)."""
+    path = getattr(sys.modules.get(module), "__file__", None)
+    if not path:
+        return ""
+    try:
+        with open(path, "rb") as f:
+            return hashlib.sha256(f.read()).hexdigest()
+    except OSError:
+        return ""
+
+
+def cache_key(namespace: str, parts: Iterable[object], module: str = "") -> str:
+    """SHA-256 (hex) of ``namespace``, the library versions, the source of ``module``
+    and ``parts`` (arrays by dtype, shape and bytes; anything else by its ``repr``)."""
+    h = hashlib.sha256(f"{namespace}\0{_versions()}\0{_source_digest(module)}\0".encode())
     for p in parts:
         if isinstance(p, np.ndarray):
             a = np.ascontiguousarray(p)
@@ -81,7 +97,8 @@ def memo_arrays(
     parts
         Every input of ``compute``: arrays and plain values.
     compute
-        Returns the result as ``{name: array}`` (numeric arrays only).
+        Returns the result as ``{name: array}`` (numeric arrays only); the
+        source file of the module defining it is part of the key.
 
     Returns
     -------
@@ -90,7 +107,8 @@ def memo_arrays(
     where = cache_dir()
     if where is None:
         return compute()
-    path = where / f"{namespace}-{cache_key(namespace, parts)}.npz"
+    key = cache_key(namespace, parts, getattr(compute, "__module__", "") or "")
+    path = where / f"{namespace}-{key}.npz"
     try:
         with np.load(path, allow_pickle=False) as z:
             return {name: z[name] for name in z.files}
