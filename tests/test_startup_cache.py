@@ -57,14 +57,16 @@ def test_memo_recomputes_a_damaged_entry_and_can_be_turned_off(tmp_path, monkeyp
 
     diskcache.memo_arrays("unit", (1,), compute)
     (entry,) = tmp_path.glob("unit-*.npz")
-    entry.write_bytes(b"not a zip file")
-    np.testing.assert_array_equal(diskcache.memo_arrays("unit", (1,), compute)["y"], 2.5)
-    assert len(calls) == 2
+    whole = entry.read_bytes()
+    for damaged in (b"not a zip file", whole[: len(whole) // 2], b""):
+        entry.write_bytes(damaged)
+        np.testing.assert_array_equal(diskcache.memo_arrays("unit", (1,), compute)["y"], 2.5)
+    assert len(calls) == 4
     monkeypatch.setenv("RADIOPOSE_CACHE_DIR", "")
     assert diskcache.cache_dir() is None
     diskcache.memo_arrays("unit", (1,), compute)
     diskcache.memo_arrays("unit", (1,), compute)
-    assert len(calls) == 4
+    assert len(calls) == 6
 
 
 def test_key_follows_the_computing_modules_source():

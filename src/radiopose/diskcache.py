@@ -26,6 +26,8 @@ import hashlib
 import os
 import sys
 import tempfile
+import zipfile
+import zlib
 from collections.abc import Callable, Iterable
 from functools import lru_cache
 from importlib import metadata
@@ -110,9 +112,11 @@ def memo_arrays(
     key = cache_key(namespace, parts, getattr(compute, "__module__", "") or "")
     path = where / f"{namespace}-{key}.npz"
     try:
-        with np.load(path, allow_pickle=False) as z:
+        # the file opened here, not by np.load: a damaged zip leaves np.load's own handle open
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
             return {name: z[name] for name in z.files}
-    except (OSError, ValueError, KeyError, EOFError):  # absent or damaged: compute it
+    except (OSError, ValueError, TypeError, KeyError, EOFError, zipfile.BadZipFile, zlib.error):
+        # absent or damaged: compute it
         pass
     out = compute()
     try:
