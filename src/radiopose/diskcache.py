@@ -123,8 +123,8 @@ def memo_arrays(
         where.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=where, prefix=f".{namespace}-", suffix=".npz")
         try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **out)  # type: ignore[arg-type]  # (numpy stubs: allow_pickle)
+            with os.fdopen(fd, "wb") as out_file:
+                np.savez(out_file, **out)  # type: ignore[arg-type]  # (numpy stubs: allow_pickle)
             os.replace(tmp, path)  # atomic: a concurrent reader sees all or nothing
         except BaseException:
             os.unlink(tmp)
