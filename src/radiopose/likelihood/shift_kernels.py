@@ -402,8 +402,11 @@ def shift_topk_shared(  # pragma: no cover - compiled
     used: every candidate not kept scored above ``thr`` or above the worst of a
     full heap, as with ``thr0`` in :func:`shift_topk_serial`, so the caller's
     exactness check reads ``thr`` instead of ``thr0``. Every candidate better
-    than ``thr`` is kept, so the screened best ``kk`` are the same as
-    :func:`shift_topk_serial`'s."""
+    than ``thr`` is kept, so the screened best ``kk`` are
+    :func:`shift_topk_serial`'s up to float32 rounding (where a run of
+    surviving blocks splits into SIMD body and tail depends on the bound, as
+    it does with any other ``thr0``); the caller's exact rescoring and
+    exactness check make the top-k the same."""
     out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
     out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
     gv = np.full(kk, np.inf, dtype=np.float32)  # max-heap: the kk best so far
