@@ -14,7 +14,9 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    fresh process on the same trace written to disk (wall time including
    interpreter start-up, imports, numba cache load, site preparation and CSV
    parsing), ``M`` = ``filter`` and ``full``, ``R`` repeats, median, after one
-   untimed run of each (so numba's on-disk cache is filled). Peak memory: the
+   untimed run of each (so numba's on-disk cache and the memo of the site's
+   scipy-computed arrays, :mod:`radiopose.diskcache`, are filled: a second
+   ``locate`` on a site). Peak memory: the
    process's ``ru_maxrss`` (read in a small launcher, since Linux carries a
    parent's ``ru_maxrss`` into its children).
 3. **Where a fresh process spends its time**: imports of the command line,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import matplotlib
@@ -43,6 +44,7 @@ TIERS: dict[str, str] = {
     # e2e: simulated (or real) scenarios through the pipeline, the CLI and the reports,
     # asserting an error bound or a pinned output
     "test_accuracy": "e2e",
+    "test_startup_cache": "e2e",
     "test_capture_sync": "e2e",
     "test_cli_core": "e2e",
     "test_demo": "e2e",
@@ -116,6 +118,13 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
         tier = TIERS.get(item.path.stem)
         if tier is not None:
             item.add_marker(getattr(pytest.mark, tier))
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _disk_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The on-disk memo of the sites' scipy-computed arrays (radiopose.diskcache)
+    in a directory of this session, not the user's cache."""
+    os.environ.setdefault("RADIOPOSE_CACHE_DIR", str(tmp_path_factory.mktemp("radiopose-cache")))
 
 
 @pytest.fixture(scope="session")

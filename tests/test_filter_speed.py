@@ -80,6 +80,41 @@ def test_filter_model_search_matches_the_scorer_and_keeps_the_slots(space):
     assert not scorer._slot_hints  # the caller's scorer is untouched
 
 
+@pytest.mark.parametrize("seed", [4327, 4328])
+def test_shared_chunk_threshold_keeps_the_same_best_and_prunes_more(space, seed):
+    """``shift_topk_shared`` (one thread: the chunks share their threshold) keeps the
+    screened best ``kk`` of ``shift_topk_serial`` (to float32 rounding: where a run
+    of surviving blocks splits into SIMD body and tail depends on the bound),
+    reports a bound covering what it kept, and keeps fewer candidates; the scorer
+    built on it still equals the reference exactly, at the data's offset and far
+    from it."""
+    from radiopose.likelihood import shift_kernels as sk
+
+    fast = ShiftScorer(space, parallel=False)
+    ref = ReferenceScorer(space)
+    kk = 24
+
+    def best(v, i):
+        ok = i.ravel() >= 0
+        vv, ii = v.ravel()[ok], i.ravel()[ok]
+        order = np.lexsort((ii, vv))[:kk]
+        return vv[order], ii[order], ok.sum()
+
+    for heard in _shifted_packets(space, seed, [0.0, 7.5, -9.0]):
+        r = heard.receiver_index
+        w = (heard.rss_dbm - fast.centre_db[r]).astype(np.float32)
+        args = (*fast._kernel_args(), fast.all_positions, 0, fast.n_az, kk, fast.block)
+        v0, i0 = sk.shift_topk_serial(w, r, *args, np.float32(np.inf))
+        v1, i1, thr = sk.shift_topk_shared(w, r, *args, np.float32(np.inf))
+        assert np.isfinite(thr)  # a cold start (no threshold given) gets one from the chunks
+        b0, _, n0 = best(v0, i0)
+        b1, _, n1 = best(v1, i1)
+        np.testing.assert_allclose(b1, b0, rtol=1e-5, atol=1e-6)
+        assert n1 < n0  # the shared threshold dropped what the earlier chunks beat
+        assert b1[-1] <= thr  # the kept best kk are within the bound it reports
+        _same(fast.score_heard(heard, 20), ref.score_heard(heard, 20))
+
+
 def _push_differences_numpy(heard, rss, t_s, max_dt_s, last_rss, last_t, diff2, count):
     """The σ differences as :meth:`ParticleFilter._update_sigma` computed them in numpy."""
     gap = t_s - last_t[heard]

@@ -44,6 +44,7 @@ from radiopose.geometry import (
     direction_to_pattern_angles_deg,
     orientation_matrices,
     pattern_angles_deg,
+    stored_orientation_matrices,
 )
 from radiopose.patterns.pattern import Pattern
 from radiopose.survey import (
@@ -298,7 +299,7 @@ def correct_survey(
     ids = [r.receiver_id for r in receivers]
     rx_pos = np.array([r.position_m for r in receivers]).reshape(-1, 3)
     idx = np.array([ids.index(r) for r in rows.receiver_id], dtype=np.int64)
-    rot = orientation_matrices(*rows.orientation_deg.T)  # (n, 3, 3)
+    rot = stored_orientation_matrices(rows.orientation_deg)  # (n, 3, 3)
     d = rx_pos[idx] - rows.xyz_m  # world direction survey tx → receiver
     v = np.einsum("ni,nij->nj", d, rot)  # body frame: v = Rᵀ d
     phi, theta = direction_to_pattern_angles_deg(v)

@@ -40,14 +40,8 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import (
-    CloughTocher2DInterpolator,
-    LinearNDInterpolator,
-    RectBivariateSpline,
-    RegularGridInterpolator,
-)
-from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from radiopose.diskcache import memo_arrays
 from radiopose.units import FloatArray
 
 InterpolationMethod = Literal["cubic", "linear"]
@@ -120,6 +114,21 @@ def hull_coverage(xy_m: FloatArray, x_m: FloatArray, y_m: FloatArray, tol_m: flo
     -------
     In ``[0, 1]``; 0 when the hull cannot be built (degenerate points).
     """
+    xy = np.asarray(xy_m, float).reshape(-1, 2)
+    x, y = np.asarray(x_m, float), np.asarray(y_m, float)
+    # memoised on disk: scipy.spatial's import costs more than the hull (diskcache)
+    out = memo_arrays(
+        "hull-coverage",
+        (xy, x, y, float(tol_m)),
+        lambda: {"coverage": np.array(_hull_coverage(xy, x, y, tol_m))},
+    )
+    return float(out["coverage"])
+
+
+def _hull_coverage(xy_m: FloatArray, x_m: FloatArray, y_m: FloatArray, tol_m: float) -> float:
+    """:func:`hull_coverage`, computed."""
+    from scipy.spatial import ConvexHull, QhullError  # ≈ 0.3 s to import: only where used
+
     try:
         eq = ConvexHull(np.asarray(xy_m, float).reshape(-1, 2)).equations  # a·p + c <= 0 inside
     except (QhullError, ValueError):
@@ -172,6 +181,14 @@ def interpolate_points(
     -------
     ``(q,)`` values in dB (NaN outside the hull with ``"exclude"``).
     """
+    from scipy.interpolate import (  # ≈ 0.45 s to import: only where used
+        CloughTocher2DInterpolator,
+        LinearNDInterpolator,
+        RectBivariateSpline,
+        RegularGridInterpolator,
+    )
+    from scipy.spatial import cKDTree
+
     q = np.asarray(query_xy_m, float).reshape(-1, 2)
     xy = points.xy_m
     if xy.shape[0] == 1:
@@ -239,8 +256,21 @@ def build_survey_map(
 ) -> SurveyMap:
     """Interpolate every receiver's survey onto the ``(x_m, y_m)`` candidate grid."""
     gx, gy = np.meshgrid(x_m, y_m, indexing="ij")
-    q = np.column_stack([gx.ravel(), gy.ravel()])
-    maps = np.stack([interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points])
+
+    def compute() -> dict[str, np.ndarray]:
+        q = np.column_stack([gx.ravel(), gy.ravel()])
+        return {
+            "maps": np.stack(
+                [interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points]
+            ).reshape(len(points), *gx.shape)
+        }
+
+    # memoised on disk: scipy.interpolate's import costs more than the
+    # interpolation (diskcache; the same float64 numbers)
+    key: list[object] = [method, outside, np.asarray(x_m, float), np.asarray(y_m, float)]
+    for p in points:
+        key += [np.asarray(p.xy_m, float), np.asarray(p.m_db, float)]
+    maps = memo_arrays("survey-map", key, compute)["maps"]
     for arr in (maps,):
         arr.setflags(write=False)
     return SurveyMap(tuple(receiver_ids), np.asarray(x_m), np.asarray(y_m), maps, tuple(points))

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.errors import InputError
-from radiopose.geometry import direction_to_pattern_angles_deg, orientation_matrices
+from radiopose.geometry import direction_to_pattern_angles_deg, stored_orientation_matrices
 from radiopose.likelihood.exact import expected_rss_all_dbm, mse_db2
 from radiopose.packets import PacketObservation
 from radiopose.patterns.pattern import Pattern
@@ -201,7 +201,7 @@ def candidate_space(site: Site, transmitter: str) -> CandidateSpace:
         transmitter=device.transmitter,
         positions_m=site.area.points_m(),
         orientations_deg=orient,
-        rotations=orientation_matrices(orient[:, 0], orient[:, 1], orient[:, 2]),
+        rotations=stored_orientation_matrices(orient),
         receiver_ids=site.receiver_ids,
         receiver_positions_m=site.receiver_positions_m(),
         channel_db=channel,

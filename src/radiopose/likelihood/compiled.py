@@ -90,6 +90,9 @@ from radiopose.likelihood.shift_kernels import (
 from radiopose.likelihood.shift_kernels import (
     shift_topk_serial as _shift_topk_serial,
 )
+from radiopose.likelihood.shift_kernels import (
+    shift_topk_shared as _shift_topk_shared,
+)
 from radiopose.likelihood.topk import TopK, select_topk
 from radiopose.patterns.pattern import Pattern
 from radiopose.units import wrap_deg
@@ -152,14 +155,16 @@ def _rotated_rows(
     error_db
         The resampling error bound (0 when every combination is the identity).
     """
-    from radiopose.geometry import orientation_matrices
+    from radiopose.geometry import stored_orientation_matrices
 
     n = round(360.0 / row_step_deg)
     phi = np.arange(n) * row_step_deg
     out = []
     err = 0.0
-    for pitch, roll in qs_deg:
-        a = orientation_matrices(0.0, pitch, roll)[0]
+    qs = np.asarray(qs_deg, dtype=np.float64).reshape(-1, 2)
+    # all combinations at once, memoised (the same matrices as one call each)
+    mats = stored_orientation_matrices(np.column_stack([np.zeros(len(qs)), qs]))
+    for (pitch, roll), a in zip(qs.tolist(), mats, strict=True):
 
         def lookup(ph: NDArray, th: NDArray, a: NDArray = a) -> NDArray:
             p, t = np.deg2rad(ph), np.deg2rad(th)
@@ -492,16 +497,20 @@ class ShiftScorer(ScorerBase):
                 run_pos = _prefilter(
                     w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
                 )
-            out_v, out_i = self._kernel(
-                w, r, *self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0)
-            )
+            args = (*self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0))
+            if self.parallel:
+                out_v, out_i = self._kernel(w, r, *args)
+                thr_used = float(thr0)
+            else:  # one thread: the chunks share their threshold (speed only)
+                out_v, out_i, thr_used = _shift_topk_shared(w, r, *args)
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
             i = out_i.ravel()[ok]
-            # Every candidate not kept scored above `excluded`: above the prune bound, or
-            # dropped by a chunk whose heap was full (so above its worst kept value).
+            # Every candidate not kept scored above `excluded`: above the prune bound
+            # (the last one, with shared thresholds), or dropped by a chunk whose heap
+            # was full (so above its worst kept value).
             full = np.isfinite(out_v).sum(axis=1) == kk_eff
-            excluded = float(thr0)
+            excluded = float(thr_used)
             if full.any():
                 excluded = min(excluded, float(out_v[full].max(axis=1).min()))
             if not np.isfinite(excluded):

@@ -387,3 +387,41 @@ def prefilter(w, heard, pre_lo, pre_hi, positions, every, cut):  # pragma: no co
             out[n] = positions[i]
             n += 1
     return out[:n]
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
+def shift_topk_shared(  # pragma: no cover - compiled
+    w, heard, posf, posi, rows, drows, blo, bhi, blo2, bhi2, rmin, rmax,
+    m, n_az, n_q, rows_per_q, positions, j0, cnt, kk, blk, thr0,
+):  # fmt: skip
+    """:func:`shift_topk_serial` (same arguments) with a threshold shared by the
+    chunks: after each chunk the ``kk``-th best value kept so far by all chunks
+    (once ``kk`` are kept) lowers the prune bound of the chunks after it, so a
+    chunk need not fill its own heap with candidates the earlier chunks already
+    beat. Returns ``(out_v, out_i, thr)``, ``thr`` the last (smallest) bound
+    used: every candidate not kept scored above ``thr`` or above the worst of a
+    full heap, as with ``thr0`` in :func:`shift_topk_serial`, so the caller's
+    exactness check reads ``thr`` instead of ``thr0``. Every candidate better
+    than ``thr`` is kept, so the screened best ``kk`` are
+    :func:`shift_topk_serial`'s up to float32 rounding (where a run of
+    surviving blocks splits into SIMD body and tail depends on the bound, as
+    it does with any other ``thr0``); the caller's exact rescoring and
+    exactness check make the top-k the same."""
+    out_v = np.full((N_CHUNKS, kk), np.inf, dtype=np.float32)
+    out_i = np.full((N_CHUNKS, kk), -1, dtype=np.int64)
+    gv = np.full(kk, np.inf, dtype=np.float32)  # max-heap: the kk best so far
+    gi = np.full(kk, -1, dtype=np.int64)
+    gcount = 0
+    thr = thr0
+    for c in range(N_CHUNKS):
+        _chunk(
+            c, out_v, out_i, w, heard, posf, posi, rows, drows, blo, bhi, blo2, bhi2,
+            rmin, rmax, m, n_az, n_q, rows_per_q, positions, j0, cnt, kk, blk, thr,
+        )  # fmt: skip
+        for j in range(kk):
+            v = out_v[c, j]
+            if v < np.inf and (gcount < kk or v <= gv[0]):
+                gcount = _heap_push(gv, gi, gcount, v, out_i[c, j])
+        if gcount == kk and gv[0] < thr:
+            thr = gv[0]
+    return out_v, out_i, thr
