@@ -43,6 +43,12 @@ _RAD_TO_DEG = 180.0 / math.pi
 
 
 @numba.njit(cache=True, inline="always")
+def wrap_pi(a):  # pragma: no cover - compiled
+    """``a`` radians wrapped to ``[-π, π)`` (the filters' and the smoother's one wrap)."""
+    return (a + math.pi) % _TWO_PI - math.pi
+
+
+@numba.njit(cache=True, inline="always")
 def _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny):  # pragma: no cover - compiled
     """``M_r(x, y)``, bilinear, clamped to the grid (NaN if a corner is NaN)."""
     u = min(max((x - x0) / dx, 0.0), nx - 1.0) if nx > 1 else 0.0

@@ -123,7 +123,7 @@ def tilt_height_step(S, noise_tilt, noise_z, dt_s, q_tilt, q_z, tilt, z_box):  #
                 S[i, K.ROLL_RAD] = S[i, K.ROLL_RAD] + math.pi
         if tilt[3] > 0.0:
             u = S[i, K.ROLL_RAD] + q_tilt * sq * noise_tilt[i, 1] - tilt[2]
-            u = (u + math.pi) % _TWO_PI - math.pi
+            u = K.wrap_pi(u)
             if tilt[3] < math.pi:
                 if u > tilt[3]:
                     u = 2.0 * tilt[3] - u
@@ -131,7 +131,7 @@ def tilt_height_step(S, noise_tilt, noise_z, dt_s, q_tilt, q_z, tilt, z_box):  #
                     u = -2.0 * tilt[3] - u
                 u = min(max(u, -tilt[3]), tilt[3])
             r = tilt[2] + u
-            S[i, K.ROLL_RAD] = (r + math.pi) % _TWO_PI - math.pi
+            S[i, K.ROLL_RAD] = K.wrap_pi(r)
         if z_box[1] > z_box[0]:
             z = S[i, K.Z_M] + q_z * sq * noise_z[i]
             if z < z_box[0]:
@@ -203,6 +203,21 @@ def _row_rotation(rows, i, out):  # pragma: no cover - compiled
         out[c] = r[c]
 
 
+@numba.njit(cache=True, inline="always")
+def _in_cluster(rows, rot, i, cx, cy, cz, cr, r2, tr_min):  # pragma: no cover - compiled
+    """Whether pose row ``i`` lies within ``√r2`` metres of ``(cx, cy, cz)`` and its
+    rotation ``rot[i]`` within the angle of ``tr(crᵀ R) ≥ tr_min`` of ``cr``."""
+    dx = rows[i, 0] - cx
+    dy = rows[i, 1] - cy
+    dz = rows[i, 2] - cz
+    if dx * dx + dy * dy + dz * dz > r2:
+        return False
+    tr = 0.0
+    for e in range(9):
+        tr += cr[e] * rot[i, e]
+    return tr >= tr_min
+
+
 @numba.njit(cache=True)
 def mode_pose(rows, w, n_centres, radius_m, cos_half_radius, iterations, out):  # pragma: no cover
     """The posterior's main mode from weighted pose rows, into ``out`` ``(7,)``.
@@ -260,17 +275,9 @@ def mode_pose(rows, w, n_centres, radius_m, cos_half_radius, iterations, out):  
             continue
         mass = 0.0
         for i in range(n):
-            if w[i] <= 0.0:
-                continue
-            dx = rows[i, 0] - rows[c, 0]
-            dy = rows[i, 1] - rows[c, 1]
-            dz = rows[i, 2] - rows[c, 2]
-            if dx * dx + dy * dy + dz * dz > r2:
-                continue
-            tr = 0.0
-            for e in range(9):
-                tr += rot[c, e] * rot[i, e]
-            if tr >= tr_min:
+            if w[i] > 0.0 and _in_cluster(
+                rows, rot, i, rows[c, 0], rows[c, 1], rows[c, 2], rot[c], r2, tr_min
+            ):
                 mass += w[i]
         if mass > best_mass:
             best_mass = mass
@@ -285,17 +292,7 @@ def mode_pose(rows, w, n_centres, radius_m, cos_half_radius, iterations, out):  
         mass = 0.0
         msum = np.zeros((3, 3))
         for i in range(n):
-            if w[i] <= 0.0:
-                continue
-            dx = rows[i, 0] - cx
-            dy = rows[i, 1] - cy
-            dz = rows[i, 2] - cz
-            if dx * dx + dy * dy + dz * dz > r2:
-                continue
-            tr = 0.0
-            for e in range(9):
-                tr += cr[e] * rot[i, e]
-            if tr < tr_min:
+            if w[i] <= 0.0 or not _in_cluster(rows, rot, i, cx, cy, cz, cr, r2, tr_min):
                 continue
             wi = w[i]
             mass += wi

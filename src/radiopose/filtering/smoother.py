@@ -94,12 +94,6 @@ class BackwardSettings:
         )
 
 
-@numba.njit(cache=True, inline="always")
-def _wrap(a):  # pragma: no cover - compiled
-    """``a`` wrapped to ``[-π, π)``."""
-    return (a + math.pi) % _TWO_PI - math.pi
-
-
 @numba.njit(cache=True)
 def log_kernel(a, b, dt_s, h_pos, h_ang):  # pragma: no cover - compiled
     """``−d² / 2``: log kernel (peak 0) of the state row ``b`` at ``t + dt_s``
@@ -113,9 +107,9 @@ def log_kernel(a, b, dt_s, h_pos, h_ang):  # pragma: no cover - compiled
     dx = b[K.X_M] - a[K.X_M] - a[K.VX_MPS] * dt_s
     dy = b[K.Y_M] - a[K.Y_M] - a[K.VY_MPS] * dt_s
     dz = b[K.Z_M] - a[K.Z_M]
-    da = _wrap(b[K.AZIMUTH_RAD] - a[K.AZIMUTH_RAD] - a[K.RATE_RAD_S] * dt_s)
+    da = K.wrap_pi(b[K.AZIMUTH_RAD] - a[K.AZIMUTH_RAD] - a[K.RATE_RAD_S] * dt_s)
     dp = b[K.PITCH_RAD] - a[K.PITCH_RAD]
-    dr = _wrap(b[K.ROLL_RAD] - a[K.ROLL_RAD])
+    dr = K.wrap_pi(b[K.ROLL_RAD] - a[K.ROLL_RAD])
     d2 = (dx * dx + dy * dy + dz * dz) / (h_pos * h_pos)
     d2 += (da * da + dp * dp + dr * dr) / (h_ang * h_ang)
     return -0.5 * d2
