@@ -34,6 +34,7 @@ TIERS: dict[str, str] = {
     "test_geometry": "property",
     "test_module_seams": "property",
     "test_pose3d_settings": "property",
+    "test_filter_settings": "property",
     "test_pose3d_site": "property",
     "test_patterns_importers": "property",
     "test_patterns_io": "property",

@@ -10,6 +10,7 @@ optional; ``radiopose locate`` reads it when present and says so. Format::
     [filter]                    # any field of radiopose.filtering.FilterConfig
     huber_c = 1.0
     sigma_prior_db = 5.0
+    offset_scan_db = [3.0, -3.0]  # list fields are arrays ([] allowed where it switches off)
 
     [filter.pose3d]             # the 3-D filter (a site with a height range or
     n_particles = 3000          # several pitches/rolls): any field of
@@ -50,6 +51,12 @@ fields at run time, so the values are typed ``Any`` for ``dataclasses.replace(**
 
 _STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS, "smoother": SMOOTHERS}
 """The values a string field of FilterConfig may take."""
+
+FILTER_ZERO_ALLOWED_INTS = frozenset({"offset_scans_per_reentry", "difference_memory"})
+"""Integer ``[filter]`` keys for which 0 is a value (it switches the part off)."""
+
+FILTER_EMPTY_ALLOWED_LISTS = frozenset({"offset_scan_db"})
+"""List-valued ``[filter]`` keys that may be empty (``[]`` switches the part off)."""
 
 
 POSE3D_TABLE = "pose3d"
@@ -142,9 +149,15 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
     for key in list(sec.data):
         kind = kinds.get(key)
         if kind is int:
-            overrides[key] = sec.integer(key, low=1, high=10_000_000)
+            low = 0 if key in FILTER_ZERO_ALLOWED_INTS else 1
+            overrides[key] = sec.integer(key, low=low, high=10_000_000)
         elif kind is float:
             overrides[key] = sec.number(key, low=-1e6, high=1e6)
+        elif kind is tuple:  # offsets in dB from devices.csv's power
+            empty_ok = key in FILTER_EMPTY_ALLOWED_LISTS
+            overrides[key] = sec.numbers(
+                key, low=-60.0, high=60.0, nonempty=not empty_ok, scalar=False
+            )
         elif kind is bool:
             overrides[key] = sec.boolean(key)
         elif kind is str:
@@ -263,7 +276,7 @@ def load_site_tracker_settings(
 
 def write_tracker_toml(
     path: str | os.PathLike[str],
-    overrides: Mapping[str, float | int | str | bool],
+    overrides: Mapping[str, float | int | str | bool | tuple[float, ...]],
     smoothing_lag_s: float | None = None,
     comment: str = "",
     pose3d: Mapping[str, float | int | str | tuple[float, ...]] | None = None,
