@@ -181,6 +181,12 @@ def test_live_pose3d(capsys: pytest.CaptureFixture[str]) -> None:
     assert any(r.startswith("| 3d | 75 |") for r in rows)
 
 
+def test_detect_pose3d(capsys: pytest.CaptureFixture[str]) -> None:
+    rows = _table_rows(_run(SCRIPTS / "detect_pose3d.py", ["--quick", "--sigmas", "1"], capsys))
+    assert len(rows) == 2 + 1  # header, rule, one row per σ
+    assert rows[2].startswith("| 1 | 0.001 |")
+
+
 def test_pose3d_identifiability(capsys: pytest.CaptureFixture[str]) -> None:
     printed = _run(SCRIPTS / "pose3d_identifiability.py", ["--starts", "5", "--seed", "5"], capsys)
     assert "offset known:" in printed and "offset free:" in printed
@@ -207,6 +213,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "real_data_ablation": test_real_data_ablation,
     "spoof_detection": test_spoof_detection,
     "survey_interpolation_error": test_survey_interpolation_error,
+    "detect_pose3d": test_detect_pose3d,
 }
 
 
