@@ -427,21 +427,23 @@ def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cov
     sw = np.zeros(n)
     swe = np.zeros(n)
     cost = np.zeros(n)
-    col = np.empty(n)
+    cols = np.empty((h, n))  # pred receiver-major: contiguous loads
     for i in range(n):
         b[i] = S[i, OFFSET_DB]
         p[i] = S[i, OFFSET_VAR_DB2]
+        for q in range(h):
+            cols[q, i] = pred[i, q]
     for q in range(h):
         # the residuals e_q = rss_q − pred_q − b̄ summed (ē below; NaN: outside)
         rq = rss[q]
+        col = cols[q]
         for i in range(n):
-            ebar[i] += rq - pred[i, q] - b[i]
+            ebar[i] += rq - col[i] - b[i]
     for i in range(n):
         ebar[i] = p[i] * ebar[i] / s2 / (1.0 + p[i] * h / s2)
     for q in range(h):
         rq = rss[q]
-        for i in range(n):
-            col[i] = pred[i, q]
+        col = cols[q]
         for i in range(n):
             e = rq - col[i] - b[i]
             u = (e - ebar[i]) / sigma_db
@@ -458,18 +460,27 @@ def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cov
         _update_offset(S, i, b[i], p[i], swe[i], s2, a)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def fixed_offset_loglik(pred, rss, offset_db, sigma_db, log_eps, out):  # pragma: no cover
     """Add the log-likelihood of one packet at each row's fixed offset to ``out``
-    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN)."""
+    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN);
+    receiver-major like it, so that the loop over rows vectorises."""
     n = pred.shape[0]
     h = rss.shape[0]
+    acc = np.zeros(n)
+    nan = np.zeros(n)  # NaN where a residual is
+    col = np.empty(n)
+    for q in range(h):
+        rq = rss[q]
+        for i in range(n):
+            col[i] = pred[i, q]
+        for i in range(n):
+            u = (rq - col[i] - offset_db[i]) / sigma_db
+            rho, _ = _inlier(0.0 if math.isnan(u) else u, log_eps)
+            acc[i] += rho
+            nan[i] += u - u
     for i in range(n):
-        acc = 0.0
-        for q in range(h):
-            rho, _ = _inlier((rss[q] - pred[i, q] - offset_db[i]) / sigma_db, log_eps)
-            acc += rho
-        out[i] -= acc if not math.isnan(acc) else np.inf
+        out[i] -= np.inf if math.isnan(nan[i]) else acc[i]
 
 
 @numba.njit(cache=True)
