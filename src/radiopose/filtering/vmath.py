@@ -24,6 +24,10 @@ arguments, so results that use them are not bit-identical to those of
 
 No fast-math flags: the operations are IEEE float64 without contraction, so
 the results are the same on every x86-64 machine and at every SIMD width.
+
+numba's on-disk cache keys a compiled function by its own source file, not by
+the modules it inlines: after editing this module, clear the cache of its
+callers (``kernels.py``) or touch their file.
 """
 
 from __future__ import annotations
