@@ -31,7 +31,7 @@ import math
 import numba
 import numpy as np
 
-from radiopose.filtering.vmath import vatan2, vexp, vlog
+from radiopose.filtering.vmath import vatan2, vexp, vlog, vsincos
 
 X_M, Y_M, Z_M, VX_MPS, VY_MPS, AZIMUTH_RAD, RATE_RAD_S, PITCH_RAD, ROLL_RAD = range(9)
 OFFSET_DB, OFFSET_VAR_DB2 = 9, 10
@@ -249,8 +249,9 @@ def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma:
     """:func:`expected_rss_dbm` into a preallocated ``out`` ``(n, h)``.
 
     Receiver-major (docs/performance.md, "Fourth pass"): per particle first its
-    rotation (one ``cos``/``sin`` pair per angle, the C library's) and its
-    survey-map cell; then per heard receiver the pattern azimuth of every
+    survey-map cell, then its rotation in a loop without library calls
+    (``cos``/``sin`` are :func:`~radiopose.filtering.vmath.vsincos`; it
+    vectorises); then per heard receiver the pattern azimuth of every
     particle in a loop without library calls (``atan2`` is
     :func:`~radiopose.filtering.vmath.vatan2`; the loop vectorises), then the
     map's and the pattern's bilinear lookups (gathers: scalar). The polar angle
@@ -262,6 +263,7 @@ def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma:
     xs = np.empty(n)
     ys = np.empty(n)
     zs = np.empty(n)
+    angles = np.empty((3, n))  # azimuth, pitch, roll
     cell = np.empty((4, n), np.int64)
     frac = np.empty((2, n))
     for i in range(n):
@@ -270,17 +272,20 @@ def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma:
         xs[i] = x
         ys[i] = y
         zs[i] = S[i, Z_M]
-        pitch = S[i, PITCH_RAD]
-        roll = S[i, ROLL_RAD]
-        ca = math.cos(S[i, AZIMUTH_RAD])
-        sa = math.sin(S[i, AZIMUTH_RAD])
-        if pitch == 0.0 and roll == 0.0:  # the same numbers as the general case, cheaper
-            cp, sp, cr, sr = 1.0, 0.0, 1.0, 0.0
-        else:
-            cp = math.cos(pitch)
-            sp = math.sin(pitch)
-            cr = math.cos(roll)
-            sr = math.sin(roll)
+        angles[0, i] = S[i, AZIMUTH_RAD]
+        angles[1, i] = S[i, PITCH_RAD]
+        angles[2, i] = S[i, ROLL_RAD]
+        i0, i1, j0, j1, fu, fv = _map_cell(x, y, x0, dx, nx, y0, dy, ny)
+        cell[0, i] = i0
+        cell[1, i] = i1
+        cell[2, i] = j0
+        cell[3, i] = j1
+        frac[0, i] = fu
+        frac[1, i] = fv
+    for i in range(n):  # no library calls: SIMD (vsincos(0) = (0, 1) exactly)
+        sa, ca = vsincos(angles[0, i])
+        sp, cp = vsincos(angles[1, i])
+        sr, cr = vsincos(angles[2, i])
         r00, r01, r02, r10, r11, r12, r20, r21, r22 = body_rotation(ca, sa, cp, sp, cr, sr)
         rot[0, i] = r00
         rot[1, i] = r01
@@ -291,13 +296,6 @@ def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma:
         rot[6, i] = r20
         rot[7, i] = r21
         rot[8, i] = r22
-        i0, i1, j0, j1, fu, fv = _map_cell(x, y, x0, dx, nx, y0, dy, ny)
-        cell[0, i] = i0
-        cell[1, i] = i1
-        cell[2, i] = j0
-        cell[3, i] = j1
-        frac[0, i] = fu
-        frac[1, i] = fv
     phi = np.empty(n)
     theta = np.full(n, 90.0)
     slice_pattern = d.shape[1] == 1  # polar angle unused: no acos
@@ -586,25 +584,7 @@ POSE_ROW = 8
 """Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
 
 
-@numba.njit(cache=True, inline="always")
-def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
-    """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
-    rows[k, 0] = S[i, X_M]
-    rows[k, 1] = S[i, Y_M]
-    rows[k, 2] = S[i, Z_M]
-    rows[k, 3] = math.cos(S[i, AZIMUTH_RAD])
-    rows[k, 4] = math.sin(S[i, AZIMUTH_RAD])
-    rows[k, 5] = S[i, PITCH_RAD]
-    roll = S[i, ROLL_RAD]
-    if roll == 0.0:  # cos 0 and sin 0, exactly
-        rows[k, 6] = 1.0
-        rows[k, 7] = 0.0
-    else:
-        rows[k, 6] = math.cos(roll)
-        rows[k, 7] = math.sin(roll)
-
-
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
     """Weighted moments of the particles (normalised ``w``)::
 
@@ -612,18 +592,40 @@ def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
          Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
 
     into ``m`` ``(11,)`` (angles radians; ``1 / Σw²`` is the effective sample
-    size). The particles' pose rows (:data:`POSE_ROW`) go to ``rows``
-    ``(n, POSE_ROW)``: what the smoother keeps (:func:`lineage_moments`).
+    size). The particles' pose rows (:data:`POSE_ROW`: x, y, z, cos a, sin a,
+    pitch, cos r, sin r) go to ``rows`` ``(n, POSE_ROW)``: what the smoother
+    keeps (:func:`lineage_moments`). ``cos``/``sin`` are
+    :func:`~radiopose.filtering.vmath.vsincos`, in a loop of their own (SIMD).
     """
+    n = S.shape[0]
+    ang = np.empty((2, n))
+    trig = np.empty((4, n))
+    for i in range(n):
+        ang[0, i] = S[i, AZIMUTH_RAD]
+        ang[1, i] = S[i, ROLL_RAD]
+    for i in range(n):
+        sa, ca = vsincos(ang[0, i])
+        sr, cr = vsincos(ang[1, i])  # (0, 1) exactly for roll 0
+        trig[0, i] = ca
+        trig[1, i] = sa
+        trig[2, i] = cr
+        trig[3, i] = sr
     m[:] = 0.0
-    for i in range(S.shape[0]):
-        _pose_row(S, i, rows, i)
+    for i in range(n):
+        rows[i, 0] = S[i, X_M]
+        rows[i, 1] = S[i, Y_M]
+        rows[i, 2] = S[i, Z_M]
+        rows[i, 3] = trig[0, i]
+        rows[i, 4] = trig[1, i]
+        rows[i, 5] = S[i, PITCH_RAD]
+        rows[i, 6] = trig[2, i]
+        rows[i, 7] = trig[3, i]
         wi = w[i]
         for c in range(POSE_ROW):
             m[c] += wi * rows[i, c]
         m[9] += wi * S[i, OFFSET_DB]
         m[10] += wi * wi
-    for i in range(S.shape[0]):
+    for i in range(n):
         dx = S[i, X_M] - m[0]
         dy = S[i, Y_M] - m[1]
         m[8] += w[i] * (dx * dx + dy * dy)

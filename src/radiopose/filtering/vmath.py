@@ -1,6 +1,6 @@
-"""Branch-free ``exp``, ``log`` and ``atan2`` for the filter's compiled loops.
+"""Branch-free ``exp``, ``log``, ``atan2`` and ``sin``/``cos`` for the filter's compiled loops.
 
-numba calls the C library's ``exp``/``log``/``atan2`` one value at a time, so a
+numba calls the C library's ``exp``/``log``/``atan2``/``sin``/``cos`` one value at a time, so a
 loop that uses them cannot be vectorised (SIMD); the filter's per-particle
 likelihood spends most of its time in those calls (docs/performance.md,
 "Fourth pass"). These versions are plain float64 arithmetic with selects
@@ -16,7 +16,10 @@ smaller number or 0; above 709, ``exp(709)``), ``log`` within 2 ulp (absolute
 ≤ 2.3e-16 for arguments in ``[0.5, 2]``) for positive normal arguments,
 ``atan2`` within 2 ulp (absolute ≤ 5e-16 rad) for finite arguments, the
 C library's values on the axes (at a signed zero argument it may return
-``0``/``π`` where the C library returns ``±0``/``±π``; ``atan2(0, 0) = 0``).
+``0``/``π`` where the C library returns ``±0``/``±π``; ``atan2(0, 0) = 0``),
+``sincos`` within 2 ulp (absolute ≤ 2.3e-16; near the zeros of sin and cos
+the absolute error is below 1e-30) for ``|x| < 2²⁹``, and ``(0, 1)`` exactly
+at 0.
 Their numbers differ from the C library's in the last bit for a fraction of
 arguments, so results that use them are not bit-identical to those of
 ``math.exp`` and friends; no argument is NaN or infinite in the filter's use
@@ -166,3 +169,52 @@ def vatan2(y, x):  # pragma: no cover - compiled
     t = _atan_nonneg(ay / ax) if ax > 0.0 else (0.5 * math.pi if ay > 0.0 else 0.0)
     t = math.pi - t if x < 0.0 else t
     return -t if y < 0.0 else t
+
+
+# sin and cos: x = j π/4 + z (j even, |z| <= π/4, π/4 in three parts);
+# sin z = z + z³ S(z²), cos z = 1 − z²/2 + z⁴ C(z²); the octant picks which and the signs
+_FOUR_OVER_PI = 4.0 / math.pi
+_PI4_A = 7.85398125648498535156e-1
+_PI4_B = 3.77489470793079817668e-8
+_PI4_C = 2.69515142907905952645e-15
+_S0 = 1.58962301576546568060e-10
+_S1 = -2.50507477628578072866e-8
+_S2 = 2.75573136213857245213e-6
+_S3 = -1.98412698295895385996e-4
+_S4 = 8.33333333332211858878e-3
+_S5 = -1.66666666666666307295e-1
+_C0 = -1.13585365213876817300e-11
+_C1 = 2.08757008419747316778e-9
+_C2 = -2.75573141792967388112e-7
+_C3 = 2.48015872888517045348e-5
+_C4 = -1.38888888888730564116e-3
+_C5 = 4.16666666666665929218e-2
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def vsincos(x):  # pragma: no cover - compiled
+    """``(sin x, cos x)`` (each within 2 ulp, absolute ≤ 2.3e-16) for
+    ``|x| < 2²⁹``; branch-free. ``vsincos(0) = (0, 1)`` exactly."""
+    neg = x < 0.0
+    ax = -x if neg else x
+    j = np.int64(ax * _FOUR_OVER_PI)
+    odd = (j & 1) == 1
+    j = j + 1 if odd else j
+    y = float(j)
+    j = j & 7
+    z = ((ax - y * _PI4_A) - y * _PI4_B) - y * _PI4_C
+    flip = j > 3
+    j = j - 4 if flip else j
+    sin_neg = neg != flip
+    cos_neg = flip != (j > 1)
+    zz = z * z
+    c = (
+        1.0
+        - 0.5 * zz
+        + zz * zz * (((((_C0 * zz + _C1) * zz + _C2) * zz + _C3) * zz + _C4) * zz + _C5)
+    )
+    s = z + z * zz * (((((_S0 * zz + _S1) * zz + _S2) * zz + _S3) * zz + _S4) * zz + _S5)
+    swap = j == 1 or j == 2
+    sin_x = c if swap else s
+    cos_x = s if swap else c
+    return (-sin_x if sin_neg else sin_x), (-cos_x if cos_neg else cos_x)
