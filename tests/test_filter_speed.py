@@ -2,9 +2,11 @@
 per-offset threshold hints and concurrent searches (``ShiftScorer.score_heard_slot``,
 ``score_heard_many``, ``FilterModel.search``), a smaller screened shortlist, the
 σ differences in one compiled call, the outlier mixture with one exponential
-fewer, and a smoother ring sized for the re-entries.
+fewer, and a smoother ring sized for the re-entries; and (fourth pass) the
+vectorisable ``exp``/``log``/``atan2``/``sin``/``cos`` and the receiver-major
+likelihood and expected RSS, within ulps of the C library's numbers.
 
-Seeds 4321-4329 are used here only.
+Seeds 4321-4329 and 4340-4345 are used here only.
 """
 
 from __future__ import annotations
@@ -267,3 +269,179 @@ def test_thread_pool_is_remade_in_a_forked_child():
 
 def _use_pool_in_child() -> int:
     return compiled.thread_pool(2).submit(lambda: 7).result(timeout=30)
+
+
+# ----------------------------------------------------------------------------- fourth pass
+# Vectorisable exp/log/atan2 (radiopose.filtering.vmath) and the receiver-major
+# likelihood and expected RSS: within ulps of the C library's numbers, and the
+# loops over particles actually vectorise.
+
+
+def _ulps(got: np.ndarray, want: np.ndarray) -> np.ndarray:
+    return np.abs(got - want) / np.spacing(np.abs(want))
+
+
+@pytest.fixture(scope="module")
+def vmath_loops():
+    import numba
+
+    from radiopose.filtering import vmath
+
+    @numba.njit(error_model="numpy")
+    def apply(kind, x, y, out):  # pragma: no cover - compiled
+        for i in range(x.shape[0]):
+            if kind == 0:
+                out[i] = vmath.vexp(x[i])
+            elif kind == 1:
+                out[i] = vmath.vlog(x[i])
+            elif kind == 2:
+                out[i] = vmath.vatan2(y[i], x[i])
+            elif kind == 3:
+                out[i] = vmath.vsincos(x[i])[0]
+            else:
+                out[i] = vmath.vsincos(x[i])[1]
+
+    def run(kind: int, x: np.ndarray, y: np.ndarray | None = None) -> np.ndarray:
+        out = np.empty_like(x)
+        apply(kind, x, x if y is None else y, out)
+        return out
+
+    return run
+
+
+def test_vexp_vlog_within_two_ulp_of_libm(vmath_loops):
+    rng = np.random.default_rng(4340)
+    for x in (rng.uniform(-708.0, 709.0, 100_000), rng.uniform(-40.0, 0.0, 100_000)):
+        got = vmath_loops(0, x)
+        assert _ulps(got, np.exp(x)).max() <= 2.0
+    assert vmath_loops(0, np.array([0.0]))[0] == 1.0
+    # clamped below -708 and above 709 (the filter never goes there: documented)
+    np.testing.assert_allclose(vmath_loops(0, np.array([-1e4, 1e4])), np.exp([-708.0, 709.0]))
+    for x in (np.exp(rng.uniform(-700.0, 700.0, 100_000)), rng.uniform(0.5, 2.0, 100_000)):
+        got = vmath_loops(1, x)
+        want = np.log(x)
+        assert (np.abs(got - want) <= 2.0 * np.spacing(np.maximum(np.abs(want), 0.5))).all()
+    assert vmath_loops(1, np.array([1.0]))[0] == 0.0
+
+
+def test_vatan2_within_two_ulp_of_libm_and_on_the_axes(vmath_loops):
+    rng = np.random.default_rng(4341)
+    scale = 10.0 ** rng.uniform(-6, 3, 100_000)
+    x, y = rng.normal(0, 1, 100_000) * scale, rng.normal(0, 1, 100_000) * scale
+    got = vmath_loops(2, x, y)
+    want = np.arctan2(y, x)
+    assert (np.abs(got - want) <= 2.0 * np.spacing(np.abs(want))).all()
+    assert np.abs(got - want).max() < 5e-16
+    ax = np.array([1.0, -1.0, 0.0, 0.0, 0.0, 3.0, -2.0, 1.0, 1e-300])
+    ay = np.array([0.0, 0.0, 1.0, -1.0, 0.0, 3.0, -2.0, 1e-300, 1.0])
+    np.testing.assert_array_equal(vmath_loops(2, ax, ay), np.arctan2(ay, ax))
+
+
+def test_vsincos_within_two_ulp_of_libm(vmath_loops):
+    rng = np.random.default_rng(4345)
+    for x in (rng.uniform(0.0, 2 * np.pi, 100_000), rng.uniform(-60.0, 60.0, 100_000)):
+        for kind, ref in ((3, np.sin(x)), (4, np.cos(x))):
+            err = np.abs(vmath_loops(kind, x) - ref)
+            assert (err <= 2.0 * np.spacing(np.maximum(np.abs(ref), 0.25))).all()
+            assert err.max() <= 2.3e-16
+    # exact where the kernels rely on it (a frozen pitch or roll of 0)
+    assert vmath_loops(3, np.array([0.0, -0.0]))[0] == 0.0
+    assert (vmath_loops(4, np.array([0.0, -0.0])) == 1.0).all()
+    axes = np.array([np.pi / 2, np.pi, 1.5 * np.pi])
+    np.testing.assert_allclose(vmath_loops(3, axes), np.sin(axes), rtol=0, atol=1e-30 + 2e-16)
+    np.testing.assert_allclose(vmath_loops(4, axes), np.cos(axes), rtol=0, atol=1e-30 + 2e-16)
+
+
+def _expected_row_reference(S, i, heard, rx, chan, grid, tx_dbm, d, pat) -> list[float]:
+    """A particle's expected RSS as the particle-major kernel computed it before
+    (the C library's atan2), from the kernels' own Python lookups."""
+    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
+    x, y, z = S[i, K.X_M], S[i, K.Y_M], S[i, K.Z_M]
+    a, p, r = S[i, K.AZIMUTH_RAD], S[i, K.PITCH_RAD], S[i, K.ROLL_RAD]
+    rot = K.body_rotation.py_func(
+        math.cos(a), math.sin(a), math.cos(p), math.sin(p), math.cos(r), math.sin(r)
+    )
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+    out = []
+    for rr in heard:
+        ddx, ddy, ddz = rx[rr, 0] - x, rx[rr, 1] - y, rx[rr, 2] - z
+        vx = ddx * r00 + ddy * r10 + ddz * r20
+        vy = ddx * r01 + ddy * r11 + ddz * r21
+        vz = ddx * r02 + ddy * r12 + ddz * r22
+        if vx == 0.0 and vy == 0.0 and vz == 0.0:
+            phi, theta = 0.0, 90.0
+        else:
+            phi = math.degrees(math.atan2(vy, vx))
+            nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+            theta = math.degrees(math.acos(min(max(vz / nrm, -1.0), 1.0)))
+        m = K._map_db.py_func(chan, rr, x, y, x0, dx, nx, y0, dy, ny)
+        out.append(m + tx_dbm + K._pattern_dbi.py_func(d, phi, theta, pat[0], pat[1], pat[2]))
+    return out
+
+
+@pytest.mark.parametrize("sphere", [False, True])
+def test_receiver_major_expected_rss_matches_the_particle_major_one(sphere):
+    rng = np.random.default_rng(4342 + sphere)
+    n = 400
+    S = np.zeros((n, K.N_COLUMNS))
+    S[:, K.X_M] = rng.uniform(-1.0, 21.0, n)  # some outside the map: clamped
+    S[:, K.Y_M] = rng.uniform(-1.0, 21.0, n)
+    S[:, K.Z_M] = 1.0
+    S[:, K.AZIMUTH_RAD] = rng.uniform(0, 2 * np.pi, n)
+    S[:, K.PITCH_RAD] = np.where(rng.random(n) < 0.5, 0.0, rng.normal(0, 0.3, n))
+    S[:, K.ROLL_RAD] = np.where(rng.random(n) < 0.5, 0.0, rng.normal(0, 0.3, n))
+    rx = np.array([[0.0, 0.0, 2.0], [20.0, 0.0, 2.0], [10.0, 20.0, 1.0], [5.0, 5.0, 1.0]])
+    S[0, K.X_M : K.Z_M + 1] = rx[3]  # on a receiver: direction (0, 0, 0)
+    S[1, K.X_M : K.Z_M + 1] = (rx[2, 0], rx[2, 1], 0.0)  # straight below one
+    chan = rng.normal(-60, 5, (4, 21, 21))
+    chan[1, 3, 4] = np.nan  # a hole in one receiver's map: NaN near it
+    grid = np.array([0.0, 1.0, 21, 0.0, 1.0, 21])
+    d = rng.normal(0, 4, (36, 19 if sphere else 1))
+    pat = np.array([5.0, 10.0, 10.0 if sphere else 1.0])
+    heard = np.array([0, 1, 3, 2], np.int64)
+    got = np.empty((n, heard.size))
+    K.expected_rss_into(S, heard, rx, chan, grid, -3.0, d, pat, got)
+    want = np.array(
+        [_expected_row_reference(S, i, heard, rx, chan, grid, -3.0, d, pat) for i in range(n)]
+    )
+    assert np.isnan(want).any()
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
+
+
+@pytest.mark.skipif(
+    __import__("platform").machine() not in ("x86_64", "AMD64"), reason="x86 assembly"
+)
+def test_the_likelihood_and_expected_rss_loops_vectorise():
+    """The point of the receiver-major kernels: their loops over particles hold
+    no library call, so LLVM vectorises them (a packed ``divpd``: vexp, vlog and
+    vatan2 divide). The C library's exp/log in the outlier mixture, or its atan2
+    in the expected RSS (whose other loops call cos/sin or gather, and stay
+    scalar), fail this."""
+    import re
+
+    import numba
+
+    @numba.njit(error_model="numpy")
+    def mixture(u, log_eps, out):  # pragma: no cover - compiled
+        for i in range(u.shape[0]):
+            rho, w = K._inlier(u[i], log_eps)
+            out[i] = rho + w
+
+    rng = np.random.default_rng(4344)
+    n, h = 64, 3
+    S = np.zeros((n, K.N_COLUMNS))
+    rx = rng.uniform(0, 5, (h, 3))
+    chan = rng.normal(-60, 5, (h, 6, 6))
+    grid = np.array([0.0, 1.0, 6, 0.0, 1.0, 6])
+    d = rng.normal(0, 4, (36, 1))
+    pat = np.array([0.0, 10.0, 1.0])
+    heard = np.arange(h, dtype=np.int64)
+    expected = numba.njit(error_model="numpy")(K.expected_rss_into.py_func)
+    for g, args in (
+        (mixture, (rng.normal(0, 3, n), math.log(0.01), np.empty(n))),
+        (expected, (S, heard, rx, chan, grid, 0.0, d, pat, np.empty((n, h)))),
+    ):
+        g(*args)
+        asm = "".join(g.inspect_asm().values())
+        assert re.search(r"\bv?divpd\b", asm)

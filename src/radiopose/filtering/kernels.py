@@ -17,7 +17,7 @@ grid (periodic in azimuth, polar clamped), ``(φ_r, θ_r)`` the direction to the
 receiver in the body frame of ``R = Rz(azimuth)·Rx(pitch)·Ry(roll)`` and ``b``
 the power offset.
 
-One module of ~600 lines on purpose: every kernel reads the same column
+One module of ~800 lines on purpose: every kernel reads the same column
 constants and the same off-grid lookup (inlined by numba across functions in
 one module), and the two likelihoods (the outlier mixture and the Huber
 alternative, ``FilterConfig.likelihood``) sit side by side so that a change to
@@ -30,6 +30,8 @@ import math
 
 import numba
 import numpy as np
+
+from radiopose.filtering.vmath import vatan2, vexp, vlog, vsincos
 
 X_M, Y_M, Z_M, VX_MPS, VY_MPS, AZIMUTH_RAD, RATE_RAD_S, PITCH_RAD, ROLL_RAD = range(9)
 OFFSET_DB, OFFSET_VAR_DB2 = 9, 10
@@ -49,19 +51,31 @@ def wrap_pi(a):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, inline="always")
-def _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny):  # pragma: no cover - compiled
-    """``M_r(x, y)``, bilinear, clamped to the grid (NaN if a corner is NaN)."""
+def _map_cell(x, y, x0, dx, nx, y0, dy, ny):  # pragma: no cover - compiled
+    """The survey-map cell of ``(x, y)``, clamped to the grid: corner indices
+    ``i0, i1, j0, j1`` and the bilinear fractions ``fu, fv`` (:func:`_map_db`)."""
     u = min(max((x - x0) / dx, 0.0), nx - 1.0) if nx > 1 else 0.0
     v = min(max((y - y0) / dy, 0.0), ny - 1.0) if ny > 1 else 0.0
     i0 = min(int(u), max(nx - 2, 0))
     j0 = min(int(v), max(ny - 2, 0))
     i1 = min(i0 + 1, nx - 1)
     j1 = min(j0 + 1, ny - 1)
-    fu = u - i0
-    fv = v - j0
+    return i0, i1, j0, j1, u - i0, v - j0
+
+
+@numba.njit(cache=True, inline="always")
+def _map_at(chan, r, i0, i1, j0, j1, fu, fv):  # pragma: no cover - compiled
+    """``M_r`` in the cell of :func:`_map_cell`, bilinear (NaN if a corner is NaN)."""
     a = chan[r, i0, j0] * (1.0 - fv) + chan[r, i0, j1] * fv
     b = chan[r, i1, j0] * (1.0 - fv) + chan[r, i1, j1] * fv
     return a * (1.0 - fu) + b * fu
+
+
+@numba.njit(cache=True, inline="always")
+def _map_db(chan, r, x, y, x0, dx, nx, y0, dy, ny):  # pragma: no cover - compiled
+    """``M_r(x, y)``, bilinear, clamped to the grid (NaN if a corner is NaN)."""
+    i0, i1, j0, j1, fu, fv = _map_cell(x, y, x0, dx, nx, y0, dy, ny)
+    return _map_at(chan, r, i0, i1, j0, j1, fu, fv)
 
 
 @numba.njit(cache=True, inline="always")
@@ -204,11 +218,119 @@ def _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, row):  # pra
         out[row, q] = m + tx_dbm + _pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _pattern_dbi_near(d, phi_deg, theta_deg, az0, az_step, polar_step):  # pragma: no cover
+    """:func:`_pattern_dbi` for ``phi_deg − az0`` in ``[−360, 720)`` (a pattern
+    azimuth from ``atan2`` and ``az0`` in ``[0, step)``): the same numbers,
+    branch-free (the wrap by one turn as selects), so that a loop over
+    particles vectorises."""
+    n_az = d.shape[0]
+    n_pol = d.shape[1]
+    a = phi_deg - az0
+    a = a + 360.0 if a < 0.0 else a
+    a = a - 360.0 if a >= 360.0 else a
+    u = a / az_step
+    w = 0.0 if n_pol == 1 else min(max(theta_deg, 0.0), 180.0) / polar_step
+    fi0 = math.floor(u)
+    fu = u - fi0
+    i0 = int(fi0)
+    i0 = i0 - n_az if i0 >= n_az else i0
+    i1 = i0 + 1 if i0 + 1 < n_az else 0
+    j0 = min(int(w), n_pol - 1)
+    fw = w - j0
+    j1 = min(j0 + 1, n_pol - 1)
+    top = d[i0, j0] * (1.0 - fu) + d[i1, j0] * fu
+    bot = d[i0, j1] * (1.0 - fu) + d[i1, j1] * fu
+    return top * (1.0 - fw) + bot * fw
+
+
+@numba.njit(cache=True, error_model="numpy")
 def expected_rss_into(S, heard, rx, chan, grid, tx_dbm, d, pat, out):  # pragma: no cover
-    """:func:`expected_rss_dbm` into a preallocated ``out`` ``(n, h)``."""
-    for i in range(S.shape[0]):
-        _expected_row(S, i, heard, rx, chan, grid, tx_dbm, d, pat, out, i)
+    """:func:`expected_rss_dbm` into a preallocated ``out`` ``(n, h)``.
+
+    Receiver-major (docs/performance.md, "Fourth pass"): per particle first its
+    survey-map cell, then its rotation in a loop without library calls
+    (``cos``/``sin`` are :func:`~radiopose.filtering.vmath.vsincos`; it
+    vectorises); then per heard receiver the pattern azimuth of every
+    particle in a loop without library calls (``atan2`` is
+    :func:`~radiopose.filtering.vmath.vatan2`; the loop vectorises), then the
+    map's and the pattern's bilinear lookups (gathers: scalar). The polar angle
+    of a full-sphere pattern takes the C library's ``acos``.
+    """
+    n = S.shape[0]
+    x0, dx, nx, y0, dy, ny = grid[0], grid[1], int(grid[2]), grid[3], grid[4], int(grid[5])
+    rot = np.empty((9, n))
+    xs = np.empty(n)
+    ys = np.empty(n)
+    zs = np.empty(n)
+    angles = np.empty((3, n))  # azimuth, pitch, roll
+    cell = np.empty((4, n), np.int64)
+    frac = np.empty((2, n))
+    for i in range(n):
+        x = S[i, X_M]
+        y = S[i, Y_M]
+        xs[i] = x
+        ys[i] = y
+        zs[i] = S[i, Z_M]
+        angles[0, i] = S[i, AZIMUTH_RAD]
+        angles[1, i] = S[i, PITCH_RAD]
+        angles[2, i] = S[i, ROLL_RAD]
+        i0, i1, j0, j1, fu, fv = _map_cell(x, y, x0, dx, nx, y0, dy, ny)
+        cell[0, i] = i0
+        cell[1, i] = i1
+        cell[2, i] = j0
+        cell[3, i] = j1
+        frac[0, i] = fu
+        frac[1, i] = fv
+    for i in range(n):  # no library calls: SIMD (vsincos(0) = (0, 1) exactly)
+        sa, ca = vsincos(angles[0, i])
+        sp, cp = vsincos(angles[1, i])
+        sr, cr = vsincos(angles[2, i])
+        r00, r01, r02, r10, r11, r12, r20, r21, r22 = body_rotation(ca, sa, cp, sp, cr, sr)
+        rot[0, i] = r00
+        rot[1, i] = r01
+        rot[2, i] = r02
+        rot[3, i] = r10
+        rot[4, i] = r11
+        rot[5, i] = r12
+        rot[6, i] = r20
+        rot[7, i] = r21
+        rot[8, i] = r22
+    phi = np.empty(n)
+    theta = np.full(n, 90.0)
+    slice_pattern = d.shape[1] == 1  # polar angle unused: no acos
+    for q in range(heard.shape[0]):
+        r = heard[q]
+        rx0 = rx[r, 0]
+        rx1 = rx[r, 1]
+        rx2 = rx[r, 2]
+        for i in range(n):  # no library calls, no gathers: SIMD
+            ddx = rx0 - xs[i]
+            ddy = rx1 - ys[i]
+            ddz = rx2 - zs[i]
+            vx = ddx * rot[0, i] + ddy * rot[3, i] + ddz * rot[6, i]
+            vy = ddx * rot[1, i] + ddy * rot[4, i] + ddz * rot[7, i]
+            vz = ddx * rot[2, i] + ddy * rot[5, i] + ddz * rot[8, i]
+            here = vx == 0.0 and vy == 0.0 and vz == 0.0
+            phi[i] = 0.0 if here else vatan2(vy, vx) * _RAD_TO_DEG
+        if not slice_pattern:
+            for i in range(n):
+                ddx = rx0 - xs[i]
+                ddy = rx1 - ys[i]
+                ddz = rx2 - zs[i]
+                vx = ddx * rot[0, i] + ddy * rot[3, i] + ddz * rot[6, i]
+                vy = ddx * rot[1, i] + ddy * rot[4, i] + ddz * rot[7, i]
+                vz = ddx * rot[2, i] + ddy * rot[5, i] + ddz * rot[8, i]
+                if vx == 0.0 and vy == 0.0 and vz == 0.0:
+                    theta[i] = 90.0
+                else:
+                    nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+                    theta[i] = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+        for i in range(n):
+            m = _map_at(
+                chan, r, cell[0, i], cell[1, i], cell[2, i], cell[3, i], frac[0, i], frac[1, i]
+            )
+            out[i, q] = m + tx_dbm + _pattern_dbi_near(d, phi[i], theta[i], pat[0], pat[1], pat[2])
 
 
 @numba.njit(cache=True)
@@ -225,17 +347,21 @@ def expected_rss_dbm(S, heard, rx, chan, grid, tx_dbm, d, pat):  # pragma: no co
     return out
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _inlier(u, log_eps):  # pragma: no cover - compiled
     """Cost ``ρ(u) = −log(exp(−u²/2) + ε′)`` of a standardised residual ``u`` and
-    its inlier weight ``exp(−u²/2) / (exp(−u²/2) + ε′)`` (``log_eps = log ε′``)."""
+    its inlier weight ``exp(−u²/2) / (exp(−u²/2) + ε′)`` (``log_eps = log ε′``).
+
+    Branch-free, with :mod:`radiopose.filtering.vmath`'s ``exp``/``log`` (not the
+    C library's, within 2 ulp of it), so that a loop over particles calling it
+    vectorises (:func:`measurement_update`)."""
     g = -0.5 * u * u
     m = max(g, log_eps)
     # m + log(exp(g − m) + exp(log ε′ − m)): one of the two exponentials is
     # exp(0) = 1 exactly and the other exp(−|g − log ε′|), so one exp is not
-    # computed (the same numbers, branch-free)
-    lse = m + math.log(1.0 + math.exp(-abs(g - log_eps)))
-    return -lse, math.exp(g - lse)
+    # computed
+    lse = m + vlog(1.0 + vexp(-abs(g - log_eps)))
+    return -lse, vexp(g - lse)
 
 
 @numba.njit(cache=True, inline="always")
@@ -264,7 +390,7 @@ def _update_offset(S, i, b, p, swe, s2, a):  # pragma: no cover - compiled
     S[i, OFFSET_VAR_DB2] = p / a
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cover - compiled
     """Add each particle's log-likelihood of one packet to ``logw`` and update its
     power-offset belief in place (Rao-Blackwellised scalar Kalman filter).
@@ -283,41 +409,76 @@ def measurement_update(S, pred, rss, sigma_db, log_eps, logw):  # pragma: no cov
         b̄ ← b̄ + P (Σ w e/σ²) / a,   P ← P / a
 
     A particle whose expected RSS is NaN (outside the survey) gets ``−inf``.
+
+    Receiver-major passes over contiguous per-particle arrays (the offsets, the
+    expected RSS of one receiver, the sums), so that the loops over particles
+    vectorise with the branch-free :func:`_inlier` (docs/performance.md,
+    "Fourth pass"); each particle's sums run over the receivers in order, as
+    in a particle-major loop.
     """
     n = S.shape[0]
     h = rss.shape[0]
     s2 = sigma_db * sigma_db
-    e = np.empty(h)
+    b = np.empty(n)
+    p = np.empty(n)
+    ebar = np.zeros(n)
+    sw = np.zeros(n)
+    swe = np.zeros(n)
+    cost = np.zeros(n)
+    cols = np.empty((h, n))  # pred receiver-major: contiguous loads
     for i in range(n):
-        b, p, ebar = _offset_residuals(S, i, pred, rss, s2, e)
-        if math.isnan(ebar):
+        b[i] = S[i, OFFSET_DB]
+        p[i] = S[i, OFFSET_VAR_DB2]
+        for q in range(h):
+            cols[q, i] = pred[i, q]
+    for q in range(h):
+        # the residuals e_q = rss_q − pred_q − b̄ summed (ē below; NaN: outside)
+        rq = rss[q]
+        col = cols[q]
+        for i in range(n):
+            ebar[i] += rq - col[i] - b[i]
+    for i in range(n):
+        ebar[i] = p[i] * ebar[i] / s2 / (1.0 + p[i] * h / s2)
+    for q in range(h):
+        rq = rss[q]
+        col = cols[q]
+        for i in range(n):
+            e = rq - col[i] - b[i]
+            u = (e - ebar[i]) / sigma_db
+            rho, w = _inlier(0.0 if math.isnan(u) else u, log_eps)
+            cost[i] += rho
+            sw[i] += w
+            swe[i] += w * e
+    for i in range(n):
+        if math.isnan(ebar[i]):
             logw[i] = -np.inf
             continue
-        sw = 0.0
-        swe = 0.0
-        cost = 0.0
-        for q in range(h):
-            rho, w = _inlier((e[q] - ebar) / sigma_db, log_eps)
-            cost += rho
-            sw += w
-            swe += w * e[q]
-        a = 1.0 + p * sw / s2
-        logw[i] += -cost + 0.5 * p * (swe / s2) ** 2 / a - 0.5 * math.log(a)
-        _update_offset(S, i, b, p, swe, s2, a)
+        a = 1.0 + p[i] * sw[i] / s2
+        logw[i] += -cost[i] + 0.5 * p[i] * (swe[i] / s2) ** 2 / a - 0.5 * vlog(a)
+        _update_offset(S, i, b[i], p[i], swe[i], s2, a)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def fixed_offset_loglik(pred, rss, offset_db, sigma_db, log_eps, out):  # pragma: no cover
     """Add the log-likelihood of one packet at each row's fixed offset to ``out``
-    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN)."""
+    (the inlier/outlier mixture of :func:`measurement_update`, ``−inf`` for NaN);
+    receiver-major like it, so that the loop over rows vectorises."""
     n = pred.shape[0]
     h = rss.shape[0]
+    acc = np.zeros(n)
+    nan = np.zeros(n)  # NaN where a residual is
+    col = np.empty(n)
+    for q in range(h):
+        rq = rss[q]
+        for i in range(n):
+            col[i] = pred[i, q]
+        for i in range(n):
+            u = (rq - col[i] - offset_db[i]) / sigma_db
+            rho, _ = _inlier(0.0 if math.isnan(u) else u, log_eps)
+            acc[i] += rho
+            nan[i] += u - u
     for i in range(n):
-        acc = 0.0
-        for q in range(h):
-            rho, _ = _inlier((rss[q] - pred[i, q] - offset_db[i]) / sigma_db, log_eps)
-            acc += rho
-        out[i] -= acc if not math.isnan(acc) else np.inf
+        out[i] -= np.inf if math.isnan(nan[i]) else acc[i]
 
 
 @numba.njit(cache=True)
@@ -423,25 +584,7 @@ POSE_ROW = 8
 """Columns of a pose row: x, y, z, cos azimuth, sin azimuth, pitch, cos roll, sin roll."""
 
 
-@numba.njit(cache=True, inline="always")
-def _pose_row(S, i, rows, k):  # pragma: no cover - compiled
-    """Pose row of particle ``i`` into ``rows[k]`` (see :data:`POSE_ROW`)."""
-    rows[k, 0] = S[i, X_M]
-    rows[k, 1] = S[i, Y_M]
-    rows[k, 2] = S[i, Z_M]
-    rows[k, 3] = math.cos(S[i, AZIMUTH_RAD])
-    rows[k, 4] = math.sin(S[i, AZIMUTH_RAD])
-    rows[k, 5] = S[i, PITCH_RAD]
-    roll = S[i, ROLL_RAD]
-    if roll == 0.0:  # cos 0 and sin 0, exactly
-        rows[k, 6] = 1.0
-        rows[k, 7] = 0.0
-    else:
-        rows[k, 6] = math.cos(roll)
-        rows[k, 7] = math.sin(roll)
-
-
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
     """Weighted moments of the particles (normalised ``w``)::
 
@@ -449,18 +592,40 @@ def posterior_moments(S, w, rows, m):  # pragma: no cover - compiled
          Σw ((x − x̄)² + (y − ȳ)²), b̄ (offset mean), Σw²]
 
     into ``m`` ``(11,)`` (angles radians; ``1 / Σw²`` is the effective sample
-    size). The particles' pose rows (:data:`POSE_ROW`) go to ``rows``
-    ``(n, POSE_ROW)``: what the smoother keeps (:func:`lineage_moments`).
+    size). The particles' pose rows (:data:`POSE_ROW`: x, y, z, cos a, sin a,
+    pitch, cos r, sin r) go to ``rows`` ``(n, POSE_ROW)``: what the smoother
+    keeps (:func:`lineage_moments`). ``cos``/``sin`` are
+    :func:`~radiopose.filtering.vmath.vsincos`, in a loop of their own (SIMD).
     """
+    n = S.shape[0]
+    ang = np.empty((2, n))
+    trig = np.empty((4, n))
+    for i in range(n):
+        ang[0, i] = S[i, AZIMUTH_RAD]
+        ang[1, i] = S[i, ROLL_RAD]
+    for i in range(n):
+        sa, ca = vsincos(ang[0, i])
+        sr, cr = vsincos(ang[1, i])  # (0, 1) exactly for roll 0
+        trig[0, i] = ca
+        trig[1, i] = sa
+        trig[2, i] = cr
+        trig[3, i] = sr
     m[:] = 0.0
-    for i in range(S.shape[0]):
-        _pose_row(S, i, rows, i)
+    for i in range(n):
+        rows[i, 0] = S[i, X_M]
+        rows[i, 1] = S[i, Y_M]
+        rows[i, 2] = S[i, Z_M]
+        rows[i, 3] = trig[0, i]
+        rows[i, 4] = trig[1, i]
+        rows[i, 5] = S[i, PITCH_RAD]
+        rows[i, 6] = trig[2, i]
+        rows[i, 7] = trig[3, i]
         wi = w[i]
         for c in range(POSE_ROW):
             m[c] += wi * rows[i, c]
         m[9] += wi * S[i, OFFSET_DB]
         m[10] += wi * wi
-    for i in range(S.shape[0]):
+    for i in range(n):
         dx = S[i, X_M] - m[0]
         dy = S[i, Y_M] - m[1]
         m[8] += w[i] * (dx * dx + dy * dy)
