@@ -73,6 +73,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "heading_prior_deg": (0.0, 180.0),
     "mode_radius_deg": (0.0, 180.0),
     "offset_bank_db": (-60.0, 60.0),
+    "refine_max_nfev": (1, 100_000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
@@ -178,6 +179,8 @@ def _read_pose3d(sec: Section) -> FilterOverrides:
             lo, hi = POSE3D_RANGES.get(key, (0.0, 1e6))
             zero_ok = key in POSE3D_ZERO_ALLOWED
             out[key] = sec.number(key, positive=lo == 0.0 and not zero_ok, low=lo, high=hi)
+        elif kind is bool:
+            out[key] = sec.boolean(key)
         elif kind is str:
             out[key] = sec.string(key, choices=_POSE3D_STRING_CHOICES.get(key))
         elif kind is tuple:

@@ -159,6 +159,14 @@ class Pose3dConfig:
         particles, so each keeps searching its own poses.
     offset_bank_sd_db
         Offset prior σ within a member, dB.
+    refine
+        Offline only (batch ``locate`` with a smoothing lag; never the causal
+        or live filter): after the last packet, refine each track of the
+        smoothed estimates by batch MAP (:mod:`radiopose.filtering.refine3d`:
+        the same likelihood and the filter's motion model as a prior,
+        initialised at the smoothed track and the chosen member's offset).
+    refine_max_nfev
+        Bound on the refinement's residual evaluations per track.
     """
 
     n_particles: int = 2000
@@ -184,6 +192,8 @@ class Pose3dConfig:
     heading_prior_speed_mps: float = 0.3
     offset_bank_db: tuple[float, ...] = (-6.0, -3.0, 0.0, 3.0, 6.0)
     offset_bank_sd_db: float = 1.5
+    refine: bool = True
+    refine_max_nfev: int = 100
 
     def __post_init__(self) -> None:
         for name in (
@@ -196,6 +206,8 @@ class Pose3dConfig:
                 raise InputError(f"3-D filter setting {name} = {v!r} must be a positive number")
         if min(self.n_particles - 9, self.acquisition_heights, self.acquisition_k) < 1:
             raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
+        if self.refine_max_nfev < 1:
+            raise InputError("3-D filter setting refine_max_nfev must be >= 1")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:
