@@ -269,7 +269,7 @@ def write_tracker_toml(
     overrides: Mapping[str, float | int | str | bool],
     smoothing_lag_s: float | None = None,
     comment: str = "",
-    pose3d: Mapping[str, float | int | str | tuple[float, ...]] | None = None,
+    pose3d: Mapping[str, float | int | str | bool | tuple[float, ...]] | None = None,
 ) -> None:
     """Write a ``tracker.toml``: ``overrides`` (FilterConfig fields) under ``[filter]``,
     ``pose3d`` (Pose3dConfig fields) under ``[filter.pose3d]``; read back by

@@ -39,8 +39,9 @@ it).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,6 +52,9 @@ from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column
 from radiopose.filtering.config import FilterConfig, FilterEstimate
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
+
+if TYPE_CHECKING:
+    from radiopose.filtering.particle3d import FilterModel3d
 
 _POSE = 6
 _GIMBAL_MARGIN_RAD = math.radians(0.01)
@@ -139,7 +143,7 @@ class _Problem:
     sigma_db: float
 
 
-def _expected_track(model: object, X: FloatArray, prob: _Problem) -> FloatArray:
+def _expected_track(model: FilterModel3d, X: FloatArray, prob: _Problem) -> FloatArray:
     """Expected RSS without offset of each data residual's packet and receiver."""
     S = np.zeros((prob.n, K.N_COLUMNS))
     S[:, K.X_M] = X[:, 0]
@@ -148,8 +152,8 @@ def _expected_track(model: object, X: FloatArray, prob: _Problem) -> FloatArray:
     S[:, K.AZIMUTH_RAD] = X[:, 3]
     S[:, K.PITCH_RAD] = X[:, 4]
     S[:, K.ROLL_RAD] = X[:, 5]
-    e = model.expected(S, prob.all_rx)  # type: ignore[attr-defined]
-    return np.asarray(e)[prob.pkt, prob.col_of_rx[prob.rx]]
+    e = model.expected(S, prob.all_rx)
+    return e[prob.pkt, prob.col_of_rx[prob.rx]]
 
 
 def _wrap(a: FloatArray) -> FloatArray:
@@ -165,7 +169,7 @@ class _Prior:
         rows: list[np.ndarray] = []
         cols: list[np.ndarray] = []
         vals: list[np.ndarray] = []
-        self.angle_rows: list[np.ndarray] = []
+        self.angle_rows: list[tuple[int, str, int, int]] = []
         r0 = 0
         blocks: list[tuple[int, str, float]] = [
             (0, "acc", prior.accel_noise_mps2),
@@ -197,7 +201,7 @@ class _Prior:
             else:
                 continue
             if comp >= 3:
-                self.angle_rows.append((comp, kind, r0, k))  # type: ignore[arg-type]
+                self.angle_rows.append((comp, kind, r0, k))
             r0 += k
         self.n_rows = r0
         self.dt = dt
@@ -221,7 +225,7 @@ class _Prior:
         out = np.asarray(self.A @ x)
         n = self.dt.size + 1
         X = x[: n * _POSE].reshape(n, _POSE)
-        for comp, kind, r0, k in self.angle_rows:  # type: ignore[misc]
+        for comp, kind, r0, k in self.angle_rows:
             d = np.diff(X[:, comp])
             dw = _wrap(d)
             if np.array_equal(d, dw):
@@ -237,7 +241,7 @@ class _Prior:
 
 
 def refine_track(
-    model: object,
+    model: FilterModel3d,
     times_s: Sequence[float] | FloatArray,
     heard: Sequence[HeardRss],
     position_m: FloatArray,
@@ -321,9 +325,9 @@ def refine_track(
     n_vars = _POSE * n + 1
 
     # bounds (the site's support) and the initial point inside them
-    box = np.asarray(model.box_m, dtype=float)  # type: ignore[attr-defined]
-    zb = np.asarray(model.z_box_m, dtype=float)  # type: ignore[attr-defined]
-    p_lo, p_hi, r_c, r_w = (float(v) for v in model.tilt_rad)  # type: ignore[attr-defined]
+    box = np.asarray(model.box_m, dtype=float)
+    zb = np.asarray(model.z_box_m, dtype=float)
+    p_lo, p_hi, r_c, r_w = (float(v) for v in model.tilt_rad)
     p_lo = max(p_lo, -0.5 * math.pi + _GIMBAL_MARGIN_RAD)
     p_hi = min(p_hi, 0.5 * math.pi - _GIMBAL_MARGIN_RAD)
     roll_bounded = 0.0 < r_w < math.pi
@@ -425,9 +429,9 @@ def refine_track(
 
 
 def _levenberg_marquardt(
-    fun: object,
-    jac: object,
-    loss: object,
+    fun: Callable[[FloatArray], FloatArray],
+    jac: Callable[[FloatArray], sp.csr_matrix],
+    loss: Callable[[FloatArray], FloatArray],
     x0: FloatArray,
     lb: FloatArray,
     ub: FloatArray,
@@ -441,16 +445,16 @@ def _levenberg_marquardt(
     import scipy.sparse.linalg as spla
 
     def cost_of(f: FloatArray) -> float:
-        return 0.5 * float(loss(f * f)[0].sum())  # type: ignore[operator]
+        return 0.5 * float(loss(f * f)[0].sum())
 
     x = x0.copy()
-    f = fun(x)  # type: ignore[operator]
+    f = fun(x)
     cost = cost_of(f)
     nfev = 1
     lam = 1e-3
     while nfev < max_nfev:
-        J = jac(x)  # type: ignore[operator]
-        w = loss(f * f)[1]  # type: ignore[operator]
+        J = jac(x)
+        w = loss(f * f)[1]
         JW = J.T.multiply(w).tocsr()
         A = (JW @ J).tocsc()
         g = JW @ f
@@ -461,7 +465,7 @@ def _levenberg_marquardt(
             M = (A + sp.diags(lam * dA)).tocsc()
             step = -spla.spsolve(M, g)
             xn = np.clip(x + step, lb, ub)
-            fn = fun(xn)  # type: ignore[operator]
+            fn = fun(xn)
             nfev += 1
             cn = cost_of(fn)
             if cn < cost:
@@ -479,7 +483,7 @@ def _levenberg_marquardt(
 
 
 def refine_smoothed(
-    model: object,
+    model: FilterModel3d,
     records: Sequence[tuple[float, HeardRss, object]],
     smoothed: Sequence[tuple[object, FilterEstimate]],
     config: FilterConfig,
