@@ -115,8 +115,14 @@ def test_refinement_runs_offline_only(monkeypatch):
 
     monkeypatch.setattr(r3, "refine_track", spy)
     off = locate(sim.site, sim.packets, "filter", TrackerConfig())
-    assert calls == [len(group_packets(sim.packets))]
+    n_members = len(Pose3dConfig().offset_bank_db)
+    assert calls == [len(group_packets(sim.packets))] * (1 + n_members)  # chosen + members
     assert np.all(off.estimates.position_m == 1.234)
+    calls.clear()
+    one = TrackerConfig()
+    one = replace(one, pose3d=replace(one.pose3d, refine_from_members=False))
+    locate(sim.site, sim.packets, "filter", one)
+    assert calls == [len(group_packets(sim.packets))]
     calls.clear()
     causal = locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=None))
     assert calls == [] and len(causal.estimates) > 0

@@ -167,6 +167,11 @@ class Pose3dConfig:
         initialised at the smoothed track and the chosen member's offset).
     refine_max_nfev
         Bound on the refinement's residual evaluations per track.
+    refine_from_members
+        With the offset bank: also refine from each member's own smoothed
+        track (and offset) and keep, per track, the refined track of the
+        lowest MAP objective (the same objective for all: only the likelihood
+        and the priors choose).
     """
 
     n_particles: int = 2000
@@ -194,6 +199,7 @@ class Pose3dConfig:
     offset_bank_sd_db: float = 1.5
     refine: bool = True
     refine_max_nfev: int = 100
+    refine_from_members: bool = True
 
     def __post_init__(self) -> None:
         for name in (
@@ -395,6 +401,9 @@ class FilterState3d(FilterState):
     bank: list[FilterState3d] = field(default_factory=list)
     bank_log_evidence: FloatArray = field(default_factory=lambda: np.zeros(0))
     last_log_evidence: float = 0.0
+    # offline batch refinement (Pose3dConfig.refine_from_members): every member's
+    # own smoothed estimates, ``None`` unless the offline tracker records them
+    bank_smoothed: list[list[tuple[object, FilterEstimate]]] | None = None
 
 
 class ParticleFilter3d(ParticleFilter):
@@ -487,6 +496,9 @@ class ParticleFilter3d(ParticleFilter):
         member's smoothed estimates are this filter's."""
         emitted = [m.take_smoothed() for m in self._members]
         self._smoothed.extend(emitted[self._best_member(st)])
+        if st.bank_smoothed is not None:
+            for kept, e in zip(st.bank_smoothed, emitted, strict=True):
+                kept.extend(e)
 
     def flush(self, st: FilterState) -> None:
         """Emit every pending smoothed estimate (end of the data)."""

@@ -490,21 +490,35 @@ def refine_smoothed(
     height_noise_mps: float,
     tilt_noise_dps: float,
     max_nfev: int,
+    alternatives: Sequence[Sequence[tuple[object, FilterEstimate]]] = (),
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
     ``records`` are the filter's packets ``(t_s, heard, key)`` in order,
     ``smoothed`` its estimates by key. Each track (packets separated by more
     than ``config.reacquire_gap_s``, the filter's own track boundary) is
-    refined alone, initialised at its smoothed poses, the median of their
-    offsets and the last σ estimate (the filter's online σ; floored at
-    ``config.sigma_floor_db``). Returns every smoothed estimate, those of the
-    refined tracks with their pose and offset replaced (spread and σ kept).
+    refined alone, initialised at its smoothed poses and the median of their
+    offsets, σ the last σ estimate (the filter's online σ, floored at
+    ``config.sigma_floor_db``). Each of ``alternatives`` (other initial
+    tracks by key: the offset bank's members' own smoothed tracks) covering
+    the whole track is refined too, with the same σ, and the refined track of
+    the lowest objective is kept. Returns every smoothed estimate, those of
+    the refined tracks with their pose and offset replaced (spread and σ kept).
     """
     by_key = dict(smoothed)
+    alt_keys = [dict(a) for a in alternatives]
     out = dict(smoothed)
     prior = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
     track: list[tuple[float, HeardRss, object]] = []
+
+    def start(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray, float]:
+        offs = np.array([e.offset_db for e in ests], dtype=float)
+        off = float(np.median(offs[np.isfinite(offs)])) if np.isfinite(offs).any() else 0.0
+        return (
+            np.array([e.position_m for e in ests], dtype=float),
+            np.array([e.orientation_deg for e in ests], dtype=float),
+            off,
+        )
 
     def finish() -> None:
         rows = [r for r in track if r[2] in by_key and r[1].n_heard > 0]
@@ -512,33 +526,30 @@ def refine_smoothed(
         if not rows:
             return
         ests = [by_key[r[2]] for r in rows]
-        offs = np.array([e.offset_db for e in ests], dtype=float)
         sig = np.array([e.sigma_db for e in ests], dtype=float)
-        off = float(np.median(offs[np.isfinite(offs)])) if np.isfinite(offs).any() else 0.0
         s_db = float(sig[np.isfinite(sig)][-1]) if np.isfinite(sig).any() else config.sigma_prior_db
-        res = refine_track(
-            model,
-            [r[0] for r in rows],
-            [r[1] for r in rows],
-            np.array([e.position_m for e in ests], dtype=float),
-            np.array([e.orientation_deg for e in ests], dtype=float),
-            off,
-            max(s_db, config.sigma_floor_db),
-            prior,
-            offset_prior_db=0.0,
-            offset_prior_sd_db=config.offset_prior_sd_db,
-            max_nfev=max_nfev,
-        )
+        inits = [start(ests)]
+        for alt in alt_keys:
+            if all(r[2] in alt for r in rows):
+                inits.append(start([alt[r[2]] for r in rows]))
+        best: RefinedTrack | None = None
+        for pos, ori, off in inits:
+            res = refine_track(
+                model, [r[0] for r in rows], [r[1] for r in rows], pos, ori, off,
+                max(s_db, config.sigma_floor_db), prior, offset_prior_db=0.0,
+                offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
+            )  # fmt: skip
+            if best is None or res.cost < best.cost:
+                best = res
+        assert best is not None
         for i, (r, e) in enumerate(zip(rows, ests, strict=True)):
+            p, o = best.position_m[i], best.orientation_deg[i]
             out[r[2]] = replace(
                 e,
-                position_m=(float(res.position_m[i, 0]), float(res.position_m[i, 1]),
-                            float(res.position_m[i, 2])),
-                orientation_deg=(float(res.orientation_deg[i, 0]),
-                                 float(res.orientation_deg[i, 1]),
-                                 float(res.orientation_deg[i, 2])),
-                offset_db=res.offset_db,
-            )  # fmt: skip
+                position_m=(float(p[0]), float(p[1]), float(p[2])),
+                orientation_deg=(float(o[0]), float(o[1]), float(o[2])),
+                offset_db=best.offset_db,
+            )
 
     last_t: float | None = None
     for rec in records:

@@ -91,6 +91,8 @@ class FilterMethod:
             return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
         if heard.n_heard == 0:
             return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        if _refines(device):
+            _record_members(device, state)
         est = pf.step(state, t_s, heard, (packet_id, t_s))
         if _selects_offset(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
@@ -176,10 +178,26 @@ def _refines(device: Device) -> bool:
     )
 
 
+def _record_members(device: Device, state: FilterState) -> None:
+    """Start recording each bank member's smoothed estimates (before the first
+    packet) when the refinement starts from them too."""
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+
+    pf = device.engine
+    if (
+        isinstance(state, FilterState3d)
+        and isinstance(pf, ParticleFilter3d)
+        and pf.pose3d.refine_from_members
+        and state.bank
+        and state.bank_smoothed is None
+    ):
+        state.bank_smoothed = [[] for _ in state.bank]
+
+
 def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEstimate]]:
     """Every smoothed estimate of the file, each track refined by batch MAP
     (:func:`radiopose.filtering.refine3d.refine_smoothed`); clears the record."""
-    from radiopose.filtering.particle3d import ParticleFilter3d
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
     from radiopose.filtering.refine3d import refine_smoothed
 
     pf = device.engine
@@ -187,10 +205,13 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
     records, smoothed = state.records or [], list(state.refine_smoothed or [])
     smoothed.extend(pf.take_smoothed())
     state.records = state.refine_smoothed = None
+    members: list[list[tuple[object, FilterEstimate]]] = []
+    if isinstance(state, FilterState3d) and state.bank_smoothed is not None:
+        members, state.bank_smoothed = state.bank_smoothed, None
     p3 = pf.pose3d
     return refine_smoothed(
         pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
-        p3.refine_max_nfev,
+        p3.refine_max_nfev, alternatives=members,
     )  # fmt: skip
 
 
