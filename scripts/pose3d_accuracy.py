@@ -155,6 +155,13 @@ def main(argv: list[str] | None = None) -> int:
         help="also run each condition refining only the chosen member's track",
     )
     ap.add_argument(
+        "--refine-hybrid-s",
+        type=float,
+        default=0.0,
+        help="also run each condition with the refinement's hybrid start (segments of this "
+        "many seconds; Pose3dConfig.refine_hybrid_segment_s)",
+    )
+    ap.add_argument(
         "--oracle",
         action="store_true",
         help="also run the batch refinement initialised at the truth (an oracle bound)",
@@ -175,6 +182,11 @@ def main(argv: list[str] | None = None) -> int:
         variants.append(("without refinement", {"refine": False}, 0.0))
     if args.refine_chosen_only:
         variants.append(("refined from the chosen track only", {"refine_from_members": False}, 0.0))
+    if args.refine_hybrid_s > 0:
+        h = args.refine_hybrid_s
+        variants.append(
+            (f"+ hybrid start from {h:g} s segments", {"refine_hybrid_segment_s": h}, 0.0)
+        )
     if args.oracle:
         variants.append(("oracle: refinement from the truth", {}, math.nan))
     if args.heading_prior_deg > 0:

@@ -200,6 +200,7 @@ class Pose3dConfig:
     refine: bool = True
     refine_max_nfev: int = 100
     refine_from_members: bool = True
+    refine_hybrid_segment_s: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -214,6 +215,11 @@ class Pose3dConfig:
             raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
         if self.refine_max_nfev < 1:
             raise InputError("3-D filter setting refine_max_nfev must be >= 1")
+        if not (0 <= self.refine_hybrid_segment_s < math.inf):
+            raise InputError(
+                "3-D filter setting refine_hybrid_segment_s = "
+                f"{self.refine_hybrid_segment_s!r} must be >= 0"
+            )
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:

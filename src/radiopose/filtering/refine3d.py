@@ -45,6 +45,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 
 from radiopose.errors import InputError
@@ -255,6 +256,7 @@ def refine_track(
     robust_scale: float = 2.5,
     max_nfev: int = 50,
     solver: str = "lm",
+    presmooth_s: float = 0.0,
 ) -> RefinedTrack:
     """Refine one device's track by batch MAP (see the module docstring).
 
@@ -283,6 +285,15 @@ def refine_track(
         ``soft_l1`` scale of the data residuals, in σ units.
     max_nfev
         Bound on the solver's residual evaluations.
+    solver
+        ``"lm"`` (default): projected Levenberg–Marquardt on the sparse normal
+        equations; ``"trf"``: :func:`scipy.optimize.least_squares` (``trf``,
+        ``lsmr``), which converged far more slowly here (docs/pose3d.md).
+    presmooth_s
+        Before the solve, a centred moving average of the initial track over
+        this many seconds (angles unwrapped): a particle smoother's track
+        jitters from packet to packet, which the motion prior at 5 ms spacing
+        charges heavily and the solver would spend its iterations removing.
 
     Raises
     ------
@@ -309,6 +320,8 @@ def refine_track(
         raise InputError(
             f"refine_track: offset {offset_db!r} dB must be finite and σ {sigma_db!r} dB positive"
         )
+    if solver not in ("lm", "trf") or not math.isfinite(presmooth_s) or presmooth_s < 0:
+        raise InputError(f"refine_track: solver {solver!r} ('lm' or 'trf'), presmooth_s >= 0")
     if not (robust_scale > 0 and offset_prior_sd_db > 0 and max_nfev >= 1):
         raise InputError("refine_track: robust_scale, offset_prior_sd_db > 0, max_nfev >= 1")
 
@@ -340,6 +353,10 @@ def refine_track(
     X0[:, 4] = np.deg2rad(ori[:, 1])
     roll = np.deg2rad(ori[:, 2])
     X0[:, 5] = r_c + _wrap(roll - r_c) if roll_bounded else np.unwrap(roll)
+    if presmooth_s > 0 and n > 2:
+        w = round(presmooth_s / max(float(np.median(np.diff(t))), 1e-6))
+        if w > 1:
+            X0 = uniform_filter1d(X0, size=w, axis=0, mode="nearest")
     span = np.where(np.isfinite(hi - lo), hi - lo, 1.0)
     eps = 1e-9 * np.maximum(span, 1.0)
     X0 = np.clip(X0, lo + eps, hi - eps)
@@ -482,6 +499,32 @@ def _levenberg_marquardt(
     return x, cost, nfev
 
 
+def packet_costs(
+    model: FilterModel3d,
+    heard: Sequence[HeardRss],
+    position_m: FloatArray,
+    orientation_deg: FloatArray,
+    offset_db: float,
+    sigma_db: float,
+    robust_scale: float = 2.5,
+) -> FloatArray:
+    """``(n,)`` each packet's data term of :func:`refine_track`'s objective
+    (½ Σ ρ over its heard receivers, σ² units) at the given track and offset."""
+    n = len(heard)
+    pkt = np.concatenate([np.full(h.n_heard, i, dtype=np.int64) for i, h in enumerate(heard)])
+    rx = np.concatenate([np.asarray(h.receiver_index, dtype=np.int64) for h in heard])
+    rss = np.concatenate([np.asarray(h.rss_dbm, dtype=float) for h in heard])
+    all_rx = np.unique(rx)
+    col = np.zeros(int(all_rx.max()) + 1, dtype=np.int64)
+    col[all_rx] = np.arange(all_rx.size)
+    prob = _Problem(n, pkt, rx, rss, all_rx, col, float(sigma_db))
+    X = np.column_stack([np.asarray(position_m, float), np.deg2rad(orientation_deg)])
+    z = ((rss - _expected_track(model, X, prob) - offset_db) / sigma_db) ** 2
+    c2 = robust_scale**2
+    rho = c2 * (np.sqrt(1.0 + z / c2) - 1.0)  # ½ · 2c²(√(1 + z/c²) − 1)
+    return np.bincount(pkt, weights=rho, minlength=n).astype(np.float64)
+
+
 def refine_smoothed(
     model: FilterModel3d,
     records: Sequence[tuple[float, HeardRss, object]],
@@ -491,6 +534,7 @@ def refine_smoothed(
     tilt_noise_dps: float,
     max_nfev: int,
     alternatives: Sequence[Sequence[tuple[object, FilterEstimate]]] = (),
+    hybrid_segment_s: float = 0.0,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -502,8 +546,12 @@ def refine_smoothed(
     ``config.sigma_floor_db``). Each of ``alternatives`` (other initial
     tracks by key: the offset bank's members' own smoothed tracks) covering
     the whole track is refined too, with the same σ, and the refined track of
-    the lowest objective is kept. Returns every smoothed estimate, those of
-    the refined tracks with their pose and offset replaced (spread and σ kept).
+    the lowest objective is kept. With ``hybrid_segment_s > 0`` and several
+    refined tracks, one more start is spliced from them: per segment of that
+    many seconds, the refined track whose data term there is lowest (at its
+    own offset); it is refined and competes like the others. Returns every
+    smoothed estimate, those of the refined tracks with their pose and offset
+    replaced (spread and σ kept).
     """
     by_key = dict(smoothed)
     alt_keys = [dict(a) for a in alternatives]
@@ -533,12 +581,31 @@ def refine_smoothed(
             if all(r[2] in alt for r in rows):
                 inits.append(start([alt[r[2]] for r in rows]))
         best: RefinedTrack | None = None
-        for pos, ori, off in inits:
-            res = refine_track(
-                model, [r[0] for r in rows], [r[1] for r in rows], pos, ori, off,
-                max(s_db, config.sigma_floor_db), prior, offset_prior_db=0.0,
+        t_rows = np.array([r[0] for r in rows])
+        h_rows = [r[1] for r in rows]
+        sigma = max(s_db, config.sigma_floor_db)
+
+        def solve(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
+            return refine_track(
+                model, t_rows, h_rows, pos, ori, off, sigma, prior, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
             )  # fmt: skip
+
+        done = [solve(*init) for init in inits]
+        if hybrid_segment_s > 0 and len(done) > 1:
+            costs = np.array([
+                packet_costs(model, h_rows, d.position_m, d.orientation_deg, d.offset_db, sigma)
+                for d in done
+            ])  # fmt: skip
+            seg = np.floor((t_rows - t_rows[0]) / hybrid_segment_s).astype(np.int64)
+            seg_cost = np.array([np.bincount(seg, weights=c) for c in costs])
+            pick = np.argmin(seg_cost, axis=0)[seg]  # the refined track per packet
+            if np.unique(pick).size > 1:
+                pos = np.array([done[k].position_m[i] for i, k in enumerate(pick)])
+                ori = np.array([done[k].orientation_deg[i] for i, k in enumerate(pick)])
+                off = float(np.median([done[k].offset_db for k in pick]))
+                done.append(solve(pos, ori, off))
+        for res in done:
             if best is None or res.cost < best.cost:
                 best = res
         assert best is not None

@@ -211,7 +211,7 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
     p3 = pf.pose3d
     return refine_smoothed(
         pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
-        p3.refine_max_nfev, alternatives=members,
+        p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
     )  # fmt: skip
 
 
