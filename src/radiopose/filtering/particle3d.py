@@ -200,7 +200,7 @@ class Pose3dConfig:
     refine: bool = True
     refine_max_nfev: int = 100
     refine_from_members: bool = True
-    refine_hybrid_segment_s: float = 0.0
+    refine_hybrid_segment_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
