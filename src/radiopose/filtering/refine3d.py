@@ -7,7 +7,10 @@ an initial device-level power offset, :func:`refine_track` minimises
     Σ_packets Σ_heard ρ((rss − E(pose_i) − b) / σ)            (data)
   + Σ motion-prior residuals² + ((b − b₀) / s_b)²             (priors)
 
-with :func:`scipy.optimize.least_squares` (``trf``, a sparse Jacobian):
+by a projected Levenberg–Marquardt on the sparse normal equations
+(:func:`_levenberg_marquardt`; ``solver="trf"`` runs
+:func:`scipy.optimize.least_squares` with ``trf``/``lsmr`` instead, which
+converged far more slowly on these stiff problems: docs/pose3d.md):
 
 * ``E`` is the 3-D filter's own expected RSS (:meth:`FilterModel3d.expected`:
   the height model's channel plus the full-sphere pattern in the body frame of
@@ -33,7 +36,10 @@ with :func:`scipy.optimize.least_squares` (``trf``, a sparse Jacobian):
   are wrapped after the solve.
 
 Offline only: the solve needs the whole track (the causal filter never calls
-it).
+it). :func:`refine_smoothed` applies it to the 3-D filter's smoothed
+estimates: per track, from the filter's track, from each offset-bank member's
+own track and from a hybrid spliced from those refined tracks, keeping the
+refined track of the lowest objective.
 """
 
 from __future__ import annotations
