@@ -161,3 +161,37 @@ def test_bad_inputs_are_one_line_errors(scene, n_times, n_heard, n_poses, change
         refine_track(model, t, [_one()] * n_heard, pos, ori, change.get("offset", 0.0),
                      change.get("sigma", 1.0), prior)  # fmt: skip
     assert "\n" not in str(exc.value)
+
+
+def test_the_hybrid_start_splices_the_right_halves(scene):
+    """Two starts, each 1.5 m and 120° of azimuth off in one half of the walk
+    (the other half true): refined alone, each keeps its wrong half's mode;
+    the hybrid start, spliced per 0.25 s from their refined tracks where each
+    fits the data best, refines to the truth."""
+    from radiopose.filtering import FilterEstimate
+    from radiopose.filtering.refine3d import refine_smoothed
+
+    sim, model, t, heard, _ = scene
+    tp, to = sim.truth.position_m, sim.truth.orientation_deg
+    late = t - t[0] >= 0.5
+
+    def start(bad):
+        pos, ori = tp.copy(), to.copy()
+        pos[bad] += np.array([1.5, -1.5, 0.0])
+        ori[bad, 0] += 120.0
+        return [((i,), FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0, 0.0, 0.5))
+                for i in range(t.size)]  # fmt: skip
+
+    records = [(t[i], heard[i], (i,)) for i in range(t.size)]
+    p3 = Pose3dConfig()
+    errors = {}
+    for segment_s in (0.0, 0.25):
+        out = refine_smoothed(
+            model, records, start(~late), FilterConfig(), p3.height_noise_mps,
+            p3.tilt_noise_dps, 100, alternatives=[start(late)], hybrid_segment_s=segment_s,
+        )  # fmt: skip
+        pos = np.array([e.position_m for _, e in out])
+        ori = np.array([e.orientation_deg for _, e in out])
+        errors[segment_s] = axis_errors_of(pos, ori, tp, to)
+    assert errors[0.25].position_m.mean() < 0.1 and errors[0.25].rotation_deg.mean() < 2.0
+    assert errors[0.0].position_m.mean() > 0.3 and errors[0.0].rotation_deg.mean() > 20.0
