@@ -320,3 +320,19 @@ def test_serve_names_a_bad_key_before_it_starts(scene, tmp_path: Path):
     (line,) = r.stderr.strip().splitlines()
     assert "tracker.toml:2" in line and "filter.pose3d.height_noise_mps" in line
     assert not (tmp_path / "x.db").exists()  # stopped before opening the database
+
+
+def test_refine_is_a_boolean(tmp_path: Path):
+    """``refine`` (the offline batch refinement, on by default) reads as a boolean
+    and round-trips; a number there is a one-line error naming the key."""
+    assert Pose3dConfig().refine is True
+    p = _write(tmp_path, "[filter.pose3d]\nrefine = false\nrefine_max_nfev = 20\n")
+    cfg = read_tracker_settings(p).pose3d()
+    assert cfg.refine is False and cfg.refine_max_nfev == 20
+    q = tmp_path / "written.toml"
+    write_tracker_toml(q, {}, None, "written by a test", pose3d={"refine": False})
+    assert read_tracker_settings(q).pose3d().refine is False
+    p = _write(tmp_path, "[filter.pose3d]\nrefine = 1\n")
+    with pytest.raises(InputError) as exc:
+        read_tracker_settings(p)
+    assert exc.value.column == "filter.pose3d.refine" and "\n" not in str(exc.value)

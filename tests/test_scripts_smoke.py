@@ -163,13 +163,19 @@ def test_real_data(tmp_path: Path) -> None:
 
 def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
-    variants = ["--heading-prior-deg", "30", "--power-error-db", "4"]
+    variants = ["--heading-prior-deg", "30", "--power-error-db", "4", "--no-refine", "--oracle"]
     printed = _run(
         SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3", *variants], capsys
     )
     rows = _table_rows(printed)
     assert any(r.startswith("| receivers |") for r in rows)
-    for label in ("standard", "+ heading prior 30°", "devices.csv power 4 dB low"):
+    for label in (
+        "standard",
+        "+ heading prior 30°",
+        "devices.csv power 4 dB low",
+        "without refinement",
+        "oracle: refinement from the truth",
+    ):
         assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 
 

@@ -80,6 +80,8 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "heading_prior_deg": (0.0, 180.0),
     "mode_radius_deg": (0.0, 180.0),
     "offset_bank_db": (-60.0, 60.0),
+    "refine_max_nfev": (1, 100_000),
+    "refine_hybrid_segment_s": (0.0, 3600.0),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
@@ -88,7 +90,7 @@ density, step, σ or interval). A field without a row here (one added to
 dataclass's own checks apply to every value."""
 
 
-POSE3D_ZERO_ALLOWED = frozenset({"heading_prior_deg"})
+POSE3D_ZERO_ALLOWED = frozenset({"heading_prior_deg", "refine_hybrid_segment_s"})
 """Real ``[filter.pose3d]`` keys for which 0 is a value (it switches the part off)."""
 
 _POSE3D_STRING_CHOICES: dict[str, tuple[str, ...]] = {"estimate": POSE3D_ESTIMATES}
@@ -191,6 +193,8 @@ def _read_pose3d(sec: Section) -> FilterOverrides:
             lo, hi = POSE3D_RANGES.get(key, (0.0, 1e6))
             zero_ok = key in POSE3D_ZERO_ALLOWED
             out[key] = sec.number(key, positive=lo == 0.0 and not zero_ok, low=lo, high=hi)
+        elif kind is bool:
+            out[key] = sec.boolean(key)
         elif kind is str:
             out[key] = sec.string(key, choices=_POSE3D_STRING_CHOICES.get(key))
         elif kind is tuple:
@@ -279,7 +283,7 @@ def write_tracker_toml(
     overrides: Mapping[str, float | int | str | bool | tuple[float, ...]],
     smoothing_lag_s: float | None = None,
     comment: str = "",
-    pose3d: Mapping[str, float | int | str | tuple[float, ...]] | None = None,
+    pose3d: Mapping[str, float | int | str | bool | tuple[float, ...]] | None = None,
 ) -> None:
     """Write a ``tracker.toml``: ``overrides`` (FilterConfig fields) under ``[filter]``,
     ``pose3d`` (Pose3dConfig fields) under ``[filter.pose3d]``; read back by

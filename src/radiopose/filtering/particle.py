@@ -118,6 +118,9 @@ class FilterState:
     # offset belief at it (``None`` unless the offline tracker records them)
     records: list | None = None
     beliefs_db: list | None = None
+    # 3-D offline batch refinement (radiopose.filtering.refine3d): the smoothed
+    # estimates emitted so far, ``(key, FilterEstimate)`` (``None`` otherwise)
+    refine_smoothed: list | None = None
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 

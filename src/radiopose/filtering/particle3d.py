@@ -159,6 +159,19 @@ class Pose3dConfig:
         particles, so each keeps searching its own poses.
     offset_bank_sd_db
         Offset prior σ within a member, dB.
+    refine
+        Offline only (batch ``locate`` with a smoothing lag; never the causal
+        or live filter): after the last packet, refine each track of the
+        smoothed estimates by batch MAP (:mod:`radiopose.filtering.refine3d`:
+        the same likelihood and the filter's motion model as a prior,
+        initialised at the smoothed track and the chosen member's offset).
+    refine_max_nfev
+        Bound on the refinement's residual evaluations per track.
+    refine_from_members
+        With the offset bank: also refine from each member's own smoothed
+        track (and offset) and keep, per track, the refined track of the
+        lowest MAP objective (the same objective for all: only the likelihood
+        and the priors choose).
     """
 
     n_particles: int = 2000
@@ -184,6 +197,10 @@ class Pose3dConfig:
     heading_prior_speed_mps: float = 0.3
     offset_bank_db: tuple[float, ...] = (-6.0, -3.0, 0.0, 3.0, 6.0)
     offset_bank_sd_db: float = 1.5
+    refine: bool = True
+    refine_max_nfev: int = 100
+    refine_from_members: bool = True
+    refine_hybrid_segment_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in (
@@ -196,6 +213,13 @@ class Pose3dConfig:
                 raise InputError(f"3-D filter setting {name} = {v!r} must be a positive number")
         if min(self.n_particles - 9, self.acquisition_heights, self.acquisition_k) < 1:
             raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
+        if self.refine_max_nfev < 1:
+            raise InputError("3-D filter setting refine_max_nfev must be >= 1")
+        if not (0 <= self.refine_hybrid_segment_s < math.inf):
+            raise InputError(
+                "3-D filter setting refine_hybrid_segment_s = "
+                f"{self.refine_hybrid_segment_s!r} must be >= 0"
+            )
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:
@@ -383,6 +407,9 @@ class FilterState3d(FilterState):
     bank: list[FilterState3d] = field(default_factory=list)
     bank_log_evidence: FloatArray = field(default_factory=lambda: np.zeros(0))
     last_log_evidence: float = 0.0
+    # offline batch refinement (Pose3dConfig.refine_from_members): every member's
+    # own smoothed estimates, ``None`` unless the offline tracker records them
+    bank_smoothed: list[list[tuple[object, FilterEstimate]]] | None = None
 
 
 class ParticleFilter3d(ParticleFilter):
@@ -475,6 +502,9 @@ class ParticleFilter3d(ParticleFilter):
         member's smoothed estimates are this filter's."""
         emitted = [m.take_smoothed() for m in self._members]
         self._smoothed.extend(emitted[self._best_member(st)])
+        if st.bank_smoothed is not None:
+            for kept, e in zip(st.bank_smoothed, emitted, strict=True):
+                kept.extend(e)
 
     def flush(self, st: FilterState) -> None:
         """Emit every pending smoothed estimate (end of the data)."""

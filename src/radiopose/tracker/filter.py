@@ -91,13 +91,23 @@ class FilterMethod:
             return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
         if heard.n_heard == 0:
             return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        if _refines(device):
+            _record_members(device, state)
         est = pf.step(state, t_s, heard, (packet_id, t_s))
         if _selects_offset(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
                 state.records, state.beliefs_db = [], []
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.beliefs_db.append(est.offset_db if est is not None else math.nan)
-        earlier = _delayed(pf)
+        if _refines(device):  # 3-D, offline: the batch refinement's record
+            if state.records is None or state.refine_smoothed is None:
+                state.records, state.refine_smoothed = [], []
+            state.records.append((t_s, heard, (packet_id, t_s)))
+            sm = pf.take_smoothed()
+            state.refine_smoothed.extend(sm)
+            earlier = _as_delayed(sm)
+        else:
+            earlier = _delayed(pf)
         if est is None:
             return Step(state, Outcome(reason=SKIP_NO_TRACK), earlier)
         if pf.lag_s is not None:
@@ -107,6 +117,8 @@ class FilterMethod:
     def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
         pf: ParticleFilter = device.engine
         pf.flush(state)
+        if _refines(device) and state.records:
+            return _as_delayed(_refine(device, state))
         if not (_selects_offset(device) and state.records):
             return _delayed(pf)
         # issue 15: offline, the device-level offset chosen by the whole file's
@@ -149,6 +161,58 @@ def _selects_offset(device: Device) -> bool:
         and device.config.filter.offline_offset_selection
         and type(device.engine) is ParticleFilter
     )
+
+
+def _refines(device: Device) -> bool:
+    """Whether the 3-D batch refinement runs for ``device``: offline (batch
+    ``locate``) with a smoothing lag, a 3-D filter, switched on
+    (``Pose3dConfig.refine``); never the causal or live filter."""
+    from radiopose.filtering.particle3d import ParticleFilter3d
+
+    pf = device.engine
+    return (
+        device.offline
+        and device.lag_s is not None
+        and isinstance(pf, ParticleFilter3d)
+        and pf.pose3d.refine
+    )
+
+
+def _record_members(device: Device, state: FilterState) -> None:
+    """Start recording each bank member's smoothed estimates (before the first
+    packet) when the refinement starts from them too."""
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+
+    pf = device.engine
+    if (
+        isinstance(state, FilterState3d)
+        and isinstance(pf, ParticleFilter3d)
+        and pf.pose3d.refine_from_members
+        and state.bank
+        and state.bank_smoothed is None
+    ):
+        state.bank_smoothed = [[] for _ in state.bank]
+
+
+def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEstimate]]:
+    """Every smoothed estimate of the file, each track refined by batch MAP
+    (:func:`radiopose.filtering.refine3d.refine_smoothed`); clears the record."""
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+    from radiopose.filtering.refine3d import refine_smoothed
+
+    pf = device.engine
+    assert isinstance(pf, ParticleFilter3d)
+    records, smoothed = state.records or [], list(state.refine_smoothed or [])
+    smoothed.extend(pf.take_smoothed())
+    state.records = state.refine_smoothed = None
+    members: list[list[tuple[object, FilterEstimate]]] = []
+    if isinstance(state, FilterState3d) and state.bank_smoothed is not None:
+        members, state.bank_smoothed = state.bank_smoothed, None
+    p3 = pf.pose3d
+    return refine_smoothed(
+        pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
+        p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
+    )  # fmt: skip
 
 
 def reads_site_scorer(method: Method, site: Site) -> bool:

@@ -1,0 +1,197 @@
+"""Batch MAP refinement of a 3-D track (radiopose.filtering.refine3d; docs/pose3d.md,
+"Batch refinement (offline)"): a perturbed truth recovered on a noise-free scene,
+the motion prior's part, the site's support, offline only, bad inputs."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from radiopose.errors import InputError
+from radiopose.evaluate.pose3d import axis_errors_of
+from radiopose.filtering import FilterConfig
+from radiopose.filtering.particle3d import FilterModel3d, Pose3dConfig
+from radiopose.filtering.refine3d import MotionPrior, refine_track
+from radiopose.likelihood import HeardRss, candidate_space
+from radiopose.packets import group_packets
+from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+from radiopose.tracker import TrackerConfig, locate
+
+# tests/test_pose3d.py's noise-free scene (a 1 s walk), with 8 receivers: each
+# packet alone fixes the pose (docs/pose3d.md, "Why a single packet does not fix
+# a 3-D pose"), so the truth is the refinement's optimum up to the map's error
+SCENE = HandheldConfig(
+    size_m=10.0, step_m=0.5, n_receivers=8, duration_s=1.0, noise_db=0.0,
+    min_receiver_spacing_m=3.0, survey_step_m=1.0,
+)  # fmt: skip
+SEED = 424242
+
+
+@pytest.fixture(scope="module")
+def scene():
+    sim = simulate_handheld(SCENE, seed=SEED)
+    site = sim.site
+    space = candidate_space(site, site.devices[0].transmitter)
+    p3 = Pose3dConfig()
+    model = FilterModel3d.build3d(site, space, p3)
+    obs = group_packets(sim.packets)
+    heard = [space.heard(o) for o in obs]
+    t = np.array([o.timestamp_s for o in obs])
+    prior = MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)
+    return sim, model, t, heard, prior
+
+
+def _errors(res, sim):
+    return axis_errors_of(
+        res.position_m, res.orientation_deg, sim.truth.position_m, sim.truth.orientation_deg
+    )
+
+
+def test_a_perturbed_truth_is_recovered_noise_free(scene):
+    """The truth moved by 0.2 m and 5° on every axis and the offset by 0.5 dB:
+    the refinement brings it back to centimetres and a fraction of a degree."""
+    sim, model, t, heard, prior = scene
+    pos = sim.truth.position_m + np.array([0.2, -0.2, 0.1])
+    ori = sim.truth.orientation_deg + np.array([5.0, -5.0, 5.0])
+    start = axis_errors_of(pos, ori, sim.truth.position_m, sim.truth.orientation_deg)
+    assert start.position_m.mean() > 0.25 and start.rotation_deg.mean() > 7.0
+    res = refine_track(model, t, heard, pos, ori, 0.5, 0.5, prior, max_nfev=100)
+    e = _errors(res, sim)
+    assert e.position_m.mean() < 0.08
+    assert e.rotation_deg.mean() < 1.0
+    assert abs(res.offset_db) < 0.3
+    assert res.cost < res.initial_cost
+    # inside the site's support (bounds of the solve), angles in their ranges
+    box, zb = model.box_m, model.z_box_m
+    assert np.all((res.position_m[:, 0] >= box[0]) & (res.position_m[:, 0] <= box[1]))
+    assert np.all((res.position_m[:, 2] >= zb[0]) & (res.position_m[:, 2] <= zb[1]))
+    assert np.all((res.orientation_deg[:, 0] >= 0) & (res.orientation_deg[:, 0] < 360))
+    assert np.all(np.abs(res.orientation_deg[:, 1]) < 90.0)
+
+
+def test_without_the_motion_prior_jittered_packets_stay_off(scene):
+    """The truth with independent jitter per packet (0.2 m, 5°): with the motion
+    prior every packet comes back (worst < 0.2 m, < 3°); without it (each packet
+    fitted alone) some packets settle on another pose that fits them."""
+    sim, model, t, heard, prior = scene
+    rng = np.random.default_rng(1)
+    pos = sim.truth.position_m + rng.normal(0.0, 0.2, sim.truth.position_m.shape)
+    ori = sim.truth.orientation_deg + rng.normal(0.0, 5.0, sim.truth.orientation_deg.shape)
+    with_prior = _errors(refine_track(model, t, heard, pos, ori, 0.5, 0.5, prior), sim)
+    assert with_prior.position_m.max() < 0.2 and with_prior.rotation_deg.max() < 3.0
+    alone = _errors(refine_track(model, t, heard, pos, ori, 0.5, 0.5, None), sim)
+    assert alone.position_m.max() >= 0.2 or alone.rotation_deg.max() >= 3.0
+
+
+def test_pitch_stays_off_the_gimbal(scene):
+    """A start at pitch 90° (the site's pitch support reaches it) comes back
+    inside (−90°, 90°): the solve's bound keeps pitch 0.01° off the pole."""
+    sim, model, t, heard, prior = scene
+    assert math.degrees(model.tilt_rad[1]) >= 90.0
+    ori = sim.truth.orientation_deg.copy()
+    ori[:, 1] = 90.0
+    res = refine_track(model, t[:20], heard[:20], sim.truth.position_m[:20], ori[:20], 0.0, 0.5,
+                       prior, max_nfev=5)  # fmt: skip
+    assert np.all(res.orientation_deg[:, 1] <= 90.0 - 0.009)
+
+
+def test_refinement_runs_offline_only(monkeypatch):
+    """``locate`` with the smoothing lag refines (once per track); the causal filter
+    (no lag) and ``refine = False`` never do; the refined estimates are what
+    ``locate`` returns."""
+    import radiopose.filtering.refine3d as r3
+
+    sim = simulate_handheld(replace(SCENE, n_receivers=6, duration_s=0.3), seed=SEED)
+    calls: list[int] = []
+    real = r3.refine_track
+
+    def spy(*args, **kwargs):
+        calls.append(len(args[1]))
+        res = real(*args, **kwargs)
+        return replace(res, position_m=res.position_m * 0 + 1.234)  # a mark to find
+
+    monkeypatch.setattr(r3, "refine_track", spy)
+    off = locate(sim.site, sim.packets, "filter", TrackerConfig())
+    n_members = len(Pose3dConfig().offset_bank_db)
+    n = len(group_packets(sim.packets))
+    # the chosen track, each member's, and at most one hybrid start spliced from them
+    assert calls[: 1 + n_members] == [n] * (1 + n_members) and len(calls) <= 2 + n_members
+    assert np.all(off.estimates.position_m == 1.234)
+    calls.clear()
+    one = TrackerConfig()
+    one = replace(one, pose3d=replace(one.pose3d, refine_from_members=False))
+    locate(sim.site, sim.packets, "filter", one)
+    assert calls == [n]
+    calls.clear()
+    causal = locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=None))
+    assert calls == [] and len(causal.estimates) > 0
+    cfg = TrackerConfig()
+    cfg = replace(cfg, pose3d=replace(cfg.pose3d, refine=False))
+    plain = locate(sim.site, sim.packets, "filter", cfg)
+    assert calls == [] and not np.any(plain.estimates.position_m == 1.234)
+
+
+def _one():
+    return HeardRss(np.array([0, 1]), np.array([-50.0, -60.0]))
+
+
+@pytest.mark.parametrize(
+    ("n_times", "n_heard", "n_poses", "change", "match"),
+    [
+        (0, 0, 0, {}, "empty"),
+        (2, 1, 2, {}, "one row per packet"),
+        (2, 2, 3, {}, "one row per packet"),
+        (2, 2, 2, {"times": [1.0, 0.5]}, "backwards"),
+        (2, 2, 2, {"nan": True}, "non-finite"),
+        (2, 2, 2, {"sigma": 0.0}, "σ"),
+        (2, 2, 2, {"offset": math.inf}, "offset"),
+    ],
+)
+def test_bad_inputs_are_one_line_errors(scene, n_times, n_heard, n_poses, change, match):
+    _, model, _, _, prior = scene
+    t = change.get("times", list(np.arange(n_times) * 0.01))
+    pos = np.ones((n_poses, 3))
+    if change.get("nan"):
+        pos[0, 0] = math.nan
+    ori = np.zeros((n_poses, 3))
+    with pytest.raises(InputError, match=match) as exc:
+        refine_track(model, t, [_one()] * n_heard, pos, ori, change.get("offset", 0.0),
+                     change.get("sigma", 1.0), prior)  # fmt: skip
+    assert "\n" not in str(exc.value)
+
+
+def test_the_hybrid_start_splices_the_right_halves(scene):
+    """Two starts, each 1.5 m and 120° of azimuth off in one half of the walk
+    (the other half true): refined alone, each keeps its wrong half's mode;
+    the hybrid start, spliced per 0.25 s from their refined tracks where each
+    fits the data best, refines to the truth."""
+    from radiopose.filtering import FilterEstimate
+    from radiopose.filtering.refine3d import refine_smoothed
+
+    sim, model, t, heard, _ = scene
+    tp, to = sim.truth.position_m, sim.truth.orientation_deg
+    late = t - t[0] >= 0.5
+
+    def start(bad):
+        pos, ori = tp.copy(), to.copy()
+        pos[bad] += np.array([1.5, -1.5, 0.0])
+        ori[bad, 0] += 120.0
+        return [((i,), FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0, 0.0, 0.5))
+                for i in range(t.size)]  # fmt: skip
+
+    records = [(t[i], heard[i], (i,)) for i in range(t.size)]
+    p3 = Pose3dConfig()
+    errors = {}
+    for segment_s in (0.0, 0.25):
+        out = refine_smoothed(
+            model, records, start(~late), FilterConfig(), p3.height_noise_mps,
+            p3.tilt_noise_dps, 100, alternatives=[start(late)], hybrid_segment_s=segment_s,
+        )  # fmt: skip
+        pos = np.array([e.position_m for _, e in out])
+        ori = np.array([e.orientation_deg for _, e in out])
+        errors[segment_s] = axis_errors_of(pos, ori, tp, to)
+    assert errors[0.25].position_m.mean() < 0.1 and errors[0.25].rotation_deg.mean() < 2.0
+    assert errors[0.0].position_m.mean() > 0.3 and errors[0.0].rotation_deg.mean() > 20.0
