@@ -118,6 +118,9 @@ class FilterState:
     # offset belief at it (``None`` unless the offline tracker records them)
     records: list | None = None
     beliefs_db: list | None = None
+    # round 5 (offline reversed pass): the forward pass's smoothed estimates
+    # ``(key, estimate)`` as emitted (``None`` unless the offline tracker keeps them)
+    forward_kept: list | None = None
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 
