@@ -116,10 +116,13 @@ class Segment:
     start, stop
         Packet indices ``[start, stop)`` in time order.
     forward_score, reverse_score
-        Each track's log-likelihood of the segment's packets minus its jump
-        penalties, nats.
+        The whole file's log-likelihood (each at its own best single device
+        offset) with the forward track, or with the reversed pass's track in
+        this segment, minus the jump penalties, nats.
     chose_reverse
         Whether the reversed pass's track was taken there.
+    forward_jumps, reverse_jumps
+        Jumps of each track in the segment and at its ends.
     """
 
     start: int
@@ -127,6 +130,8 @@ class Segment:
     forward_score: float
     reverse_score: float
     chose_reverse: bool
+    forward_jumps: int = 0
+    reverse_jumps: int = 0
 
 
 def _poses(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray]:
@@ -180,6 +185,12 @@ def disagreement_segments(
     return out
 
 
+def _whole_file_ll(residual_db: FloatArray, mix: tuple[float, float, float]) -> float:
+    """Summed mixture log-likelihood of residuals at their best single offset, nats."""
+    off = profile_offset(residual_db, *mix)
+    return float(mixture_loglik(residual_db, off, *mix).sum())
+
+
 def combine_tracks(
     model: FilterModel,
     records: list[Record],
@@ -223,29 +234,27 @@ def combine_tracks(
     mix = (sigma_db, outlier_probability, outlier_range_db)
     fres, fidx = pose_residuals_db(model, heards, fp, fo)
     rres, ridx = pose_residuals_db(model, heards, rp, ro)
-    # the device offset from the packets where the two tracks agree
-    agree = np.ones(n, dtype=bool)
-    for a, b in segs:
-        agree[a:b] = False
-    sel = agree[fidx]
-    offset_db = profile_offset(fres[sel] if sel.sum() >= 20 else fres, *mix)
-    fll = packet_loglik(fres, fidx, n, offset_db, *mix)
-    rll = packet_loglik(rres, ridx, n, offset_db, *mix)
     fj = _jumps(fp, fo[:, 0], t_s, max_speed_mps, max_rate_dps)
     penalty = math.log(jump_probability)
+    f_ll = _whole_file_ll(fres, mix)
     out_segs: list[Segment] = []
     for a, b in segs:
-        # steps inside the segment and at its ends (to the forward track outside,
-        # the track the rest of the file keeps)
+        # each candidate (the forward track, or the reversed one in this segment)
+        # with its own device offset, profiled over the whole file
+        in_f, in_r = (fidx >= a) & (fidx < b), (ridx >= a) & (ridx < b)
+        r_res = np.concatenate([fres[~in_f], rres[in_r]])
+        r_ll = _whole_file_ll(r_res, mix)
+        # the continuity check: jumps inside the segment and at its two ends (to
+        # the forward track outside, which the rest of the file keeps)
         lo, hi = max(a - 1, 0), min(b + 1, n)
         f_jumps = int(fj[lo : hi - 1].sum())
         mix_pos, mix_az = fp[lo:hi].copy(), fo[lo:hi, 0].copy()
         mix_pos[a - lo : b - lo], mix_az[a - lo : b - lo] = rp[a:b], ro[a:b, 0]
         r_jumps = int(_jumps(mix_pos, mix_az, t_s[lo:hi], max_speed_mps, max_rate_dps).sum())
-        fs = float(fll[a:b].sum()) + penalty * f_jumps
-        rs = float(rll[a:b].sum()) + penalty * r_jumps
+        fs = f_ll + penalty * f_jumps
+        rs = r_ll + penalty * r_jumps
         take = rs > fs
-        out_segs.append(Segment(a, b, fs, rs, take))
+        out_segs.append(Segment(a, b, fs, rs, take, f_jumps, r_jumps))
         if take:
             for r in both[a:b]:
                 chosen[r[2]] = reverse[r[2]]
