@@ -12,13 +12,17 @@ other side, where the data often lead it into the right mode.
 Combination (:func:`combine_tracks`): where the forward and the reversed
 smoothed tracks disagree (more than ``disagree_m`` apart or ``disagree_deg``
 in azimuth) the packets form segments (gaps shorter than ``merge_gap_s``
-joined); each segment takes the track whose poses give its packets the larger
-log-likelihood (the filter's per-receiver Gaussian-plus-uniform mixture at the
-filter's σ, with the device offset profiled over the packets where both
-tracks agree: one offset for the device, not one per track), minus
-``log(1/jump_probability)`` nats for every jump of the track within the
-segment or at its two ends (a step between consecutive packets beyond the
-motion model's reach): the continuity check.
+joined). For each segment two tracks of the whole file are compared: the
+forward track, and the forward track with the reversed pass's poses in that
+segment. Each is scored by the log-likelihood of every packet under its poses
+(the filter's per-receiver Gaussian-plus-uniform mixture at the forward
+filter's σ) at its own best single device offset (profiled over the whole
+file: the offset is a constant of the device, and a wrong lock is often a
+wrong (pose, offset) pair, so the forward track's offset would favour it),
+minus ``log(1/jump_probability)`` nats for every jump within the segment or
+at its two ends (a step between consecutive packets beyond twice the motion
+model's limits): the continuity check. The segment takes the reversed poses
+if that score is the larger.
 """
 
 from __future__ import annotations
@@ -96,15 +100,6 @@ def profile_offset(
         outlier_range_db,
     ).sum(axis=1)  # fmt: skip
     return float(OFFSET_GRID_DB[int(np.argmax(ll))])
-
-
-def packet_loglik(
-    residual_db: FloatArray, packet_index: np.ndarray, n_packets: int, offset_db: float,
-    sigma_db: float, outlier_probability: float, outlier_range_db: float,
-) -> FloatArray:  # fmt: skip
-    """Log-likelihood of each packet (nats, ``(n_packets,)``) at one offset."""
-    ll = mixture_loglik(residual_db, offset_db, sigma_db, outlier_probability, outlier_range_db)
-    return np.bincount(packet_index, weights=ll, minlength=n_packets)
 
 
 @dataclass(frozen=True)
@@ -320,7 +315,6 @@ __all__ = [
     "combine_tracks",
     "disagreement_segments",
     "mixture_loglik",
-    "packet_loglik",
     "pose_residuals_db",
     "profile_offset",
     "reverse_pass",
