@@ -121,6 +121,7 @@ class FilterState:
     # round 5 (offline reversed pass): the forward pass's smoothed estimates
     # ``(key, estimate)`` as emitted (``None`` unless the offline tracker keeps them)
     forward_kept: list | None = None
+    forward_evidence: dict | None = None  # and each packet's log evidence by key
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 

@@ -19,9 +19,11 @@ segment. Each is scored by the log-likelihood of every packet under its poses
 filter's σ) at its own best single device offset (profiled over the whole
 file: the offset is a constant of the device, and a wrong lock is often a
 wrong (pose, offset) pair, so the forward track's offset would favour it),
-minus ``log(1/jump_probability)`` nats for every jump within the segment or
-at its two ends (a step between consecutive packets beyond twice the motion
-model's limits): the continuity check. The segment takes the reversed poses
+minus ``log(1/jump_probability)`` nats for a jump at either end of the
+segment (a step between consecutive packets beyond twice the motion model's
+limits): the continuity check. Jumps inside the segment are not counted: at
+σ = 3 dB the smoothed tracks step beyond those limits tens of times a second,
+and counting them chose wrong tracks (docs/filter.md, round 5). The segment takes the reversed poses
 if that score is the larger.
 """
 
@@ -117,7 +119,10 @@ class Segment:
     chose_reverse
         Whether the reversed pass's track was taken there.
     forward_jumps, reverse_jumps
-        Jumps of each track in the segment and at its ends.
+        Jumps of each track at the segment's ends.
+    forward_evidence, reverse_evidence
+        Each pass's log evidence summed over the segment's packets, nats
+        (``nan`` when not given).
     """
 
     start: int
@@ -127,6 +132,8 @@ class Segment:
     chose_reverse: bool
     forward_jumps: int = 0
     reverse_jumps: int = 0
+    forward_evidence: float = math.nan
+    reverse_evidence: float = math.nan
 
 
 def _poses(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray]:
@@ -201,13 +208,18 @@ def combine_tracks(
     disagree_m: float = 1.0,
     disagree_deg: float = 30.0,
     merge_gap_s: float = 0.1,
+    evidence: tuple[dict[object, float], dict[object, float]] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Segment]]:
     """The combined track (module docstring): the forward estimates, except in
     the segments where the reversed pass's track is the more likely.
 
     Packets without a forward estimate are left out; a packet without a reversed
-    one keeps the forward estimate. Returns ``(key, estimate)`` in time order and
-    the segments with their scores.
+    one keeps the forward estimate. ``evidence`` (each pass's log evidence of
+    each packet by key, forward and reversed, nats) is summed over each
+    segment into :class:`Segment` for the record; it does not decide (as a
+    second test it kept 7001 right and lost 7030, docs/filter.md round 5).
+    Returns ``(key, estimate)`` in time order and the segments with their
+    scores.
     """
     rows = [(t_s, h, key) for t_s, h, key in records if key in forward]
     both = [r for r in rows if r[2] in reverse]
@@ -229,7 +241,8 @@ def combine_tracks(
     mix = (sigma_db, outlier_probability, outlier_range_db)
     fres, fidx = pose_residuals_db(model, heards, fp, fo)
     rres, ridx = pose_residuals_db(model, heards, rp, ro)
-    fj = _jumps(fp, fo[:, 0], t_s, max_speed_mps, max_rate_dps)
+    limits = (max_speed_mps, max_rate_dps)
+    fj = _jumps(fp, fo[:, 0], t_s, *limits)
     penalty = math.log(jump_probability)
     f_ll = _whole_file_ll(fres, mix)
     out_segs: list[Segment] = []
@@ -239,17 +252,25 @@ def combine_tracks(
         in_f, in_r = (fidx >= a) & (fidx < b), (ridx >= a) & (ridx < b)
         r_res = np.concatenate([fres[~in_f], rres[in_r]])
         r_ll = _whole_file_ll(r_res, mix)
-        # the continuity check: jumps inside the segment and at its two ends (to
-        # the forward track outside, which the rest of the file keeps)
-        lo, hi = max(a - 1, 0), min(b + 1, n)
-        f_jumps = int(fj[lo : hi - 1].sum())
-        mix_pos, mix_az = fp[lo:hi].copy(), fo[lo:hi, 0].copy()
-        mix_pos[a - lo : b - lo], mix_az[a - lo : b - lo] = rp[a:b], ro[a:b, 0]
-        r_jumps = int(_jumps(mix_pos, mix_az, t_s[lo:hi], max_speed_mps, max_rate_dps).sum())
+        # the continuity check: a jump at either end of the segment (the steps
+        # into it and out of it; inside it each track is the filter's own)
+        ends = [(i, i + 1) for i in (a - 1, b - 1) if i >= 0 and i + 1 < n]
+        f_jumps = sum(int(fj[i]) for i, _ in ends)
+        r_jumps = 0
+        for i, j in ends:
+            pi, ai = (rp[i], ro[i, 0]) if i >= a else (fp[i], fo[i, 0])
+            pj, aj = (rp[j], ro[j, 0]) if j < b else (fp[j], fo[j, 0])
+            step = _jumps(np.vstack([pi, pj]), np.array([ai, aj]), t_s[[i, j]], *limits)
+            r_jumps += int(step[0])
         fs = f_ll + penalty * f_jumps
         rs = r_ll + penalty * r_jumps
+        f_ev = r_ev = math.nan
+        if evidence is not None:
+            f_ev = sum(evidence[0].get(r[2], 0.0) for r in both[a:b])
+            r_ev = sum(evidence[1].get(r[2], 0.0) for r in both[a:b])
+        # the evidence is reported, not used: measured uninformative (docs/filter.md)
         take = rs > fs
-        out_segs.append(Segment(a, b, fs, rs, take, f_jumps, r_jumps))
+        out_segs.append(Segment(a, b, fs, rs, take, f_jumps, r_jumps, f_ev, r_ev))
         if take:
             for r in both[a:b]:
                 chosen[r[2]] = reverse[r[2]]
@@ -263,6 +284,7 @@ def reverse_pass(
     centre_db: float,
     seed: int,
     sigma_db: float,
+    forward_evidence: dict[object, float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Segment]]:
     """Run the filter over the reversed ``records`` and combine its smoothed track
     with ``forward`` (:func:`combine_tracks`).
@@ -284,6 +306,9 @@ def reverse_pass(
         The filter's seed (the reversed pass draws from a stream of its own).
     sigma_db
         σ of the combination's likelihood, dB (the forward filter's estimate).
+    forward_evidence
+        The chosen forward pass's log evidence of each packet by key, nats
+        (reported in the segments, :func:`combine_tracks`; ``None``: not).
     """
     cfg = pf.config
     if math.isnan(centre_db):
@@ -291,9 +316,10 @@ def reverse_pass(
     else:
         rcfg, centre = tight_config(cfg), centre_db
     rcfg = replace(rcfg, offline_reverse_pass=False)
+    rev_evidence: dict[object, float] = {}
     rev, _ = run_pass(
         ParticleFilter(pf.model, rcfg, pf.lag_s), (seed + 1) % 2**63, reversed_records(records),
-        centre,
+        centre, rev_evidence,
     )  # fmt: skip
     return combine_tracks(
         pf.model, records, forward, dict(rev),
@@ -305,6 +331,7 @@ def reverse_pass(
         max_rate_dps=cfg.max_rate_dps,
         disagree_m=cfg.reverse_disagree_m,
         disagree_deg=cfg.reverse_disagree_deg,
+        evidence=None if forward_evidence is None else (forward_evidence, rev_evidence),
     )  # fmt: skip
 
 

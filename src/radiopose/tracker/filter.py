@@ -92,6 +92,7 @@ class FilterMethod:
             return Step(state, Outcome(reason=SKIP_OUT_OF_ORDER))
         if heard.n_heard == 0:
             return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
+        before = state.log_evidence
         est = pf.step(state, t_s, heard, (packet_id, t_s))
         if _replays(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
@@ -103,6 +104,9 @@ class FilterMethod:
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
+            if state.forward_evidence is None:
+                state.forward_evidence = {}
+            state.forward_evidence[(packet_id, t_s)] = state.log_evidence - before
         earlier = _as_delayed(smoothed)
         if est is None:
             return Step(state, Outcome(reason=SKIP_NO_TRACK), earlier)
@@ -121,19 +125,30 @@ class FilterMethod:
         state.records = state.beliefs_db = None
         first = pf.take_smoothed()  # pass 1's rest: its earlier packets went out already
         seed = filter_seed(device.config.seed, device.key)
+        tight_evidence: dict[object, float] = {}
         if _selects_offset(device):
-            chosen, passes = select_offset(pf, state, seed, records, first, beliefs)
+            chosen, passes = select_offset(
+                pf,
+                state,
+                seed,
+                records,
+                first,
+                beliefs,
+                tight_evidence if _reverses(device) else None,
+            )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
         if not _reverses(device):
             return _as_delayed(chosen)
         # round 5: a pass over the reversed packets, combined per segment
         kept, state.forward_kept = state.forward_kept or [], None
+        evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
         forward = dict(chosen if best > 0 else kept + chosen)
         combined, _ = reverse_pass(
-            pf, records, forward, passes[best].centre_db, seed, math.sqrt(state.sigma2_db2)
-        )
+            pf, records, forward, passes[best].centre_db, seed, math.sqrt(state.sigma2_db2),
+            tight_evidence if best > 0 else evidence,
+        )  # fmt: skip
         return _as_delayed(combined)
 
 
