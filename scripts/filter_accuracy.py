@@ -19,6 +19,9 @@ Rows per σ:
   "Accuracy round 4");
 * ``filter, +6 dB, one pass`` — the same offline without that selection (the
   filter's single pass, the design before round 4);
+* ``filter, reversed`` / ``filter, +6 dB, reversed`` — offline with the
+  time-reversed second pass (``FilterConfig.offline_reverse_pass``,
+  docs/filter.md "Accuracy round 5");
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -63,11 +66,14 @@ from radiopose.tracker import TrackerConfig
 OFFLINE = TrackerConfig()
 ONE_PASS = TrackerConfig(filter=FilterConfig(offline_offset_selection=False))
 CAUSAL = TrackerConfig(smoothing_lag_s=None)
+REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
+    "filter, reversed": (REVERSED, "", "filter"),
     "filter, causal": (CAUSAL, "", "filter"),
     "filter, +6 dB": (OFFLINE, "loud", "filter"),
     "filter, +6 dB, one pass": (ONE_PASS, "loud", "filter"),
+    "filter, +6 dB, reversed": (REVERSED, "loud", "filter"),
     "filter, +6 dB, causal": (CAUSAL, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),

@@ -76,6 +76,13 @@ def test_mirror_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
     assert all("nearest-grid MSE" in line for line in lines)
 
 
+def test_lock_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "lock_diagnosis.py", ["--quick", "--reverse"], capsys)
+    rows = [row for row in _table_rows(printed) if row.startswith("| 5 |")]
+    assert {row.split("|")[4].strip() for row in rows} == {"filter", "+ reversed pass"}
+    assert all("Δ" not in row for row in rows)
+
+
 def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--grid", "test", "--windows", "0.1"]
     printed = _run(SCRIPTS / "orientation_outliers.py", argv, capsys)
@@ -210,6 +217,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "filter_accuracy": test_filter_accuracy,
     "filter_scenarios": test_filter_scenarios,
     "live_lag_accuracy": test_live_lag_accuracy,
+    "lock_diagnosis": test_lock_diagnosis,
     "mirror_diagnosis": test_mirror_diagnosis,
     "orientation_outliers": test_orientation_outliers,
     "live_pose3d": test_live_pose3d,

@@ -5,7 +5,8 @@ orientation, turn rate and transmit-power offset.
 fixed-lag smoother), :mod:`~radiopose.filtering.config` its configuration and
 result, :mod:`~radiopose.filtering.model` a device's arrays at a site,
 :mod:`~radiopose.filtering.kernels` its compiled per-particle kernels and
-:mod:`~radiopose.filtering.lineage` the smoother's genealogy; in 3-D (height,
+:mod:`~radiopose.filtering.lineage` the smoother's genealogy,
+:mod:`~radiopose.filtering.reverse` the offline time-reversed pass; in 3-D (height,
 pitch, roll) :mod:`~radiopose.filtering.particle3d` and
 :mod:`~radiopose.filtering.kernels3d`. The tracker registers it as the method ``filter``
 (docs/filter.md).

@@ -128,6 +128,18 @@ class FilterConfig:
     smoother_ghost_s
         How far back a re-entered hypothesis with no particle within reach
         travels on its own motion before its past is the filter's, seconds.
+    offline_reverse_pass
+        Offline only (batch ``locate``; the live server and the causal
+        ``Tracker`` ignore it): after the forward pass (and the offset
+        selection), run the filter again over the time-reversed packets and,
+        where the two smoothed tracks disagree (more than
+        ``reverse_disagree_m`` or ``reverse_disagree_deg``), keep per segment
+        the track whose poses make the segment's packets more likely
+        (:mod:`radiopose.filtering.reverse`; docs/filter.md, "Accuracy round
+        5"). Costs one more pass.
+    reverse_disagree_m, reverse_disagree_deg
+        Where the forward and reversed tracks count as disagreeing, metres and
+        degrees of azimuth.
     """
 
     n_particles: int = 2000
@@ -175,6 +187,10 @@ class FilterConfig:
     smoother_azimuth_bandwidth_deg: float = 8.0
     smoother_reach: float = 3.0
     smoother_ghost_s: float = 0.5
+    # issue 15 (wrong locks, round 5): the offline time-reversed pass
+    offline_reverse_pass: bool = False
+    reverse_disagree_m: float = 1.0
+    reverse_disagree_deg: float = 30.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -183,6 +199,7 @@ class FilterConfig:
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
+            "reverse_disagree_m", "reverse_disagree_deg",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)

@@ -95,16 +95,24 @@ def candidate_offsets_db(
 
 
 def run_pass(
-    pf: ParticleFilter, seed: int, records: list[Record], offset_prior_db: float
+    pf: ParticleFilter,
+    seed: int,
+    records: list[Record],
+    offset_prior_db: float,
+    evidence_out: dict[object, float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], float]:
     """Run ``pf`` (a fresh filter, smoothing or causal) over ``records`` from a new
     state seeded ``seed`` whose offset prior is centred on ``offset_prior_db``;
-    return its estimates ``(key, estimate)`` and the whole file's log evidence."""
+    return its estimates ``(key, estimate)`` and the whole file's log evidence
+    (and, into ``evidence_out`` if given, each packet's share of it by key, nats)."""
     st = pf.new_state(seed)
     st.offset_prior_db = offset_prior_db
     out: list[tuple[object, FilterEstimate]] = []
     for t_s, heard, key in records:
+        before = st.log_evidence
         est = pf.step(st, t_s, heard, key)
+        if evidence_out is not None:
+            evidence_out[key] = st.log_evidence - before
         if pf.lag_s is None:
             if est is not None:
                 out.append((key, est))
@@ -122,6 +130,7 @@ def select_offset(
     records: list[Record],
     first_pass: list[tuple[object, FilterEstimate]],
     beliefs_db: np.ndarray,
+    evidence_out: dict[object, float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[OffsetPass]]:
     """The offline selection (module docstring) after pass 1.
 
@@ -138,6 +147,11 @@ def select_offset(
         they are if pass 1 is chosen).
     beliefs_db
         Pass 1's causal offset belief at each packet, dB.
+
+    evidence_out
+        If given and a further pass is chosen, filled with that pass's log
+        evidence of each packet by key, nats (the reversed pass's combination
+        reads it; left empty when pass 1 stands).
 
     Returns
     -------
@@ -156,10 +170,14 @@ def select_offset(
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
     for c in candidates:
-        est, ll = run_pass(ParticleFilter(pf.model, tight, pf.lag_s), seed, records, c)
+        per_packet: dict[object, float] | None = None if evidence_out is None else {}
+        est, ll = run_pass(ParticleFilter(pf.model, tight, pf.lag_s), seed, records, c, per_packet)
         passes.append(OffsetPass(c, ll))
         if ll > best_ll:
             best, best_ll = est, ll
+            if evidence_out is not None and per_packet is not None:
+                evidence_out.clear()
+                evidence_out.update(per_packet)
     return best, passes
 
 

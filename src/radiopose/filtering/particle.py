@@ -121,6 +121,10 @@ class FilterState:
     # 3-D offline batch refinement (radiopose.filtering.refine3d): the smoothed
     # estimates emitted so far, ``(key, FilterEstimate)`` (``None`` otherwise)
     refine_smoothed: list | None = None
+    # round 5 (offline reversed pass): the forward pass's smoothed estimates
+    # ``(key, estimate)`` as emitted (``None`` unless the offline tracker keeps them)
+    forward_kept: list | None = None
+    forward_evidence: dict | None = None  # and each packet's log evidence by key
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
 
 

@@ -32,7 +32,8 @@ from typing import cast
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
-from radiopose.filtering.offset import select_offset
+from radiopose.filtering.offset import OffsetPass, select_offset
+from radiopose.filtering.reverse import reverse_pass
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
@@ -93,21 +94,27 @@ class FilterMethod:
             return Step(state, Outcome(reason=SKIP_TOO_FEW_RECEIVERS))
         if _refines(device):
             _record_members(device, state)
+        before = state.log_evidence
         est = pf.step(state, t_s, heard, (packet_id, t_s))
-        if _selects_offset(device):  # issue 15: the offline offset selection's record
+        if _replays(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
                 state.records, state.beliefs_db = [], []
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.beliefs_db.append(est.offset_db if est is not None else math.nan)
+        smoothed = pf.take_smoothed()
         if _refines(device):  # 3-D, offline: the batch refinement's record
             if state.records is None or state.refine_smoothed is None:
                 state.records, state.refine_smoothed = [], []
             state.records.append((t_s, heard, (packet_id, t_s)))
-            sm = pf.take_smoothed()
-            state.refine_smoothed.extend(sm)
-            earlier = _as_delayed(sm)
-        else:
-            earlier = _delayed(pf)
+            state.refine_smoothed.extend(smoothed)
+        if _reverses(device):  # round 5: the forward track, whole, for the combination
+            if state.forward_kept is None:
+                state.forward_kept = []
+            state.forward_kept += smoothed
+            if state.forward_evidence is None:
+                state.forward_evidence = {}
+            state.forward_evidence[(packet_id, t_s)] = state.log_evidence - before
+        earlier = _as_delayed(smoothed)
         if est is None:
             return Step(state, Outcome(reason=SKIP_NO_TRACK), earlier)
         if pf.lag_s is not None:
@@ -119,7 +126,7 @@ class FilterMethod:
         pf.flush(state)
         if _refines(device) and state.records:
             return _as_delayed(_refine(device, state))
-        if not (_selects_offset(device) and state.records):
+        if not (_replays(device) and state.records):
             return _delayed(pf)
         # issue 15: offline, the device-level offset chosen by the whole file's
         # marginal likelihood (radiopose.filtering.offset); re-emits every packet
@@ -127,8 +134,31 @@ class FilterMethod:
         state.records = state.beliefs_db = None
         first = pf.take_smoothed()  # pass 1's rest: its earlier packets went out already
         seed = filter_seed(device.config.seed, device.key)
-        chosen, _ = select_offset(pf, state, seed, records, first, beliefs)
-        return _as_delayed(chosen)
+        tight_evidence: dict[object, float] = {}
+        if _selects_offset(device):
+            chosen, passes = select_offset(
+                pf,
+                state,
+                seed,
+                records,
+                first,
+                beliefs,
+                tight_evidence if _reverses(device) else None,
+            )
+        else:
+            chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
+        if not _reverses(device):
+            return _as_delayed(chosen)
+        # round 5: a pass over the reversed packets, combined per segment
+        kept, state.forward_kept = state.forward_kept or [], None
+        evidence, state.forward_evidence = state.forward_evidence or {}, None
+        best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
+        forward = dict(chosen if best > 0 else kept + chosen)
+        combined, _ = reverse_pass(
+            pf, records, forward, passes[best].centre_db, seed, math.sqrt(state.sigma2_db2),
+            tight_evidence if best > 0 else evidence,
+        )  # fmt: skip
+        return _as_delayed(combined)
 
 
 def _outcome(est: FilterEstimate) -> Outcome:
@@ -147,6 +177,24 @@ def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed,
         for (packet_id, t_s), est in cast(
             "list[tuple[tuple[str, float], FilterEstimate]]", smoothed
         )
+    )
+
+
+def _replays(device: Device) -> bool:
+    """Whether the offline passes after the first (offset selection, reversed
+    pass) may run for ``device``, so that its packets are kept."""
+    return _selects_offset(device) or _reverses(device)
+
+
+def _reverses(device: Device) -> bool:
+    """Whether the offline reversed pass runs for ``device`` (round 5): offline
+    with a smoothing lag, switched on (``FilterConfig.offline_reverse_pass``),
+    a 2-D filter."""
+    return (
+        device.offline
+        and device.lag_s is not None
+        and device.config.filter.offline_reverse_pass
+        and type(device.engine) is ParticleFilter
     )
 
 
