@@ -40,7 +40,7 @@ from radiopose.filtering.model import FilterModel
 from radiopose.filtering.offset import run_pass, tight_config
 from radiopose.filtering.particle import ParticleFilter
 from radiopose.likelihood import HeardRss
-from radiopose.units import FloatArray
+from radiopose.units import FloatArray, angle_diff_deg
 
 Record = tuple[float, HeardRss, object]
 """One packet as the passes replay it: ``(t_s, heard, key)``."""
@@ -142,10 +142,6 @@ def _poses(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray]:
     return pos, ori
 
 
-def _azimuth_diff_deg(a: FloatArray, b: FloatArray) -> FloatArray:
-    return np.abs((a - b + 180.0) % 360.0 - 180.0)
-
-
 def _jumps(
     pos: FloatArray, az: FloatArray, t_s: FloatArray, max_speed_mps: float, max_rate_dps: float
 ) -> np.ndarray:
@@ -154,7 +150,7 @@ def _jumps(
     at least 0.25 m and 10°)."""
     dt = np.diff(t_s)
     step_m = np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1)
-    step_deg = _azimuth_diff_deg(az[1:], az[:-1])
+    step_deg = np.abs(angle_diff_deg(az[1:], az[:-1]))
     return np.asarray(
         (step_m > np.maximum(0.25, 2 * max_speed_mps * dt))
         | (step_deg > np.maximum(10.0, 2 * max_rate_dps * dt))
@@ -168,7 +164,7 @@ def disagreement_segments(
     """Packet ranges ``[start, stop)`` where the tracks are more than ``disagree_m``
     or ``disagree_deg`` (azimuth) apart, ranges less than ``merge_gap_s`` apart joined."""
     bad = (np.linalg.norm(fwd_pos[:, :2] - rev_pos[:, :2], axis=1) > disagree_m) | (
-        _azimuth_diff_deg(fwd_az, rev_az) > disagree_deg
+        np.abs(angle_diff_deg(fwd_az, rev_az)) > disagree_deg
     )
     out: list[tuple[int, int]] = []
     i, n = 0, bad.size
