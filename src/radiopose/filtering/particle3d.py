@@ -172,6 +172,13 @@ class Pose3dConfig:
         track (and offset) and keep, per track, the refined track of the
         lowest MAP objective (the same objective for all: only the likelihood
         and the priors choose).
+    refine_height_accel_noise_mps2, refine_tilt_accel_noise_dps2
+        The refinement's own motion prior for height and for pitch and roll
+        (0: the filter's random walks, ``height_noise_mps`` and
+        ``tilt_noise_dps``): when > 0, a nearly-constant-rate model with white
+        acceleration of this density, m/s²·√s and °/s²·√s (a hand moves a
+        phone smoothly; docs/pose3d.md, "Refinement prior, 2026-11-26"). The
+        causal filter never reads them.
     """
 
     n_particles: int = 2000
@@ -201,6 +208,8 @@ class Pose3dConfig:
     refine_max_nfev: int = 100
     refine_from_members: bool = True
     refine_hybrid_segment_s: float = 0.5
+    refine_height_accel_noise_mps2: float = 0.0
+    refine_tilt_accel_noise_dps2: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -220,6 +229,10 @@ class Pose3dConfig:
                 "3-D filter setting refine_hybrid_segment_s = "
                 f"{self.refine_hybrid_segment_s!r} must be >= 0"
             )
+        for name in ("refine_height_accel_noise_mps2", "refine_tilt_accel_noise_dps2"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:
