@@ -181,6 +181,13 @@ def main(argv: list[str] | None = None) -> int:
         "constant-rate height and tilt prior at these densities (docs/pose3d.md)",
     )
     ap.add_argument(
+        "--refine-polish",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="with --refine-accel: one row per value of Pose3dConfig.refine_polish_starts",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -212,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         hq, tq = args.refine_accel
         acc = {"refine_height_accel_noise_mps2": hq, "refine_tilt_accel_noise_dps2": tq}
         label = f"refinement prior constant-rate (height {hq:g}, tilt {tq:g})"
-        variants.append((label, acc, 0.0))
+        for k in args.refine_polish:
+            variants.append((f"{label}, polish {k}", {**acc, "refine_polish_starts": k}, 0.0))
         if args.oracle:
             variants.append(("oracle, " + label, acc, math.nan))
     if args.only_variants:

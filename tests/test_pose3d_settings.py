@@ -168,6 +168,7 @@ BAD = [
     ("heading_prior_deg = -1.0", 3, "heading_prior_deg", "out of range"),
     ("refine_tilt_accel_noise_dps2 = -1.0", 3, "refine_tilt_accel_noise_dps2", "out of range"),
     ("refine_height_accel_noise_mps2 = nan", 3, "refine_height_accel_noise_mps2", "finite"),
+    ("refine_polish_starts = -1", 3, "refine_polish_starts", "out of range"),
     ("offset_bank_db = 3.0", 3, "offset_bank_db", "write [3.0]"),
     ("offset_bank_db = [0.0, nan]", 3, "offset_bank_db", "item 1 is not a finite number"),
     ("offset_bank_db = [0.0, 99.0]", 3, "offset_bank_db", "out of range"),

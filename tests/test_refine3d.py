@@ -257,8 +257,10 @@ def test_the_constant_rate_tilt_prior_keeps_a_noisy_refinement_near_the_truth():
 
 def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
     """``refine_height_accel_noise_mps2`` and ``refine_tilt_accel_noise_dps2`` of
-    ``[filter.pose3d]`` reach every start's prior; the causal filter's own
-    densities stay the random walks."""
+    ``[filter.pose3d]`` reach the solve: with ``refine_polish_starts = 1`` every
+    start is refined with the random walks, then the best one once more with the
+    constant-rate prior (and that is what ``locate`` returns); with 0 every start
+    uses the constant-rate prior; the random-walk densities stay the filter's."""
     import radiopose.filtering.refine3d as r3
 
     sim = simulate_handheld(replace(SCENE, n_receivers=6, duration_s=0.2), seed=SEED)
@@ -267,15 +269,26 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
 
     def spy(*args, **kwargs):
         seen.append(args[7])
-        return real(*args, **kwargs)
+        res = real(*args, **kwargs)
+        if args[7].tilt_accel_noise_dps2 > 0:
+            return replace(res, position_m=res.position_m * 0 + 1.234)  # a mark to find
+        return res
 
     monkeypatch.setattr(r3, "refine_track", spy)
     cfg = TrackerConfig()
     p3 = replace(cfg.pose3d, refine_height_accel_noise_mps2=1.5, refine_tilt_accel_noise_dps2=300.0)
-    locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
-    assert seen and all(
-        (p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) == (1.5, 300.0) for p in seen
-    )
+    out = locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
+    rates = [(p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) for p in seen]
+    n_starts = len(seen) - 1
+    assert n_starts >= 1 + len(p3.offset_bank_db)
+    assert rates == [(0.0, 0.0)] * n_starts + [(1.5, 300.0)]
+    assert np.all(out.estimates.position_m == 1.234)
     assert all((p.height_noise_mps, p.tilt_noise_dps) == (0.2, 20.0) for p in seen)
+    seen.clear()
+    locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=replace(p3, refine_polish_starts=0)))
+    assert len(seen) == n_starts
+    assert all((p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) == (1.5, 300.0) for p in seen)
     with pytest.raises(InputError, match="refine_tilt_accel_noise_dps2"):
         Pose3dConfig(refine_tilt_accel_noise_dps2=-1.0)
+    with pytest.raises(InputError, match="refine_polish_starts"):
+        Pose3dConfig(refine_polish_starts=-1)

@@ -84,6 +84,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_hybrid_segment_s": (0.0, 3600.0),
     "refine_height_accel_noise_mps2": (0.0, 1000.0),
     "refine_tilt_accel_noise_dps2": (0.0, 100_000.0),
+    "refine_polish_starts": (0, 1000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive

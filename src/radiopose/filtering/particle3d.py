@@ -179,6 +179,11 @@ class Pose3dConfig:
         acceleration of this density, m/s²·√s and °/s²·√s (a hand moves a
         phone smoothly; docs/pose3d.md, "Refinement prior, 2026-11-26"). The
         causal filter never reads them.
+    refine_polish_starts
+        With a constant-rate refinement prior: how many of the refined tracks
+        (lowest objective first, found with the random walks) are polished
+        with it; the lowest polished objective is kept. 0: every start is
+        refined with the constant-rate prior directly.
     """
 
     n_particles: int = 2000
@@ -210,6 +215,7 @@ class Pose3dConfig:
     refine_hybrid_segment_s: float = 0.5
     refine_height_accel_noise_mps2: float = 0.0
     refine_tilt_accel_noise_dps2: float = 0.0
+    refine_polish_starts: int = 1
 
     def __post_init__(self) -> None:
         for name in (
@@ -233,6 +239,8 @@ class Pose3dConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
+        if self.refine_polish_starts < 0:
+            raise InputError("3-D filter setting refine_polish_starts must be >= 0")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:

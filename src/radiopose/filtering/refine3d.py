@@ -562,6 +562,7 @@ def refine_smoothed(
     hybrid_segment_s: float = 0.0,
     height_accel_noise_mps2: float = 0.0,
     tilt_accel_noise_dps2: float = 0.0,
+    polish_starts: int = 1,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -579,7 +580,13 @@ def refine_smoothed(
     own offset); it is refined and competes like the others.
     ``height_accel_noise_mps2`` and ``tilt_accel_noise_dps2`` (> 0) replace
     the height and tilt random walks of the prior by constant-rate models
-    (:class:`MotionPrior`). Returns every
+    (:class:`MotionPrior`): with ``polish_starts`` ≥ 1 as a polish — every
+    start is refined with the random walks as before, then the
+    ``polish_starts`` refined tracks of the lowest objective are refined
+    again with the constant-rate prior and the lowest of those is kept; with
+    ``polish_starts = 0`` every start is refined with the constant-rate prior
+    directly (stiffer: more starts stay in a local minimum, docs/pose3d.md).
+    Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
     """
@@ -589,6 +596,10 @@ def refine_smoothed(
     prior = MotionPrior.of_filter(
         config, height_noise_mps, tilt_noise_dps, height_accel_noise_mps2, tilt_accel_noise_dps2
     )
+    rate = height_accel_noise_mps2 > 0 or tilt_accel_noise_dps2 > 0
+    search = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
+    if not rate or polish_starts == 0:
+        search = prior
     track: list[tuple[float, HeardRss, object]] = []
 
     def start(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray, float]:
@@ -617,9 +628,11 @@ def refine_smoothed(
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
 
-        def solve(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
+        def solve(
+            pos: FloatArray, ori: FloatArray, off: float, pri: MotionPrior = search
+        ) -> RefinedTrack:
             return refine_track(
-                model, t_rows, h_rows, pos, ori, off, sigma, prior, offset_prior_db=0.0,
+                model, t_rows, h_rows, pos, ori, off, sigma, pri, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
             )  # fmt: skip
 
@@ -637,6 +650,13 @@ def refine_smoothed(
                 ori = np.array([done[k].orientation_deg[i] for i, k in enumerate(pick)])
                 off = float(np.median([done[k].offset_db for k in pick]))
                 done.append(solve(pos, ori, off))
+        if polish_starts > 0 and search is not prior:
+            # the constant-rate prior as a polish of the lowest-objective tracks
+            # the random walks found (their objectives are not comparable with
+            # the polished ones: only polished tracks compete)
+            done.sort(key=lambda r: r.cost)
+            done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
+                    for d in done[:polish_starts]]  # fmt: skip
         for res in done:
             if best is None or res.cost < best.cost:
                 best = res
