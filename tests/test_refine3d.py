@@ -285,7 +285,8 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
     assert np.all(out.estimates.position_m == 1.234)
     assert all((p.height_noise_mps, p.tilt_noise_dps) == (0.2, 20.0) for p in seen)
     seen.clear()
-    locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=replace(p3, refine_polish_starts=0)))
+    direct = replace(p3, refine_polish_starts=0)
+    locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=direct))
     assert len(seen) == n_starts
     assert all((p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) == (1.5, 300.0) for p in seen)
     with pytest.raises(InputError, match="refine_tilt_accel_noise_dps2"):
