@@ -86,21 +86,27 @@ def run_one(
     return axis_errors(sim.truth, res.estimates)
 
 
-def oracle_one(n_rx: int, sigma_db: float, seed: int, duration_s: float) -> AxisErrors:
+def oracle_one(
+    n_rx: int, sigma_db: float, seed: int, duration_s: float, pose3d: dict[str, Any] | None = None
+) -> AxisErrors:
     """The batch refinement (:mod:`radiopose.filtering.refine3d`) initialised at
     the truth (true poses, true offset 0 dB, σ told): about the best an
-    estimator on this likelihood and motion prior does near the right mode."""
+    estimator on this likelihood and motion prior does near the right mode;
+    ``pose3d`` overrides :class:`Pose3dConfig` (the refinement's prior)."""
     cfg = replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma_db, duration_s=duration_s)
     sim = simulate_handheld(cfg, seed=seed)
     obs = check_packets(sim.site, sim.packets)
     space = candidate_space(sim.site, obs[0].transmitter)
-    p3 = particle3d.Pose3dConfig()
+    p3 = replace(particle3d.Pose3dConfig(), **(pose3d or {}))
     model = particle3d.FilterModel3d.build3d(sim.site, space, p3)
     t = np.array([o.timestamp_s for o in obs])
     idx = np.searchsorted(sim.truth.timestamp_s, t)
     pos, ori = sim.truth.position_m[idx], sim.truth.orientation_deg[idx]
     fc = TrackerConfig().filter
-    prior = MotionPrior.of_filter(fc, p3.height_noise_mps, p3.tilt_noise_dps)
+    prior = MotionPrior.of_filter(
+        fc, p3.height_noise_mps, p3.tilt_noise_dps,
+        p3.refine_height_accel_noise_mps2, p3.refine_tilt_accel_noise_dps2,
+    )  # fmt: skip
     r = refine_track(
         model, t, [space.heard(o) for o in obs], pos, ori, 0.0, max(sigma_db, 0.1), prior,
         offset_prior_sd_db=fc.offset_prior_sd_db, max_nfev=p3.refine_max_nfev,
@@ -166,6 +172,26 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also run the batch refinement initialised at the truth (an oracle bound)",
     )
+    ap.add_argument(
+        "--refine-accel",
+        type=float,
+        nargs=2,
+        metavar=("HEIGHT_MPS2", "TILT_DPS2"),
+        help="also run each condition (and its oracle with --oracle) with the refinement's "
+        "constant-rate height and tilt prior at these densities (docs/pose3d.md)",
+    )
+    ap.add_argument(
+        "--refine-polish",
+        type=int,
+        nargs="+",
+        default=[1],
+        help="with --refine-accel: one row per value of Pose3dConfig.refine_polish_starts",
+    )
+    ap.add_argument(
+        "--only-variants",
+        action="store_true",
+        help="skip the standard row (and its oracle): only the extra rows asked for",
+    )
     ap.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 6 receivers, 0.5 s")
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args(argv)
@@ -189,6 +215,16 @@ def main(argv: list[str] | None = None) -> int:
         )
     if args.oracle:
         variants.append(("oracle: refinement from the truth", {}, math.nan))
+    if args.refine_accel:
+        hq, tq = args.refine_accel
+        acc = {"refine_height_accel_noise_mps2": hq, "refine_tilt_accel_noise_dps2": tq}
+        label = f"refinement prior constant-rate (height {hq:g}, tilt {tq:g})"
+        for k in args.refine_polish:
+            variants.append((f"{label}, polish {k}", {**acc, "refine_polish_starts": k}, 0.0))
+        if args.oracle:
+            variants.append(("oracle, " + label, acc, math.nan))
+    if args.only_variants:
+        variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:
         h = args.heading_prior_deg
         variants.append((f"+ heading prior {h:g}°", {"heading_prior_deg": h}, 0.0))
@@ -202,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
                 args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err)
                 c0 = time.process_time()
                 if math.isnan(err):
-                    runs = [oracle_one(n_rx, sigma, s, args.duration_s) for s in seeds]
+                    runs = [oracle_one(n_rx, sigma, s, args.duration_s, p3) for s in seeds]
                 else:
                     runs = [run_one(n_rx, sigma, s, *args_one) for s in seeds]
                 cpu_s = (time.process_time() - c0) / len(seeds)

@@ -166,6 +166,9 @@ BAD = [
     ('estimate = "median"', 3, "estimate", "expected one of"),
     ("estimate = 1", 3, "estimate", "expected a non-empty string"),
     ("heading_prior_deg = -1.0", 3, "heading_prior_deg", "out of range"),
+    ("refine_tilt_accel_noise_dps2 = -1.0", 3, "refine_tilt_accel_noise_dps2", "out of range"),
+    ("refine_height_accel_noise_mps2 = nan", 3, "refine_height_accel_noise_mps2", "finite"),
+    ("refine_polish_starts = -1", 3, "refine_polish_starts", "out of range"),
     ("offset_bank_db = 3.0", 3, "offset_bank_db", "write [3.0]"),
     ("offset_bank_db = [0.0, nan]", 3, "offset_bank_db", "item 1 is not a finite number"),
     ("offset_bank_db = [0.0, 99.0]", 3, "offset_bank_db", "out of range"),
@@ -320,6 +323,19 @@ def test_serve_names_a_bad_key_before_it_starts(scene, tmp_path: Path):
     (line,) = r.stderr.strip().splitlines()
     assert "tracker.toml:2" in line and "filter.pose3d.height_noise_mps" in line
     assert not (tmp_path / "x.db").exists()  # stopped before opening the database
+
+
+def test_the_refinement_prior_reads_with_zero_for_off(tmp_path: Path):
+    """The refinement's constant-rate densities read from ``[filter.pose3d]``;
+    0 (the random walks) is a value."""
+    p = _write(
+        tmp_path,
+        "[filter.pose3d]\nrefine_tilt_accel_noise_dps2 = 250.0\n"
+        "refine_height_accel_noise_mps2 = 0.0\n",
+    )
+    cfg = read_tracker_settings(p).pose3d()
+    assert cfg.refine_tilt_accel_noise_dps2 == 250.0
+    assert cfg.refine_height_accel_noise_mps2 == 0.0
 
 
 def test_refine_is_a_boolean(tmp_path: Path):

@@ -195,3 +195,101 @@ def test_the_hybrid_start_splices_the_right_halves(scene):
         errors[segment_s] = axis_errors_of(pos, ori, tp, to)
     assert errors[0.25].position_m.mean() < 0.1 and errors[0.25].rotation_deg.mean() < 2.0
     assert errors[0.0].position_m.mean() > 0.3 and errors[0.0].rotation_deg.mean() > 20.0
+
+
+def test_the_constant_rate_prior_charges_rate_changes_not_rates():
+    """With ``height_accel_noise_mps2`` and ``tilt_accel_noise_dps2`` > 0 (the
+    refinement's own prior, docs/pose3d.md "Refinement prior, 2026-11-26"), a
+    steady climb and steady pitch and roll rates cost nothing (the random walks
+    charge them) and a change of rate is charged (the random walks do not see
+    it beyond its steps); wrapped roll differences are scaled by the tilt
+    density."""
+    from radiopose.filtering.refine3d import _POSE, _Prior
+
+    t = np.arange(50) * 0.005
+    n = t.size
+    rw = MotionPrior(1.0, 90.0, 0.2, 20.0)
+    rate = replace(rw, height_accel_noise_mps2=1.0, tilt_accel_noise_dps2=400.0)
+    X = np.zeros((n, _POSE))
+    X[:, 2] = 1.0 + 0.3 * t  # m, 0.3 m/s
+    X[:, 4] = np.radians(40.0 + 30.0 * t)  # 30°/s
+    X[:, 5] = np.radians(170.0 + 40.0 * t)  # crosses ±180°: wrapped
+    X[:, 5] = (X[:, 5] + np.pi) % (2 * np.pi) - np.pi
+    x = np.concatenate([X.ravel(), [0.0]])
+    steady_rw = _Prior(t, rw, x.size).residuals(x)
+    steady_rate = _Prior(t, rate, x.size).residuals(x)
+    assert np.abs(steady_rw).max() > 0.1
+    assert np.abs(steady_rate).max() < 1e-6
+    # a kink of 60°/s in pitch half-way: one velocity change of 60°/s · √(3/(2·5 ms))
+    Y = X.copy()
+    Y[n // 2 :, 4] += np.radians(60.0) * (t[n // 2 :] - t[n // 2])
+    y = np.concatenate([Y.ravel(), [0.0]])
+    kink = _Prior(t, rate, y.size).residuals(y)
+    expect = 60.0 / (400.0 * math.sqrt(2 * 0.005 / 3.0))
+    assert np.abs(kink).max() == pytest.approx(expect, rel=1e-6)
+
+
+def test_the_constant_rate_tilt_prior_keeps_a_noisy_refinement_near_the_truth():
+    """σ = 1 dB, 6 receivers, a 2 s walk, started at the truth: with the filter's
+    random walks the MAP wanders off the smooth truth in pitch and roll; the
+    constant-rate prior (1 m/s²·√s, 400 °/s²·√s) stays markedly closer (the
+    oracle rows of docs/pose3d.md, "Refinement prior, 2026-11-26")."""
+    sim = simulate_handheld(
+        replace(SCENE, n_receivers=6, noise_db=1.0, duration_s=2.0), seed=SEED + 1
+    )
+    site = sim.site
+    space = candidate_space(site, site.devices[0].transmitter)
+    model = FilterModel3d.build3d(site, space, Pose3dConfig())
+    obs = group_packets(sim.packets)
+    heard = [space.heard(o) for o in obs]
+    t = np.array([o.timestamp_s for o in obs])
+    tp, to = sim.truth.position_m, sim.truth.orientation_deg
+    rw = MotionPrior.of_filter(FilterConfig(), 0.2, 20.0)
+    rate = MotionPrior.of_filter(FilterConfig(), 0.2, 20.0, 1.0, 400.0)
+    e = {}
+    for name, prior in (("rw", rw), ("rate", rate)):
+        res = refine_track(model, t, heard, tp, to, 0.0, 1.0, prior, max_nfev=100)
+        e[name] = axis_errors_of(res.position_m, res.orientation_deg, tp, to)
+    # measured: rotation 4.4° → 3.2°, roll 5.3° → 2.2°
+    assert e["rw"].rotation_deg.mean() > 3.9 and e["rw"].roll_deg.mean() > 4.5
+    assert e["rate"].rotation_deg.mean() < 3.6 and e["rate"].roll_deg.mean() < 3.0
+
+
+def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
+    """``refine_height_accel_noise_mps2`` and ``refine_tilt_accel_noise_dps2`` of
+    ``[filter.pose3d]`` reach the solve: with ``refine_polish_starts = 1`` every
+    start is refined with the random walks, then the best one once more with the
+    constant-rate prior (and that is what ``locate`` returns); with 0 every start
+    uses the constant-rate prior; the random-walk densities stay the filter's."""
+    import radiopose.filtering.refine3d as r3
+
+    sim = simulate_handheld(replace(SCENE, n_receivers=6, duration_s=0.2), seed=SEED)
+    seen: list[MotionPrior] = []
+    real = r3.refine_track
+
+    def spy(*args, **kwargs):
+        seen.append(args[7])
+        res = real(*args, **kwargs)
+        if args[7].tilt_accel_noise_dps2 > 0:
+            return replace(res, position_m=res.position_m * 0 + 1.234)  # a mark to find
+        return res
+
+    monkeypatch.setattr(r3, "refine_track", spy)
+    cfg = TrackerConfig()
+    p3 = replace(cfg.pose3d, refine_height_accel_noise_mps2=1.5, refine_tilt_accel_noise_dps2=300.0)
+    out = locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
+    rates = [(p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) for p in seen]
+    n_starts = len(seen) - 1
+    assert n_starts >= 1 + len(p3.offset_bank_db)
+    assert rates == [(0.0, 0.0)] * n_starts + [(1.5, 300.0)]
+    assert np.all(out.estimates.position_m == 1.234)
+    assert all((p.height_noise_mps, p.tilt_noise_dps) == (0.2, 20.0) for p in seen)
+    seen.clear()
+    direct = replace(p3, refine_polish_starts=0)
+    locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=direct))
+    assert len(seen) == n_starts
+    assert all((p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) == (1.5, 300.0) for p in seen)
+    with pytest.raises(InputError, match="refine_tilt_accel_noise_dps2"):
+        Pose3dConfig(refine_tilt_accel_noise_dps2=-1.0)
+    with pytest.raises(InputError, match="refine_polish_starts"):
+        Pose3dConfig(refine_polish_starts=-1)

@@ -171,6 +171,7 @@ def test_real_data(tmp_path: Path) -> None:
 def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
     variants = ["--heading-prior-deg", "30", "--power-error-db", "4", "--no-refine", "--oracle"]
+    variants += ["--refine-accel", "1", "400", "--refine-polish", "1"]
     printed = _run(
         SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3", *variants], capsys
     )
@@ -182,6 +183,8 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
         "devices.csv power 4 dB low",
         "without refinement",
         "oracle: refinement from the truth",
+        "refinement prior constant-rate (height 1, tilt 400), polish 1",
+        "oracle, refinement prior constant-rate (height 1, tilt 400)",
     ):
         assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 

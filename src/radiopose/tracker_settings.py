@@ -82,6 +82,9 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "offset_bank_db": (-60.0, 60.0),
     "refine_max_nfev": (1, 100_000),
     "refine_hybrid_segment_s": (0.0, 3600.0),
+    "refine_height_accel_noise_mps2": (0.0, 1000.0),
+    "refine_tilt_accel_noise_dps2": (0.0, 100_000.0),
+    "refine_polish_starts": (0, 1000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
@@ -90,7 +93,14 @@ density, step, σ or interval). A field without a row here (one added to
 dataclass's own checks apply to every value."""
 
 
-POSE3D_ZERO_ALLOWED = frozenset({"heading_prior_deg", "refine_hybrid_segment_s"})
+POSE3D_ZERO_ALLOWED = frozenset(
+    {
+        "heading_prior_deg",
+        "refine_hybrid_segment_s",
+        "refine_height_accel_noise_mps2",
+        "refine_tilt_accel_noise_dps2",
+    }
+)
 """Real ``[filter.pose3d]`` keys for which 0 is a value (it switches the part off)."""
 
 _POSE3D_STRING_CHOICES: dict[str, tuple[str, ...]] = {"estimate": POSE3D_ESTIMATES}

@@ -172,6 +172,18 @@ class Pose3dConfig:
         track (and offset) and keep, per track, the refined track of the
         lowest MAP objective (the same objective for all: only the likelihood
         and the priors choose).
+    refine_height_accel_noise_mps2, refine_tilt_accel_noise_dps2
+        The refinement's own motion prior for height and for pitch and roll
+        (0: the filter's random walks, ``height_noise_mps`` and
+        ``tilt_noise_dps``): when > 0, a nearly-constant-rate model with white
+        acceleration of this density, m/s²·√s and °/s²·√s (a hand moves a
+        phone smoothly; docs/pose3d.md, "Refinement prior, 2026-11-26"). The
+        causal filter never reads them.
+    refine_polish_starts
+        With a constant-rate refinement prior: how many of the refined tracks
+        (lowest objective first, found with the random walks) are polished
+        with it; the lowest polished objective is kept. 0: every start is
+        refined with the constant-rate prior directly.
     """
 
     n_particles: int = 2000
@@ -201,6 +213,9 @@ class Pose3dConfig:
     refine_max_nfev: int = 100
     refine_from_members: bool = True
     refine_hybrid_segment_s: float = 0.5
+    refine_height_accel_noise_mps2: float = 0.0
+    refine_tilt_accel_noise_dps2: float = 0.0
+    refine_polish_starts: int = 1
 
     def __post_init__(self) -> None:
         for name in (
@@ -220,6 +235,12 @@ class Pose3dConfig:
                 "3-D filter setting refine_hybrid_segment_s = "
                 f"{self.refine_hybrid_segment_s!r} must be >= 0"
             )
+        for name in ("refine_height_accel_noise_mps2", "refine_tilt_accel_noise_dps2"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
+        if self.refine_polish_starts < 0:
+            raise InputError("3-D filter setting refine_polish_starts must be >= 0")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:

@@ -86,23 +86,40 @@ class MotionPrior:
         Random-walk density of height, m/√s.
     tilt_noise_dps
         Random-walk density of pitch and roll, °/√s.
+    height_accel_noise_mps2
+        When > 0, height follows a nearly-constant-rate model instead of the
+        random walk: white vertical acceleration of this density, m/s²·√s
+        (the refinement's own prior; docs/pose3d.md, "Refinement prior").
+    tilt_accel_noise_dps2
+        When > 0, pitch and roll follow nearly-constant-rate models instead of
+        the random walks: white angular acceleration of this density, °/s²·√s.
     """
 
     accel_noise_mps2: float
     angular_accel_noise_dps2: float
     height_noise_mps: float
     tilt_noise_dps: float
+    height_accel_noise_mps2: float = 0.0
+    tilt_accel_noise_dps2: float = 0.0
 
     @classmethod
     def of_filter(
-        cls, config: FilterConfig, height_noise_mps: float, tilt_noise_dps: float
+        cls,
+        config: FilterConfig,
+        height_noise_mps: float,
+        tilt_noise_dps: float,
+        height_accel_noise_mps2: float = 0.0,
+        tilt_accel_noise_dps2: float = 0.0,
     ) -> MotionPrior:
-        """The prior of a 3-D filter with ``config`` and its 3-D noise densities."""
+        """The prior of a 3-D filter with ``config`` and its 3-D noise densities
+        (with the optional constant-rate densities of height and tilt)."""
         return cls(
             config.accel_noise_mps2,
             config.angular_accel_noise_dps2,
             height_noise_mps,
             tilt_noise_dps,
+            height_accel_noise_mps2,
+            tilt_accel_noise_dps2,
         )
 
 
@@ -176,15 +193,23 @@ class _Prior:
         rows: list[np.ndarray] = []
         cols: list[np.ndarray] = []
         vals: list[np.ndarray] = []
-        self.angle_rows: list[tuple[int, str, int, int]] = []
+        self.angle_rows: list[tuple[int, str, int, int, float]] = []
         r0 = 0
+        if prior.height_accel_noise_mps2 > 0:
+            height: tuple[int, str, float] = (2, "acc", prior.height_accel_noise_mps2)
+        else:
+            height = (2, "rw", prior.height_noise_mps)
+        if prior.tilt_accel_noise_dps2 > 0:
+            tilt_kind, tilt_q = "acc", math.radians(prior.tilt_accel_noise_dps2)
+        else:
+            tilt_kind, tilt_q = "rw", math.radians(prior.tilt_noise_dps)
         blocks: list[tuple[int, str, float]] = [
             (0, "acc", prior.accel_noise_mps2),
             (1, "acc", prior.accel_noise_mps2),
             (3, "acc", math.radians(prior.angular_accel_noise_dps2)),
-            (2, "rw", prior.height_noise_mps),
-            (4, "rw", math.radians(prior.tilt_noise_dps)),
-            (5, "rw", math.radians(prior.tilt_noise_dps)),
+            height,
+            (4, tilt_kind, tilt_q),
+            (5, tilt_kind, tilt_q),
         ]
         for comp, kind, q in blocks:
             if kind == "acc" and n >= 3:
@@ -208,7 +233,7 @@ class _Prior:
             else:
                 continue
             if comp >= 3:
-                self.angle_rows.append((comp, kind, r0, k))
+                self.angle_rows.append((comp, kind, r0, k, q))
             r0 += k
         self.n_rows = r0
         self.dt = dt
@@ -219,11 +244,6 @@ class _Prior:
             )
         else:
             self.A = sp.csr_matrix((0, n_vars))
-        self.scale = {
-            3: 1.0 / math.radians(prior.angular_accel_noise_dps2),
-            4: 1.0 / math.radians(prior.tilt_noise_dps),
-            5: 1.0 / math.radians(prior.tilt_noise_dps),
-        }
 
     def residuals(self, x: FloatArray) -> FloatArray:
         """``A · x`` with each angle's first differences wrapped to [−π, π)."""
@@ -232,12 +252,11 @@ class _Prior:
         out = np.asarray(self.A @ x)
         n = self.dt.size + 1
         X = x[: n * _POSE].reshape(n, _POSE)
-        for comp, kind, r0, k in self.angle_rows:
+        for comp, kind, r0, k, q in self.angle_rows:
             d = np.diff(X[:, comp])
             dw = _wrap(d)
             if np.array_equal(d, dw):
                 continue
-            q = 1.0 / self.scale[comp]
             if kind == "rw":
                 out[r0 : r0 + k] = dw / (q * np.sqrt(self.dt))
             else:
@@ -541,6 +560,9 @@ def refine_smoothed(
     max_nfev: int,
     alternatives: Sequence[Sequence[tuple[object, FilterEstimate]]] = (),
     hybrid_segment_s: float = 0.0,
+    height_accel_noise_mps2: float = 0.0,
+    tilt_accel_noise_dps2: float = 0.0,
+    polish_starts: int = 1,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -555,14 +577,29 @@ def refine_smoothed(
     the lowest objective is kept. With ``hybrid_segment_s > 0`` and several
     refined tracks, one more start is spliced from them: per segment of that
     many seconds, the refined track whose data term there is lowest (at its
-    own offset); it is refined and competes like the others. Returns every
+    own offset); it is refined and competes like the others.
+    ``height_accel_noise_mps2`` and ``tilt_accel_noise_dps2`` (> 0) replace
+    the height and tilt random walks of the prior by constant-rate models
+    (:class:`MotionPrior`): with ``polish_starts`` ≥ 1 as a polish — every
+    start is refined with the random walks as before, then the
+    ``polish_starts`` refined tracks of the lowest objective are refined
+    again with the constant-rate prior and the lowest of those is kept; with
+    ``polish_starts = 0`` every start is refined with the constant-rate prior
+    directly (stiffer: more starts stay in a local minimum, docs/pose3d.md).
+    Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
     """
     by_key = dict(smoothed)
     alt_keys = [dict(a) for a in alternatives]
     out = dict(smoothed)
-    prior = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
+    prior = MotionPrior.of_filter(
+        config, height_noise_mps, tilt_noise_dps, height_accel_noise_mps2, tilt_accel_noise_dps2
+    )
+    rate = height_accel_noise_mps2 > 0 or tilt_accel_noise_dps2 > 0
+    search = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
+    if not rate or polish_starts == 0:
+        search = prior
     track: list[tuple[float, HeardRss, object]] = []
 
     def start(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray, float]:
@@ -591,9 +628,11 @@ def refine_smoothed(
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
 
-        def solve(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
+        def solve(
+            pos: FloatArray, ori: FloatArray, off: float, pri: MotionPrior = search
+        ) -> RefinedTrack:
             return refine_track(
-                model, t_rows, h_rows, pos, ori, off, sigma, prior, offset_prior_db=0.0,
+                model, t_rows, h_rows, pos, ori, off, sigma, pri, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
             )  # fmt: skip
 
@@ -611,6 +650,13 @@ def refine_smoothed(
                 ori = np.array([done[k].orientation_deg[i] for i, k in enumerate(pick)])
                 off = float(np.median([done[k].offset_db for k in pick]))
                 done.append(solve(pos, ori, off))
+        if polish_starts > 0 and search is not prior:
+            # the constant-rate prior as a polish of the lowest-objective tracks
+            # the random walks found (their objectives are not comparable with
+            # the polished ones: only polished tracks compete)
+            done.sort(key=lambda r: r.cost)
+            done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
+                    for d in done[:polish_starts]]  # fmt: skip
         for res in done:
             if best is None or res.cost < best.cost:
                 best = res

@@ -260,6 +260,9 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
     return refine_smoothed(
         pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
         p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
+        height_accel_noise_mps2=p3.refine_height_accel_noise_mps2,
+        tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
+        polish_starts=p3.refine_polish_starts,
     )  # fmt: skip
 
 
