@@ -178,7 +178,9 @@ class Pose3dConfig:
         ``tilt_noise_dps``): when > 0, a nearly-constant-rate model with white
         acceleration of this density, m/s²·√s and °/s²·√s (a hand moves a
         phone smoothly; docs/pose3d.md, "Refinement prior, 2026-11-26"). The
-        causal filter never reads them.
+        causal filter never reads them. Default 1 m/s²·√s and 400 °/s²·√s
+        (chosen on tuning seeds 7100–7119, confirmed on 7120–7139 and at 4
+        and 8 receivers on 7100–7109).
     refine_polish_starts
         With a constant-rate refinement prior: how many of the refined tracks
         (lowest objective first, found with the random walks) are polished
@@ -213,8 +215,8 @@ class Pose3dConfig:
     refine_max_nfev: int = 100
     refine_from_members: bool = True
     refine_hybrid_segment_s: float = 0.5
-    refine_height_accel_noise_mps2: float = 0.0
-    refine_tilt_accel_noise_dps2: float = 0.0
+    refine_height_accel_noise_mps2: float = 1.0
+    refine_tilt_accel_noise_dps2: float = 400.0
     refine_polish_starts: int = 1
 
     def __post_init__(self) -> None:
