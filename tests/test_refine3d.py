@@ -117,14 +117,23 @@ def test_refinement_runs_offline_only(monkeypatch):
     off = locate(sim.site, sim.packets, "filter", TrackerConfig())
     n_members = len(Pose3dConfig().offset_bank_db)
     n = len(group_packets(sim.packets))
-    # the chosen track, each member's, and at most one hybrid start spliced from them
-    assert calls[: 1 + n_members] == [n] * (1 + n_members) and len(calls) <= 2 + n_members
+    polish = Pose3dConfig().refine_polish_starts  # the constant-rate prior's polish (default on)
+    assert polish == 1
+    # the chosen track, each member's, at most one hybrid start spliced from them,
+    # then the best refined track polished with the constant-rate prior
+    assert calls[: 1 + n_members] == [n] * (1 + n_members)
+    assert 2 + n_members <= len(calls) <= 2 + n_members + polish
     assert np.all(off.estimates.position_m == 1.234)
     calls.clear()
     one = TrackerConfig()
     one = replace(one, pose3d=replace(one.pose3d, refine_from_members=False))
     locate(sim.site, sim.packets, "filter", one)
-    assert calls == [n]
+    assert calls == [n, n]  # the chosen track, then its polish
+    calls.clear()
+    walks = replace(one, pose3d=replace(one.pose3d, refine_tilt_accel_noise_dps2=0.0,
+                                        refine_height_accel_noise_mps2=0.0))  # fmt: skip
+    locate(sim.site, sim.packets, "filter", walks)
+    assert calls == [n]  # the random walks only: no polish
     calls.clear()
     causal = locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=None))
     assert calls == [] and len(causal.estimates) > 0
