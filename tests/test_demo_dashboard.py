@@ -53,6 +53,7 @@ def page(tmp_path: Path):
 @pytest.fixture
 def filter_server(tiny: Tiny, tmp_path: Path) -> Iterator[Running]:  # noqa: F811
     """The live server on the tiny site, tracking with ``filter``."""
+    _compile_filter_kernels()
     db = Database(f"sqlite:///{tmp_path / 'live.db'}")
     import_site_dir(db, tiny.site_dir)
     tokens = {"admin": create_token(db, "admin"), "viewer": create_token(db, "viewer")}
@@ -62,6 +63,17 @@ def filter_server(tiny: Tiny, tmp_path: Path) -> Iterator[Running]:  # noqa: F81
         running.tokens = tokens
         yield running
     db.close()
+
+
+def _compile_filter_kernels() -> None:
+    """Run the causal filter once in this process before the server starts, so that a
+    cold numba cache (a fresh clone) is compiled here and not inside the test's
+    wait for the trail (the server runs in a thread of this process)."""
+    from radiopose.simulate import ScenarioConfig, simulate
+    from radiopose.tracker import TrackerConfig, locate
+
+    sim = simulate(ScenarioConfig(size_m=6.0, step_m=0.5, n_receivers=3, duration_s=0.2), seed=1)
+    locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=None))
 
 
 def _open(page, server: Running) -> None:
