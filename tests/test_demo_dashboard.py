@@ -66,14 +66,16 @@ def filter_server(tiny: Tiny, tmp_path: Path) -> Iterator[Running]:  # noqa: F81
 
 
 def _compile_filter_kernels() -> None:
-    """Run the causal filter once in this process before the server starts, so that a
-    cold numba cache (a fresh clone) is compiled here and not inside the test's
-    wait for the trail (the server runs in a thread of this process)."""
+    """Run the filter once in this process, with the live server's fixed lag, before
+    the server starts, so that a cold numba cache (a fresh clone) is compiled here
+    and not inside the test's wait for the trail (the server runs in a thread of
+    this process)."""
+    from radiopose.server.live import MAX_LIVE_LAG_S
     from radiopose.simulate import ScenarioConfig, simulate
     from radiopose.tracker import TrackerConfig, locate
 
     sim = simulate(ScenarioConfig(size_m=6.0, step_m=0.5, n_receivers=3, duration_s=0.2), seed=1)
-    locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=None))
+    locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=MAX_LIVE_LAG_S))
 
 
 def _open(page, server: Running) -> None:

@@ -242,7 +242,8 @@ class Pose3dConfig:
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
         if self.refine_polish_starts < 0:
-            raise InputError("3-D filter setting refine_polish_starts must be >= 0")
+            n = self.refine_polish_starts
+            raise InputError(f"3-D filter setting refine_polish_starts = {n!r} must be >= 0")
         if self.refine_steps < 0 or self.max_table_entries < 1000:
             raise InputError("3-D filter settings: refine_steps >= 0, max_table_entries >= 1000")
         if self.estimate not in ESTIMATES:

@@ -596,10 +596,9 @@ def refine_smoothed(
     prior = MotionPrior.of_filter(
         config, height_noise_mps, tilt_noise_dps, height_accel_noise_mps2, tilt_accel_noise_dps2
     )
-    rate = height_accel_noise_mps2 > 0 or tilt_accel_noise_dps2 > 0
-    search = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
-    if not rate or polish_starts == 0:
-        search = prior
+    walks = MotionPrior.of_filter(config, height_noise_mps, tilt_noise_dps)
+    polish = polish_starts > 0 and prior != walks  # a constant-rate prior, as a polish
+    search = walks if polish else prior
     track: list[tuple[float, HeardRss, object]] = []
 
     def start(ests: list[FilterEstimate]) -> tuple[FloatArray, FloatArray, float]:
@@ -650,7 +649,7 @@ def refine_smoothed(
                 ori = np.array([done[k].orientation_deg[i] for i, k in enumerate(pick)])
                 off = float(np.median([done[k].offset_db for k in pick]))
                 done.append(solve(pos, ori, off))
-        if polish_starts > 0 and search is not prior:
+        if polish:
             # the constant-rate prior as a polish of the lowest-objective tracks
             # the random walks found (their objectives are not comparable with
             # the polished ones: only polished tracks compete)
