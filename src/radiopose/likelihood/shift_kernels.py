@@ -425,3 +425,210 @@ def shift_topk_shared(  # pragma: no cover - compiled
         if gcount == kk and gv[0] < thr:
             thr = gv[0]
     return out_v, out_i, thr
+
+
+# ------------------------------------------------------------------ several offsets
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, inline="always")
+def _accumulate_multi(acc, e, live, k, f, t, g, toff, rows, drows, m, b0, nb, dv):
+    """:func:`_accumulate` for every live row ``o`` of ``e`` (one row per searched
+    packet, e.g. one per power offset) at once: the looked-up
+    ``D_j = a_j + f·Δ_j`` is computed once per receiver into ``dv`` and shared,
+    the residual ``d = e_o − D_j`` and ``acc[o, jj] = Σ_q d²`` per row."""  # pragma: no cover
+    n_off = e.shape[0]
+    for q in range(e.shape[1]):
+        o = k[q] + m * b0
+        fq = f[q]
+        gq = g[q]
+        tq = t[q] + toff
+        if gq == 0.0 and m == 1:
+            ra = rows[tq]
+            rd = drows[tq]
+            sa = ra[o : o + nb]
+            sd = rd[o : o + nb]
+            for jj in range(nb):
+                dv[jj] = sa[jj] + fq * sd[jj]
+        else:
+            g1 = np.float32(1.0) - gq
+            t1 = tq + 1 if gq != 0.0 else tq
+            for jj in range(nb):
+                k1 = o + m * jj
+                a = g1 * rows[tq, k1] + gq * rows[t1, k1]
+                dl = g1 * drows[tq, k1] + gq * drows[t1, k1]
+                dv[jj] = a + fq * dl
+        for oo in range(n_off):
+            if not live[oo]:
+                continue
+            eq = e[oo, q]
+            ao = acc[oo]
+            if q == 0:
+                for jj in range(nb):
+                    d = eq - dv[jj]
+                    ao[jj] = d * d
+            else:
+                for jj in range(nb):
+                    d = eq - dv[jj]
+                    ao[jj] += d * d
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False)
+def _chunk_multi(
+    c, out_v, out_i, counts, gthr, W, heard, posf, posi, rows, drows, blo, bhi, blo2, bhi2,
+    rmin, rmax, m, n_az, n_q, rows_per_q, positions, j0, cnt, kk, blk,
+):  # fmt: skip  # pragma: no cover - compiled
+    """:func:`_chunk` for several packets with the same heard receivers at once
+    (``W`` ``(n_off, h)``: one row of ``RSS − centre`` per packet, e.g. one per
+    power offset), into the heaps ``out_v[o, c], out_i[o, c]`` (``counts[o, c]``
+    kept). Each row prunes with its own bound (``gthr[o]``, lowered by its own
+    full heap); a position or block is skipped only when every row's bound
+    prunes it, and a row whose whole-position bound prunes it is not scored
+    there. Whatever is scored is pushed exactly as :func:`_chunk` would."""
+    n_off = W.shape[0]
+    n_p = positions.shape[0]
+    h = heard.shape[0]
+    inv_h = np.float32(1.0 / h)
+    nbw = (cnt + blk - 1) // blk
+    acc = np.empty((n_off, cnt), dtype=np.float32)
+    dv = np.empty(cnt, dtype=np.float32)
+    e = np.empty((n_off, h), dtype=np.float32)
+    k = np.empty(h, np.int64)
+    f = np.empty(h, np.float32)
+    t = np.empty(h, np.int64)
+    g = np.empty(h, np.float32)
+    lb = np.empty((n_off, nbw), np.float32)
+    need = np.empty(nbw, np.bool_)
+    live = np.empty(n_off, np.bool_)
+    cut = np.empty(n_off, np.float32)
+    for pi in range((n_p * c) // N_CHUNKS, (n_p * (c + 1)) // N_CHUNKS):
+        p = positions[pi]
+        ok = True
+        for q in range(h):
+            r = heard[q]
+            b = posf[p, r, 0]
+            if np.isnan(b):
+                ok = False
+                break
+            for oo in range(n_off):
+                e[oo, q] = W[oo, q] - b
+            k[q] = posi[p, r, 0] + m * j0
+            f[q] = posf[p, r, 1]
+            t[q] = posi[p, r, 1]
+            g[q] = posf[p, r, 2]
+        if not ok:
+            continue
+        for qq in range(n_q):
+            toff = qq * rows_per_q
+            n_live = 0
+            every = False  # some live row does not prune: every block is needed
+            for oo in range(n_off):
+                thr = gthr[oo]
+                if counts[oo, c] == kk and out_v[oo, c, 0] < thr:
+                    thr = out_v[oo, c, 0]
+                live[oo] = True
+                if thr < np.inf:
+                    cut[oo] = prune_cut(thr, h)
+                    lb0 = np.float32(0.0)
+                    for q in range(h):
+                        x = max(rmin[t[q] + toff] - e[oo, q], np.float32(0.0)) + max(
+                            e[oo, q] - rmax[t[q] + toff], np.float32(0.0)
+                        )
+                        lb0 += x * x
+                    if lb0 > cut[oo]:
+                        live[oo] = False
+                else:
+                    cut[oo] = np.inf
+                    every = True
+                if live[oo]:
+                    n_live += 1
+            if n_live == 0:
+                continue
+            for b in range(nbw):
+                need[b] = every
+            if not every:
+                for oo in range(n_off):
+                    if not live[oo]:
+                        continue
+                    lbo = lb[oo]
+                    _block_bounds(e[oo], k, t, g, toff, blo, bhi, blo2, bhi2, nbw, lbo)
+                    co = cut[oo]
+                    for b in range(nbw):
+                        if lbo[b] <= co:
+                            need[b] = True
+            b = 0
+            while b < nbw:
+                if not need[b]:
+                    b += 1
+                    continue
+                be = b + 1
+                while be < nbw and need[be]:
+                    be += 1
+                b0 = b * blk
+                nb = min(be * blk, cnt) - b0
+                b = be
+                _accumulate_multi(acc, e, live, k, f, t, g, toff, rows, drows, m, b0, nb, dv)
+                for oo in range(n_off):
+                    if not live[oo]:
+                        continue
+                    bv = out_v[oo, c]
+                    bi = out_i[oo, c]
+                    count = counts[oo, c]
+                    thr0 = gthr[oo]
+                    lim = thr0
+                    if count == kk and bv[0] < lim:
+                        lim = bv[0]
+                    ao = acc[oo]
+                    mn = ao[0]
+                    for jj in range(1, nb):
+                        mn = min(mn, ao[jj])
+                    if mn * inv_h > lim:
+                        continue
+                    for jj in range(nb):
+                        v = ao[jj] * inv_h
+                        if v > thr0:
+                            continue
+                        if count < kk or v <= bv[0]:
+                            j = j0 + b0 + jj
+                            if j >= n_az:
+                                j -= n_az
+                            count = _heap_push(bv, bi, count, v, (p * n_q + qq) * n_az + j)
+                    counts[oo, c] = count
+
+
+@numba.njit(cache=True, fastmath=_FAST, boundscheck=False, nogil=True)
+def shift_topk_multi(  # pragma: no cover - compiled
+    out_v, out_i, thr, c_lo, c_hi,
+    W, heard, posf, posi, rows, drows, blo, bhi, blo2, bhi2, rmin, rmax,
+    m, n_az, n_q, rows_per_q, positions, j0, cnt, kk, blk,
+):  # fmt: skip
+    """:func:`shift_topk_shared` for each row of ``W`` (several packets with the
+    same heard receivers, e.g. one packet at several power offsets) in one pass
+    over the tables (:func:`_chunk_multi`), chunks ``c_lo … c_hi − 1``.
+
+    ``out_v, out_i`` ``(n_off, N_CHUNKS, kk)`` (``+inf`` / ``−1``) receive each
+    row's per-chunk heaps; ``thr`` ``(n_off,)`` float32 holds each row's prune
+    bound on entry and the last (smallest) bound used on return: after each
+    chunk a row's bound falls to the ``kk``-th best it kept so far, as in
+    :func:`shift_topk_shared`. Every candidate a row did not keep scored above
+    its returned bound or above the worst of its chunk's full heap — the
+    caller's exactness check per row is that of a single search. Releases the
+    GIL: two disjoint chunk ranges may run on two Python threads."""
+    n_off = W.shape[0]
+    counts = np.zeros((n_off, N_CHUNKS), np.int64)
+    gv = np.full((n_off, kk), np.inf, dtype=np.float32)  # per row: the kk best so far
+    gi = np.full((n_off, kk), -1, dtype=np.int64)
+    gcount = np.zeros(n_off, np.int64)
+    for c in range(c_lo, c_hi):
+        _chunk_multi(
+            c, out_v, out_i, counts, thr, W, heard, posf, posi, rows, drows, blo, bhi, blo2,
+            bhi2, rmin, rmax, m, n_az, n_q, rows_per_q, positions, j0, cnt, kk, blk,
+        )  # fmt: skip
+        for oo in range(n_off):
+            hv = gv[oo]
+            hi = gi[oo]
+            n = gcount[oo]
+            for j in range(kk):
+                v = out_v[oo, c, j]
+                if v < np.inf and (n < kk or v <= hv[0]):
+                    n = _heap_push(hv, hi, n, v, out_i[oo, c, j])
+            gcount[oo] = n
+            if n == kk and hv[0] < thr[oo]:
+                thr[oo] = hv[0]
