@@ -76,9 +76,6 @@ from radiopose.geometry import direction_to_pattern_angles_deg
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
 from radiopose.likelihood.capabilities import ScorerBase
 from radiopose.likelihood.shift_kernels import (
-    N_CHUNKS as _N_CHUNKS,
-)
-from radiopose.likelihood.shift_kernels import (
     dense_topk as _dense,
 )
 from radiopose.likelihood.shift_kernels import (
@@ -89,9 +86,6 @@ from radiopose.likelihood.shift_kernels import (
 )
 from radiopose.likelihood.shift_kernels import (
     shift_topk as _shift_topk,
-)
-from radiopose.likelihood.shift_kernels import (
-    shift_topk_multi as _shift_topk_multi,
 )
 from radiopose.likelihood.shift_kernels import (
     shift_topk_serial as _shift_topk_serial,
@@ -258,9 +252,6 @@ class ShiftScorer(ScorerBase):
     """
 
     name = "numba"
-    fuse_searches = True
-    """:meth:`score_heard_many` scores packets with the same heard receivers in one
-    fused pass (speed only: the results are the same either way)."""
     supports_window = True
     supports_position_mse = True
 
@@ -478,48 +469,6 @@ class ShiftScorer(ScorerBase):
             return np.inf
         return float(np.partition(vals, kk - 1)[kk - 1])  # +inf if too few are scorable
 
-    def _shortlist(
-        self,
-        out_v: np.ndarray,
-        out_i: np.ndarray,
-        thr_used: float,
-        kk_eff: int,
-        k: int,
-        heard: HeardRss,
-        w64: np.ndarray,
-    ) -> np.ndarray | None:
-        """The screened shortlist (candidate indices, best first) of one search's
-        per-chunk heaps ``out_v, out_i`` ``(N_CHUNKS, kk_eff)`` if it provably
-        holds the exact top-``k`` (module docstring, "Exactness"), else ``None``
-        (the caller widens ``kk`` and searches again). ``thr_used``: the last
-        prune bound the kernel used."""
-        ok = out_i.ravel() >= 0
-        v = out_v.ravel()[ok].astype(np.float64)
-        i = out_i.ravel()[ok]
-        # Every candidate not kept scored above `excluded`: above the prune bound
-        # (the last one, with shared thresholds), or dropped by a chunk whose heap
-        # was full (so above its worst kept value).
-        full = np.isfinite(out_v).sum(axis=1) == kk_eff
-        excluded = float(thr_used)
-        if full.any():
-            excluded = min(excluded, float(out_v[full].max(axis=1).min()))
-        if not np.isfinite(excluded):
-            return i[np.lexsort((i, v))]  # nothing was excluded: every scorable candidate
-        if v.size > kk_eff + 1:
-            # only the kk_eff + 1 best (ties included) are read below: sort just those
-            keep = v <= np.partition(v, kk_eff)[kk_eff]
-            v, i = v[keep], i[keep]
-        order = np.lexsort((i, v))
-        v, i = v[order], i[order]
-        if v.size > kk_eff:
-            excluded = min(excluded, float(v[kk_eff]))
-        if v.size >= k:
-            kth = float(v[k - 1])
-            lo_ex = excluded - float(self._delta(excluded, heard, w64))
-            if lo_ex > kth + float(self._delta(kth, heard, w64)):
-                return i[:kk_eff]
-        return None
-
     def _run(
         self,
         heard: HeardRss,
@@ -528,7 +477,6 @@ class ShiftScorer(ScorerBase):
         j0: int,
         cnt: int,
         slot: Hashable = _LAST_CALL,
-        kk_start: int | None = None,
     ) -> TopK:
         # the threshold hint: the last call's shortlist positions, or those of
         # the last search of the caller's `slot` (score_heard_slot)
@@ -536,7 +484,7 @@ class ShiftScorer(ScorerBase):
         r = heard.receiver_index
         w64 = heard.rss_dbm - self.centre_db[r]
         w = w64.astype(np.float32)
-        kk = k + self.oversample if kk_start is None else kk_start
+        kk = k + self.oversample
         n_total = positions.size * cnt * self.n_q
         while True:
             kk_eff = int(min(kk, max(n_total, 1)))
@@ -555,9 +503,33 @@ class ShiftScorer(ScorerBase):
                 thr_used = float(thr0)
             else:  # one thread: the chunks share their threshold (speed only)
                 out_v, out_i, thr_used = _shift_topk_shared(w, r, *args)
-            short = self._shortlist(out_v, out_i, thr_used, kk_eff, k, heard, w64)
-            if short is not None:
+            ok = out_i.ravel() >= 0
+            v = out_v.ravel()[ok].astype(np.float64)
+            i = out_i.ravel()[ok]
+            # Every candidate not kept scored above `excluded`: above the prune bound
+            # (the last one, with shared thresholds), or dropped by a chunk whose heap
+            # was full (so above its worst kept value).
+            full = np.isfinite(out_v).sum(axis=1) == kk_eff
+            excluded = float(thr_used)
+            if full.any():
+                excluded = min(excluded, float(out_v[full].max(axis=1).min()))
+            if not np.isfinite(excluded):
+                short = i[np.lexsort((i, v))]  # nothing was excluded: every scorable candidate
                 break
+            if v.size > kk_eff + 1:
+                # only the kk_eff + 1 best (ties included) are read below: sort just those
+                keep = v <= np.partition(v, kk_eff)[kk_eff]
+                v, i = v[keep], i[keep]
+            order = np.lexsort((i, v))
+            v, i = v[order], i[order]
+            if v.size > kk_eff:
+                excluded = min(excluded, float(v[kk_eff]))
+            short = i[:kk_eff]
+            if v.size >= k:
+                kth = float(v[k - 1])
+                lo_ex = excluded - float(self._delta(excluded, heard, w64))
+                if lo_ex > kth + float(self._delta(kth, heard, w64)):
+                    break
             self.retries += 1
             if kk_eff >= n_total:
                 raise AssertionError("shift kernel: no exclusion possible at full size")
@@ -587,24 +559,12 @@ class ShiftScorer(ScorerBase):
     def score_heard_many(
         self, heards: Sequence[HeardRss], k: int, slots: Sequence[Hashable]
     ) -> list[TopK]:
-        """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``; the
-        same results as one by one.
-
-        When every packet has the same heard receivers (the particle filter's
-        re-entry: one window median searched at several power offsets) and
-        :attr:`fuse_searches` is on, one fused pass over the tables scores them
-        all (:meth:`_run_many`, ``shift_kernels.shift_topk_multi``), its chunks
-        split over two Python threads when a core is spare. Otherwise the
-        searches run concurrently on up to :func:`threads` Python threads when
-        this scorer is single-threaded and a core is spare (:func:`spare_core`;
-        the compiled search releases the GIL), else one after the other."""
-        if (
-            self.fuse_searches
-            and not self.parallel
-            and len(heards) >= 2
-            and all(np.array_equal(h.receiver_index, heards[0].receiver_index) for h in heards[1:])
-        ):
-            return self._run_many(heards, k, slots)
+        """:meth:`score_heard_slot` of each ``heards[i]`` with ``slots[i]``, run
+        concurrently on up to :func:`threads` Python threads when this scorer is
+        single-threaded and a core is spare (:func:`spare_core`; the compiled
+        search releases the GIL): independent searches of a few milliseconds
+        each use both cores without a parallel region's per-call
+        synchronisation. The same results as one by one."""
         n_threads = min(len(heards), threads())
         if self.parallel or n_threads < 2 or not spare_core():
             return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
@@ -613,71 +573,6 @@ class ShiftScorer(ScorerBase):
             pool.submit(self.score_heard_slot, h, k, s) for h, s in zip(heards, slots, strict=True)
         ]
         return [f.result() for f in futures]
-
-    def _run_many(
-        self, heards: Sequence[HeardRss], k: int, slots: Sequence[Hashable]
-    ) -> list[TopK]:
-        """Full-grid top-``k`` of several packets with the same heard receivers in
-        one fused kernel pass: the lookup ``a + f·Δ`` per (position, receiver,
-        azimuth) is shared, each packet keeps its own residuals, heaps and prune
-        bound. Each packet's screened heaps pass the same exactness check as a
-        single search (:meth:`_shortlist`) and are rescored exactly, so each
-        result equals :meth:`score_heard_slot`'s, candidate for candidate and
-        bit for bit (ties by candidate index, :func:`select_topk`). A packet
-        whose check fails is searched again alone with a 4× shortlist."""
-        r = heards[0].receiver_index
-        n_off = len(heards)
-        positions = self.all_positions
-        w64s = [h.rss_dbm - self.centre_db[r] for h in heards]
-        W = np.ascontiguousarray(np.stack([w.astype(np.float32) for w in w64s]))
-        kk = k + self.oversample
-        n_total = positions.size * self.n_az * self.n_q
-        kk_eff = int(min(kk, max(n_total, 1)))
-        if not self.prune or n_total <= 8 * kk_eff:  # tiny grids: nothing to share
-            return [self.score_heard_slot(h, k, s) for h, s in zip(heards, slots, strict=True)]
-        thr0 = np.array(
-            [
-                self._threshold(W[o], r, positions, 0, self.n_az, kk_eff,
-                                self._slot_hints.get(slots[o], _NO_HINT))
-                for o in range(n_off)
-            ],
-            dtype=np.float32,
-        )  # fmt: skip
-        run_pos = positions
-        if np.all(np.isfinite(thr0)):
-            # a position is scored if any packet's whole-row bound keeps it
-            kept = [
-                _prefilter(W[o], r, self.pre_lo, self.pre_hi, positions, True,
-                           float(_prune_cut(thr0[o], r.size)))
-                for o in range(n_off)
-            ]  # fmt: skip
-            run_pos = np.unique(np.concatenate(kept))
-        out_v = np.full((n_off, _N_CHUNKS, kk_eff), np.inf, dtype=np.float32)
-        out_i = np.full((n_off, _N_CHUNKS, kk_eff), -1, dtype=np.int64)
-        args = (W, r, *self._kernel_args(), run_pos, 0, self.n_az, kk_eff, self.block)
-        if threads() >= 2 and spare_core():
-            # two halves of the chunks on two threads, each with its own bounds
-            half = _N_CHUNKS // 2
-            thr_a, thr_b = thr0.copy(), thr0.copy()
-            pool = thread_pool(2)
-            fut = pool.submit(_shift_topk_multi, out_v, out_i, thr_b, half, _N_CHUNKS, *args)
-            _shift_topk_multi(out_v, out_i, thr_a, 0, half, *args)
-            fut.result()
-            thr_used = np.minimum(thr_a, thr_b)  # what either half excluded lies above it
-        else:
-            thr_used = thr0.copy()
-            _shift_topk_multi(out_v, out_i, thr_used, 0, _N_CHUNKS, *args)
-        tops = []
-        for o, (heard, slot) in enumerate(zip(heards, slots, strict=True)):
-            short = self._shortlist(out_v[o], out_i[o], float(thr_used[o]), kk_eff, k, heard,
-                                    w64s[o])  # fmt: skip
-            if short is None:
-                self.retries += 1
-                tops.append(self._run(heard, k, positions, 0, self.n_az, slot, kk_start=4 * kk))
-                continue
-            self._slot_hints[slot] = np.unique(short // (self.n_az * self.n_q))
-            tops.append(select_topk(short, exact_mse_db2(self.space, heard, short), k))
-        return tops
 
     def score_window(
         self,
