@@ -59,9 +59,9 @@ class FilterModel:
             # a shorter screened shortlist: ≈ 10 % less CPU in the re-entry's
             # searches, the same answers (the kernel's exactness check widens it
             # when needed)
-            # the scanned offsets' searches also start from a threshold scored on
-            # the other offsets' shortlist positions (the same answers, ≈ 5-10 %
-            # less CPU in the searches; docs/performance.md, "Sixth pass")
+            # each offset's search also lowers its starting threshold on the other
+            # offsets' shortlist positions (the same answers, ≈ 4 % less CPU in
+            # the searches; docs/performance.md, "Sixth pass")
             scorer = one_thread(False, oversample=_SEARCH_OVERSAMPLE, borrow_hints=True)
         sm = site.survey_map
         x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)

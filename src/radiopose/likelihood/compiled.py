@@ -107,13 +107,6 @@ PARALLEL_MIN_TERMS = 1_000_000
 """Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
 
-def _delta_at(v: float, eps: float, h: int) -> float:
-    """:meth:`ShiftScorer._delta` of one screened value ``v`` (dB²) with its ``ε``
-    precomputed (:meth:`ShiftScorer._delta_eps`), in scalar arithmetic."""
-    v = max(v, 0.0)
-    return 2.0 * eps * math.sqrt(v + eps) + eps * eps + 2.0 * (h + 2) * _EPS32 * v
-
-
 class UnsupportedSpaceError(ValueError):
     """The candidate space lacks the structure this kernel needs."""
 
@@ -420,15 +413,11 @@ class ShiftScorer(ScorerBase):
         return int(sum(a.nbytes for a in arrays))
 
     # ------------------------------------------------------------------ scoring
-    def _delta_eps(self, heard: HeardRss, w: np.ndarray) -> float:
-        """``ε`` of :meth:`_delta` (dB): the bound on one residual's float32 error."""
-        r = heard.receiver_index
-        eps = 6.0 * _EPS32 * float(np.max(np.abs(w) + self.base_max[r] + self.d_max + 1.0))
-        return eps + self.resample_error_db
-
     def _delta(self, v: np.ndarray | float, heard: HeardRss, w: np.ndarray) -> np.ndarray:
         """Bound on |screened − exact| MSE at screened value(s) ``v`` (dB²)."""
-        eps = self._delta_eps(heard, w)
+        r = heard.receiver_index
+        eps = 6.0 * _EPS32 * float(np.max(np.abs(w) + self.base_max[r] + self.d_max + 1.0))
+        eps += self.resample_error_db
         v = np.maximum(np.asarray(v, np.float64), 0.0)
         h = heard.n_heard
         return 2.0 * eps * np.sqrt(v + eps) + eps * eps + 2.0 * (h + 2) * _EPS32 * v
@@ -503,7 +492,8 @@ class ShiftScorer(ScorerBase):
         ``kk``-th best screened value if lower. Like :meth:`_threshold`, an upper
         bound on the ``kk``-th best (``kk`` real candidates score at most it), so
         only speed depends on it, never the result."""
-        others = [v for s, v in self._slot_hints.items() if s != slot and v.size]
+        # a snapshot: concurrent searches (score_heard_many) add their own slots
+        others = [v for s, v in tuple(self._slot_hints.items()) if s != slot and v.size]
         if not others:
             return thr0
         pick = np.unique(np.concatenate(others))
