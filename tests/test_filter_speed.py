@@ -4,9 +4,12 @@ per-offset threshold hints and concurrent searches (``ShiftScorer.score_heard_sl
 σ differences in one compiled call, the outlier mixture with one exponential
 fewer, and a smoother ring sized for the re-entries; and (fourth pass) the
 vectorisable ``exp``/``log``/``atan2``/``sin``/``cos`` and the receiver-major
-likelihood and expected RSS, within ulps of the C library's numbers.
+likelihood and expected RSS, within ulps of the C library's numbers; and
+(sixth pass) a search's starting threshold lowered on the other slots' hints
+(``ShiftScorer.borrow_hints``), a valid bound that changes no result.
 
-Seeds 4321-4329 and 4340-4345 are used here only.
+Seeds 4321-4329, 4340-4345 and (sixth pass: thresholds borrowed from the
+other slots' hints) 4346-4349 are used here only.
 """
 
 from __future__ import annotations
@@ -80,6 +83,7 @@ def test_filter_model_search_matches_the_scorer_and_keeps_the_slots(space):
         _same(g, scorer.score_heard(h, 30))
     assert set(model.scorer._slot_hints) == {0, 3, -3}
     assert not scorer._slot_hints  # the caller's scorer is untouched
+    assert model.scorer.borrow_hints and not scorer.borrow_hints
 
 
 @pytest.mark.parametrize("seed", [4327, 4328])
@@ -115,6 +119,74 @@ def test_shared_chunk_threshold_keeps_the_same_best_and_prunes_more(space, seed)
         assert n1 < n0  # the shared threshold dropped what the earlier chunks beat
         assert b1[-1] <= thr  # the kept best kk are within the bound it reports
         _same(fast.score_heard(heard, 20), ref.score_heard(heard, 20))
+
+
+@pytest.mark.parametrize("seed", [4346, 4347])
+def test_borrowed_threshold_is_a_bound_and_changes_no_result(space, seed):
+    """A slot's search may start from the other slots' hints
+    (``ShiftScorer._borrowed_threshold``): the bound lies between the true
+    ``kk``-th best screened value and the slot's own threshold, is lower than
+    it somewhere (else borrowing does nothing), and every result equals the
+    reference's and the scorer's without borrowing."""
+    offsets = [0.0, 6.0, -9.0, 3.0]
+    slots = [round(o / 1.5) for o in offsets]
+    ref = ReferenceScorer(space)
+    plain = ShiftScorer(space, parallel=False).with_parallel(False, oversample=16)
+    borrow = plain.with_parallel(False, borrow_hints=True)
+    assert borrow.borrow_hints and not plain.borrow_hints and borrow.oversample == 16
+    k = 20
+    kk = k + borrow.oversample
+    lowered = 0
+    for rep in range(3):  # later rounds start from the slots' hints
+        heards = _shifted_packets(space, seed + 100 * rep, offsets)
+        for h, slot in zip(heards, slots, strict=True):
+            r = h.receiver_index
+            w = (h.rss_dbm - borrow.centre_db[r]).astype(np.float32)
+            args = (w, r, borrow.all_positions, 0, borrow.n_az, kk)
+            own = borrow._threshold(*args, borrow._slot_hints.get(slot, compiled._NO_HINT))
+            got = borrow._borrowed_threshold(*args, slot, own)
+            every = compiled._dense(
+                w, r, *borrow._kernel_args(), borrow.all_positions, 0, borrow.n_az
+            )
+            true_kk = float(np.partition(every, kk - 1)[kk - 1])
+            assert true_kk <= got <= own
+            lowered += got < own
+        for h, a, b in zip(
+            heards,
+            borrow.score_heard_many(heards, k, slots),
+            plain.score_heard_many(heards, k, slots),
+            strict=True,
+        ):
+            _same(a, b)
+            _same(a, ref.score_heard(h, k))
+    assert lowered >= 2
+
+
+def test_borrowed_thresholds_leave_the_filter_bit_identical(monkeypatch):
+    from radiopose.tracker import TrackerConfig, locate
+
+    sim = simulate(
+        ScenarioConfig(size_m=6.0, step_m=0.25, duration_s=0.4, min_receiver_spacing_m=2.0),
+        seed=4348,
+    )
+    calls = []
+    real = compiled.ShiftScorer._borrowed_threshold
+
+    def counted(self, *a):  # type: ignore[no-untyped-def]
+        out = real(self, *a)
+        calls.append(out < a[-1])
+        return out
+
+    monkeypatch.setattr(compiled.ShiftScorer, "_borrowed_threshold", counted)
+    a = locate(sim.site, sim.packets, "filter", TrackerConfig()).estimates
+    assert sum(calls) > 0  # the filter's searches borrowed, and it lowered a bound
+    monkeypatch.setattr(compiled.ShiftScorer, "_borrowed_threshold", lambda self, *a: a[-1])
+    b = locate(sim.site, sim.packets, "filter", TrackerConfig()).estimates
+    assert len(a) == len(b) > 50
+    np.testing.assert_array_equal(a.position_m, b.position_m)
+    np.testing.assert_array_equal(a.orientation_deg, b.orientation_deg)
+    np.testing.assert_array_equal(a.position_std_m, b.position_std_m)
+    np.testing.assert_array_equal(a.azimuth_std_deg, b.azimuth_std_deg)
 
 
 def _push_differences_numpy(heard, rss, t_s, max_dt_s, last_rss, last_t, diff2, count):

@@ -59,7 +59,10 @@ class FilterModel:
             # a shorter screened shortlist: ≈ 10 % less CPU in the re-entry's
             # searches, the same answers (the kernel's exactness check widens it
             # when needed)
-            scorer = one_thread(False, oversample=_SEARCH_OVERSAMPLE)
+            # each offset's search also lowers its starting threshold on the other
+            # offsets' shortlist positions (the same answers, ≈ 4 % less CPU in
+            # the searches; docs/performance.md, "Sixth pass")
+            scorer = one_thread(False, oversample=_SEARCH_OVERSAMPLE, borrow_hints=True)
         sm = site.survey_map
         x, y = np.asarray(sm.x_m, float), np.asarray(sm.y_m, float)
         dx = float(x[1] - x[0]) if x.size > 1 else 1.0

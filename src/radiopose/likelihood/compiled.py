@@ -252,6 +252,11 @@ class ShiftScorer(ScorerBase):
     """
 
     name = "numba"
+    borrow_hints = False
+    """Searches named by a slot (:meth:`score_heard_slot`) also lower their
+    starting threshold on the other slots' hints (:meth:`_borrowed_threshold`);
+    on for the particle filter's searches (``FilterModel.build``). Speed only:
+    the results are the same either way."""
     supports_window = True
     supports_position_mse = True
 
@@ -469,6 +474,41 @@ class ShiftScorer(ScorerBase):
             return np.inf
         return float(np.partition(vals, kk - 1)[kk - 1])  # +inf if too few are scorable
 
+    def _borrowed_threshold(
+        self,
+        w: np.ndarray,
+        r: np.ndarray,
+        positions: np.ndarray,
+        j0: int,
+        cnt: int,
+        kk: int,
+        slot: Hashable,
+        thr0: float,
+    ) -> float:
+        """``thr0`` lowered by the other slots' hints: the shortlist positions of
+        the caller's other recurring searches (the filter's other power offsets,
+        among them the offset belief searched a moment before, which knows where
+        the track is now) scored by the pruned kernel under ``thr0``; their
+        ``kk``-th best screened value if lower. Like :meth:`_threshold`, an upper
+        bound on the ``kk``-th best (``kk`` real candidates score at most it), so
+        only speed depends on it, never the result."""
+        # a snapshot: concurrent searches (score_heard_many) add their own slots
+        others = [v for s, v in tuple(self._slot_hints.items()) if s != slot and v.size]
+        if not others:
+            return thr0
+        pick = np.unique(np.concatenate(others))
+        if positions is not self.all_positions:
+            pick = pick[np.isin(pick, positions)]
+        if np.isfinite(thr0):
+            cut = float(_prune_cut(np.float32(thr0), r.size))
+            pick = _prefilter(w, r, self.pre_lo, self.pre_hi, pick, False, cut)
+        if pick.size * cnt * self.n_q < kk:
+            return thr0
+        _, _, thr = _shift_topk_shared(
+            w, r, *self._kernel_args(), pick, j0, cnt, kk, self.block, np.float32(thr0)
+        )
+        return min(thr0, float(thr))
+
     def _run(
         self,
         heard: HeardRss,
@@ -491,6 +531,8 @@ class ShiftScorer(ScorerBase):
             thr0 = np.inf
             if self.prune and n_total > 8 * kk_eff:
                 thr0 = self._threshold(w, r, positions, j0, cnt, kk_eff, hint)
+                if self.borrow_hints and slot is not _LAST_CALL:
+                    thr0 = self._borrowed_threshold(w, r, positions, j0, cnt, kk_eff, slot, thr0)
             run_pos = positions
             if np.isfinite(thr0):
                 cut = float(_prune_cut(np.float32(thr0), r.size))
@@ -632,14 +674,18 @@ class ShiftScorer(ScorerBase):
         out[~np.all(np.isfinite(self.base[r]), axis=0)] = np.inf
         return out
 
-    def with_parallel(self, parallel: bool, oversample: int | None = None) -> ShiftScorer:
+    def with_parallel(
+        self, parallel: bool, oversample: int | None = None, borrow_hints: bool | None = None
+    ) -> ShiftScorer:
         """The same scorer on numba's threads or on one (and, if given, with
-        another ``oversample``): the prepared tables are shared, not copied; its
-        own hint of the last shortlist starts empty. Results do not depend on
-        either."""
+        another ``oversample`` and :attr:`borrow_hints`): the prepared tables are
+        shared, not copied; its own hints start empty. Results do not depend on
+        any of these."""
         twin = copy.copy(self)
         if oversample is not None:
             twin.oversample = int(oversample)
+        if borrow_hints is not None:
+            twin.borrow_hints = bool(borrow_hints)
         twin.parallel = bool(parallel)
         twin._kernel = _shift_topk if twin.parallel else _shift_topk_serial
         twin._hint = np.empty(0, np.int64)
