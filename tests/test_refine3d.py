@@ -302,3 +302,66 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
         Pose3dConfig(refine_tilt_accel_noise_dps2=-1.0)
     with pytest.raises(InputError, match="refine_polish_starts"):
         Pose3dConfig(refine_polish_starts=-1)
+
+
+def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float):
+    """:func:`refine_smoothed` over a fake solve (docs/pose3d.md, "Mode choice,
+    2026-11-27"): the starts are the chosen track A, member tracks A (identical),
+    C (A 5 cm away: the same mode), B (1 m away) and D (3 m away). The fake
+    solve returns its start with an objective per mode and prior: under the
+    random walks A 100, C 100.5, B 105, D 200; under the constant-rate prior
+    A 150, C 150, B 140, D 100. Returns the kept track's x and the solves made
+    as ``(mode, prior kind)``."""
+    import radiopose.filtering.refine3d as r3
+    from radiopose.filtering.config import FilterEstimate
+
+    n = 12
+    t = np.arange(n) * 0.005
+    heard = HeardRss(np.array([0, 1]), np.array([-50.0, -60.0]))
+    records = [(float(ti), heard, i) for i, ti in enumerate(t)]
+
+    def track(x_m: float) -> list[tuple[object, FilterEstimate]]:
+        return [(i, FilterEstimate((x_m, 1.0, 1.2), (10.0, 40.0, 0.0), 0.1, 1.0, 0.0, 1.0))
+                for i in range(n)]  # fmt: skip
+
+    modes = {0.0: "A", 0.05: "C", 1.0: "B", 3.0: "D"}
+    walk_cost = {"A": 100.0, "C": 100.5, "B": 105.0, "D": 200.0}
+    rate_cost = {"A": 150.0, "C": 150.0, "B": 140.0, "D": 100.0}
+    calls: list[tuple[str, str]] = []
+
+    def fake(model, times, h, pos, ori, off, sigma, prior, **kw):
+        mode = modes[round(float(pos[0, 0]), 2)]
+        rate = prior.tilt_accel_noise_dps2 > 0
+        calls.append((mode, "rate" if rate else "walk"))
+        cost = (rate_cost if rate else walk_cost)[mode]
+        return r3.RefinedTrack(np.array(pos), np.array(ori), off, sigma, cost, cost, 1)
+
+    monkeypatch.setattr(r3, "refine_track", fake)
+    alts = [track(0.0), track(0.05), track(1.0), track(3.0)]
+    out = r3.refine_smoothed(
+        None, records, track(0.0), FilterConfig(), 0.2, 20.0, 10, alternatives=alts,
+        hybrid_segment_s=0.0, height_accel_noise_mps2=1.0, tilt_accel_noise_dps2=400.0,
+        polish_starts=polish_starts, polish_margin=polish_margin,
+    )  # fmt: skip
+    return out[0][1].position_m[0], calls
+
+
+def test_the_polish_takes_distinct_modes_within_the_margin(monkeypatch):
+    """The chosen member's own track is refined once; the polish skips a refined
+    track of the same mode (C beside A), stops at the margin and at the count,
+    and keeps the lowest constant-rate objective among the polished."""
+    walks = [("A", "walk"), ("C", "walk"), ("B", "walk"), ("D", "walk")]
+    x, calls = _mode_choice(monkeypatch, 1, 1e9)  # the default before 2026-11-27
+    assert calls == [*walks, ("A", "rate")] and x == 0.0
+    x, calls = _mode_choice(monkeypatch, 3, 10.0)  # C is A's mode, D beyond the margin
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, calls = _mode_choice(monkeypatch, 3, 1e9)
+    assert calls == [*walks, ("A", "rate"), ("B", "rate"), ("D", "rate")] and x == 3.0
+    x, calls = _mode_choice(monkeypatch, 2, 1e9)  # the count caps the distinct modes
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, calls = _mode_choice(monkeypatch, 3, 0.0)
+    assert calls == [*walks, ("A", "rate")] and x == 0.0
+    with pytest.raises(InputError, match="refine_polish_margin"):
+        Pose3dConfig(refine_polish_margin=-1.0)
+    with pytest.raises(InputError, match="refine_polish_margin"):
+        Pose3dConfig(refine_polish_margin=math.nan)

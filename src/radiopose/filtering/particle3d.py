@@ -185,7 +185,15 @@ class Pose3dConfig:
         With a constant-rate refinement prior: how many of the refined tracks
         (lowest objective first, found with the random walks) are polished
         with it; the lowest polished objective is kept. 0: every start is
-        refined with the constant-rate prior directly.
+        refined with the constant-rate prior directly. Only distinct modes
+        are polished (a refined track within 0.1 m and 2° of a lower one is
+        skipped: :func:`radiopose.filtering.refine3d.same_track`).
+    refine_polish_margin
+        Polish only refined tracks whose random-walk objective is within this
+        of the lowest (σ² units, the objective's; ``refine_polish_starts``
+        caps their number): the wrong mode often has the lower random-walk
+        objective and the right one a lower constant-rate objective
+        (docs/pose3d.md, "Mode choice, 2026-11-27").
     """
 
     n_particles: int = 2000
@@ -218,6 +226,7 @@ class Pose3dConfig:
     refine_height_accel_noise_mps2: float = 1.0
     refine_tilt_accel_noise_dps2: float = 400.0
     refine_polish_starts: int = 1
+    refine_polish_margin: float = 1e9
 
     def __post_init__(self) -> None:
         for name in (
@@ -241,6 +250,9 @@ class Pose3dConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
+        if not (math.isfinite(self.refine_polish_margin) and self.refine_polish_margin >= 0):
+            m = self.refine_polish_margin
+            raise InputError(f"3-D filter setting refine_polish_margin = {m!r} must be >= 0")
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts
             raise InputError(f"3-D filter setting refine_polish_starts = {n!r} must be >= 0")
