@@ -26,7 +26,7 @@ Usage::
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
-        [--oracle] [--polish-modes K MARGIN] [--quick] [--out FILE.md]
+        [--oracle] [--polish-modes K MARGIN SWITCH] [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
 included (``Pose3dConfig.refine``); ``--no-refine`` adds the filter without it,
@@ -190,11 +190,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--polish-modes",
         type=float,
-        nargs=2,
-        metavar=("K", "MARGIN"),
+        nargs=3,
+        metavar=("K", "MARGIN", "SWITCH"),
         help="also run each condition polishing up to K distinct refined tracks within MARGIN "
-        "(objective, σ² units) of the lowest (refine_polish_starts, refine_polish_margin; "
-        "docs/pose3d.md, 'Mode choice')",
+        "(objective, σ² units) of the lowest, another mode replacing the lowest's polish only "
+        "when lower by more than SWITCH (refine_polish_starts, refine_polish_margin, "
+        "refine_polish_switch; docs/pose3d.md, 'Mode choice')",
     )
     ap.add_argument(
         "--only-variants",
@@ -233,9 +234,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.oracle:
             variants.append(("oracle, " + label, acc, math.nan))
     if args.polish_modes:
-        k, margin = int(args.polish_modes[0]), args.polish_modes[1]
-        pm = {"refine_polish_starts": k, "refine_polish_margin": margin}
-        variants.append((f"polish up to {k} modes within {margin:g}", pm, 0.0))
+        k, margin, switch = int(args.polish_modes[0]), *args.polish_modes[1:]
+        pm = {"refine_polish_starts": k, "refine_polish_margin": margin,
+              "refine_polish_switch": switch}  # fmt: skip
+        label = f"polish up to {k} modes within {margin:g}, switch {switch:g}"
+        variants.append((label, pm, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:

@@ -304,7 +304,7 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
         Pose3dConfig(refine_polish_starts=-1)
 
 
-def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float):
+def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float, switch: float = 0.0):
     """:func:`refine_smoothed` over a fake solve (docs/pose3d.md, "Mode choice,
     2026-11-27"): the starts are the chosen track A, member tracks A (identical),
     C (A 5 cm away: the same mode), B (1 m away) and D (3 m away). The fake
@@ -341,7 +341,7 @@ def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float):
     out = r3.refine_smoothed(
         None, records, track(0.0), FilterConfig(), 0.2, 20.0, 10, alternatives=alts,
         hybrid_segment_s=0.0, height_accel_noise_mps2=1.0, tilt_accel_noise_dps2=400.0,
-        polish_starts=polish_starts, polish_margin=polish_margin,
+        polish_starts=polish_starts, polish_margin=polish_margin, polish_switch=switch,
     )  # fmt: skip
     return out[0][1].position_m[0], calls
 
@@ -349,7 +349,8 @@ def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float):
 def test_the_polish_takes_distinct_modes_within_the_margin(monkeypatch):
     """The chosen member's own track is refined once; the polish skips a refined
     track of the same mode (C beside A), stops at the margin and at the count,
-    and keeps the lowest constant-rate objective among the polished."""
+    and keeps the lowest constant-rate objective among the polished unless the
+    lowest random-walk track's polish is within the switch of it."""
     walks = [("A", "walk"), ("C", "walk"), ("B", "walk"), ("D", "walk")]
     x, calls = _mode_choice(monkeypatch, 1, 1e9)  # the default before 2026-11-27
     assert calls == [*walks, ("A", "rate")] and x == 0.0
@@ -361,7 +362,16 @@ def test_the_polish_takes_distinct_modes_within_the_margin(monkeypatch):
     assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
     x, calls = _mode_choice(monkeypatch, 3, 0.0)
     assert calls == [*walks, ("A", "rate")] and x == 0.0
+    # the switch: B (140) replaces A's polish (150) only when lower by more than it
+    x, calls = _mode_choice(monkeypatch, 3, 10.0, switch=5.0)
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, _ = _mode_choice(monkeypatch, 3, 10.0, switch=15.0)
+    assert x == 0.0
+    x, _ = _mode_choice(monkeypatch, 3, 1e9, switch=15.0)  # D (100) is lower by 50
+    assert x == 3.0
     with pytest.raises(InputError, match="refine_polish_margin"):
         Pose3dConfig(refine_polish_margin=-1.0)
     with pytest.raises(InputError, match="refine_polish_margin"):
         Pose3dConfig(refine_polish_margin=math.nan)
+    with pytest.raises(InputError, match="refine_polish_switch"):
+        Pose3dConfig(refine_polish_switch=-1.0)

@@ -194,6 +194,11 @@ class Pose3dConfig:
         caps their number): the wrong mode often has the lower random-walk
         objective and the right one a lower constant-rate objective
         (docs/pose3d.md, "Mode choice, 2026-11-27").
+    refine_polish_switch
+        The polish of the lowest random-walk track is kept unless another
+        polished mode's constant-rate objective is lower by more than this
+        (σ² units: a log-likelihood ratio, nats; 0: the lowest polished
+        objective wins).
     """
 
     n_particles: int = 2000
@@ -227,6 +232,7 @@ class Pose3dConfig:
     refine_tilt_accel_noise_dps2: float = 400.0
     refine_polish_starts: int = 1
     refine_polish_margin: float = 1e9
+    refine_polish_switch: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -250,9 +256,10 @@ class Pose3dConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
-        if not (math.isfinite(self.refine_polish_margin) and self.refine_polish_margin >= 0):
-            m = self.refine_polish_margin
-            raise InputError(f"3-D filter setting refine_polish_margin = {m!r} must be >= 0")
+        for name in ("refine_polish_margin", "refine_polish_switch"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0")
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts
             raise InputError(f"3-D filter setting refine_polish_starts = {n!r} must be >= 0")

@@ -587,6 +587,7 @@ def refine_smoothed(
     tilt_accel_noise_dps2: float = 0.0,
     polish_starts: int = 1,
     polish_margin: float = math.inf,
+    polish_switch: float = 0.0,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -613,8 +614,12 @@ def refine_smoothed(
     The polished tracks are distinct modes (:func:`same_track`: a refined
     track within 0.1 m and 2° of a lower one is not polished again) whose
     random-walk objective is within ``polish_margin`` (σ² units) of the
-    lowest (docs/pose3d.md, "Mode choice, 2026-11-27"). Starts identical to
-    an earlier one (the chosen member's own track) are refined once.
+    lowest (docs/pose3d.md, "Mode choice, 2026-11-27"); the polish of the
+    lowest random-walk track is kept unless another polished mode's
+    objective is lower by more than ``polish_switch`` (σ² units: a
+    log-likelihood ratio in nats; 0: the lowest polished objective wins).
+    Starts identical to an earlier one (the chosen member's own track) are
+    refined once.
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -654,7 +659,6 @@ def refine_smoothed(
                 # the chosen track is often one member's own: refining it twice adds nothing
                 if not any(_same_start(init, i) for i in inits):
                     inits.append(init)
-        best: RefinedTrack | None = None
         t_rows = np.array([r[0] for r in rows])
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
@@ -694,10 +698,11 @@ def refine_smoothed(
                     picked.append(d)
             done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
                     for d in picked]  # fmt: skip
-        for res in done:
-            if best is None or res.cost < best.cost:
-                best = res
-        assert best is not None
+        costs = [r.cost for r in done]
+        if polish:
+            # the search's own choice (done[0]) stays unless another mode is clearly lower
+            costs[0] -= polish_switch
+        best = done[int(np.argmin(costs))]
         for i, (r, e) in enumerate(zip(rows, ests, strict=True)):
             p, o = best.position_m[i], best.orientation_deg[i]
             out[r[2]] = replace(
