@@ -698,11 +698,11 @@ def refine_smoothed(
                     picked.append(d)
             done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
                     for d in picked]  # fmt: skip
-        costs = [r.cost for r in done]
+        score = [r.cost for r in done]
         if polish:
             # the search's own choice (done[0]) stays unless another mode is clearly lower
-            costs[0] -= polish_switch
-        best = done[int(np.argmin(costs))]
+            score[0] -= polish_switch
+        best = done[int(np.argmin(score))]
         for i, (r, e) in enumerate(zip(rows, ests, strict=True)):
             p, o = best.position_m[i], best.orientation_deg[i]
             out[r[2]] = replace(
