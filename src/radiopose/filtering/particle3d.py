@@ -171,7 +171,8 @@ class Pose3dConfig:
         With the offset bank: also refine from each member's own smoothed
         track (and offset) and keep, per track, the refined track of the
         lowest MAP objective (the same objective for all: only the likelihood
-        and the priors choose).
+        and the priors choose; with a constant-rate prior, see
+        ``refine_polish_switch``).
     refine_height_accel_noise_mps2, refine_tilt_accel_noise_dps2
         The refinement's own motion prior for height and for pitch and roll
         (0: the filter's random walks, ``height_noise_mps`` and

@@ -39,7 +39,10 @@ Offline only: the solve needs the whole track (the causal filter never calls
 it). :func:`refine_smoothed` applies it to the 3-D filter's smoothed
 estimates: per track, from the filter's track, from each offset-bank member's
 own track and from a hybrid spliced from those refined tracks, keeping the
-refined track of the lowest objective.
+refined track of the lowest objective — with a constant-rate prior, the
+polish of the lowest random-walk track unless another distinct mode's polish
+is lower by more than a switch margin (docs/pose3d.md, "Mode choice,
+2026-11-27").
 """
 
 from __future__ import annotations
