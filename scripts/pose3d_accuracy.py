@@ -26,7 +26,7 @@ Usage::
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
-        [--oracle] [--quick] [--out FILE.md]
+        [--oracle] [--polish-modes K MARGIN SWITCH] [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
 included (``Pose3dConfig.refine``); ``--no-refine`` adds the filter without it,
@@ -188,6 +188,16 @@ def main(argv: list[str] | None = None) -> int:
         help="with --refine-accel: one row per value of Pose3dConfig.refine_polish_starts",
     )
     ap.add_argument(
+        "--polish-modes",
+        type=float,
+        nargs=3,
+        metavar=("K", "MARGIN", "SWITCH"),
+        help="also run each condition polishing up to K distinct refined tracks within MARGIN "
+        "(objective, σ² units) of the lowest, another mode replacing the lowest's polish only "
+        "when lower by more than SWITCH (refine_polish_starts, refine_polish_margin, "
+        "refine_polish_switch; docs/pose3d.md, 'Mode choice')",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -223,6 +233,12 @@ def main(argv: list[str] | None = None) -> int:
             variants.append((f"{label}, polish {k}", {**acc, "refine_polish_starts": k}, 0.0))
         if args.oracle:
             variants.append(("oracle, " + label, acc, math.nan))
+    if args.polish_modes:
+        k, margin, switch = int(args.polish_modes[0]), *args.polish_modes[1:]
+        pm = {"refine_polish_starts": k, "refine_polish_margin": margin,
+              "refine_polish_switch": switch}  # fmt: skip
+        label = f"polish up to {k} modes within {margin:g}, switch {switch:g}"
+        variants.append((label, pm, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:

@@ -169,6 +169,10 @@ BAD = [
     ("refine_tilt_accel_noise_dps2 = -1.0", 3, "refine_tilt_accel_noise_dps2", "out of range"),
     ("refine_height_accel_noise_mps2 = nan", 3, "refine_height_accel_noise_mps2", "finite"),
     ("refine_polish_starts = -1", 3, "refine_polish_starts", "out of range"),
+    ("refine_polish_margin = -1.0", 3, "refine_polish_margin", "out of range"),
+    ("refine_polish_margin = inf", 3, "refine_polish_margin", "finite"),
+    ('refine_polish_margin = "10"', 3, "refine_polish_margin", "expected a number"),
+    ("refine_polish_switch = -0.5", 3, "refine_polish_switch", "out of range"),
     ("offset_bank_db = 3.0", 3, "offset_bank_db", "write [3.0]"),
     ("offset_bank_db = [0.0, nan]", 3, "offset_bank_db", "item 1 is not a finite number"),
     ("offset_bank_db = [0.0, 99.0]", 3, "offset_bank_db", "out of range"),
@@ -336,6 +340,14 @@ def test_the_refinement_prior_reads_with_zero_for_off(tmp_path: Path):
     cfg = read_tracker_settings(p).pose3d()
     assert cfg.refine_tilt_accel_noise_dps2 == 250.0
     assert cfg.refine_height_accel_noise_mps2 == 0.0
+    p = _write(
+        tmp_path,
+        "[filter.pose3d]\nrefine_polish_margin = 0\nrefine_polish_starts = 3\n"
+        "refine_polish_switch = 0\n",
+    )
+    cfg = read_tracker_settings(p).pose3d()
+    assert cfg.refine_polish_margin == 0.0 and cfg.refine_polish_starts == 3
+    assert cfg.refine_polish_switch == 0.0
 
 
 def test_refine_is_a_boolean(tmp_path: Path):

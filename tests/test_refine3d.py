@@ -118,11 +118,12 @@ def test_refinement_runs_offline_only(monkeypatch):
     n_members = len(Pose3dConfig().offset_bank_db)
     n = len(group_packets(sim.packets))
     polish = Pose3dConfig().refine_polish_starts  # the constant-rate prior's polish (default on)
-    assert polish == 1
-    # the chosen track, each member's, at most one hybrid start spliced from them,
-    # then the best refined track polished with the constant-rate prior
-    assert calls[: 1 + n_members] == [n] * (1 + n_members)
-    assert 2 + n_members <= len(calls) <= 2 + n_members + polish
+    assert polish == 3
+    # the chosen track, each member's (a member's track equal to the chosen one
+    # is refined once), at most one hybrid start spliced from them, then up to
+    # three distinct refined tracks polished with the constant-rate prior
+    assert calls and set(calls) == {n}
+    assert 2 + n_members - 1 <= len(calls) <= 2 + n_members + polish
     assert np.all(off.estimates.position_m == 1.234)
     calls.clear()
     one = TrackerConfig()
@@ -285,11 +286,12 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
 
     monkeypatch.setattr(r3, "refine_track", spy)
     cfg = TrackerConfig()
-    p3 = replace(cfg.pose3d, refine_height_accel_noise_mps2=1.5, refine_tilt_accel_noise_dps2=300.0)
+    p3 = replace(cfg.pose3d, refine_height_accel_noise_mps2=1.5, refine_tilt_accel_noise_dps2=300.0,
+                 refine_polish_starts=1)  # fmt: skip
     out = locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
     rates = [(p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) for p in seen]
     n_starts = len(seen) - 1
-    assert n_starts >= 1 + len(p3.offset_bank_db)
+    assert n_starts >= len(p3.offset_bank_db)  # (a member's track equal to the chosen: once)
     assert rates == [(0.0, 0.0)] * n_starts + [(1.5, 300.0)]
     assert np.all(out.estimates.position_m == 1.234)
     assert all((p.height_noise_mps, p.tilt_noise_dps) == (0.2, 20.0) for p in seen)
@@ -302,3 +304,76 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
         Pose3dConfig(refine_tilt_accel_noise_dps2=-1.0)
     with pytest.raises(InputError, match="refine_polish_starts"):
         Pose3dConfig(refine_polish_starts=-1)
+
+
+def _mode_choice(monkeypatch, polish_starts: int, polish_margin: float, switch: float = 0.0):
+    """:func:`refine_smoothed` over a fake solve (docs/pose3d.md, "Mode choice,
+    2026-11-27"): the starts are the chosen track A, member tracks A (identical),
+    C (A 5 cm away: the same mode), B (1 m away) and D (3 m away). The fake
+    solve returns its start with an objective per mode and prior: under the
+    random walks A 100, C 100.5, B 105, D 200; under the constant-rate prior
+    A 150, C 150, B 140, D 100. Returns the kept track's x and the solves made
+    as ``(mode, prior kind)``."""
+    import radiopose.filtering.refine3d as r3
+    from radiopose.filtering.config import FilterEstimate
+
+    n = 12
+    t = np.arange(n) * 0.005
+    heard = HeardRss(np.array([0, 1]), np.array([-50.0, -60.0]))
+    records = [(float(ti), heard, i) for i, ti in enumerate(t)]
+
+    def track(x_m: float) -> list[tuple[object, FilterEstimate]]:
+        return [(i, FilterEstimate((x_m, 1.0, 1.2), (10.0, 40.0, 0.0), 0.1, 1.0, 0.0, 1.0))
+                for i in range(n)]  # fmt: skip
+
+    modes = {0.0: "A", 0.05: "C", 1.0: "B", 3.0: "D"}
+    walk_cost = {"A": 100.0, "C": 100.5, "B": 105.0, "D": 200.0}
+    rate_cost = {"A": 150.0, "C": 150.0, "B": 140.0, "D": 100.0}
+    calls: list[tuple[str, str]] = []
+
+    def fake(model, times, h, pos, ori, off, sigma, prior, **kw):
+        mode = modes[round(float(pos[0, 0]), 2)]
+        rate = prior.tilt_accel_noise_dps2 > 0
+        calls.append((mode, "rate" if rate else "walk"))
+        cost = (rate_cost if rate else walk_cost)[mode]
+        return r3.RefinedTrack(np.array(pos), np.array(ori), off, sigma, cost, cost, 1)
+
+    monkeypatch.setattr(r3, "refine_track", fake)
+    alts = [track(0.0), track(0.05), track(1.0), track(3.0)]
+    out = r3.refine_smoothed(
+        None, records, track(0.0), FilterConfig(), 0.2, 20.0, 10, alternatives=alts,
+        hybrid_segment_s=0.0, height_accel_noise_mps2=1.0, tilt_accel_noise_dps2=400.0,
+        polish_starts=polish_starts, polish_margin=polish_margin, polish_switch=switch,
+    )  # fmt: skip
+    return out[0][1].position_m[0], calls
+
+
+def test_the_polish_takes_distinct_modes_within_the_margin(monkeypatch):
+    """The chosen member's own track is refined once; the polish skips a refined
+    track of the same mode (C beside A), stops at the margin and at the count,
+    and keeps the lowest constant-rate objective among the polished unless the
+    lowest random-walk track's polish is within the switch of it."""
+    walks = [("A", "walk"), ("C", "walk"), ("B", "walk"), ("D", "walk")]
+    x, calls = _mode_choice(monkeypatch, 1, 1e9)  # the default before 2026-11-27
+    assert calls == [*walks, ("A", "rate")] and x == 0.0
+    x, calls = _mode_choice(monkeypatch, 3, 10.0)  # C is A's mode, D beyond the margin
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, calls = _mode_choice(monkeypatch, 3, 1e9)
+    assert calls == [*walks, ("A", "rate"), ("B", "rate"), ("D", "rate")] and x == 3.0
+    x, calls = _mode_choice(monkeypatch, 2, 1e9)  # the count caps the distinct modes
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, calls = _mode_choice(monkeypatch, 3, 0.0)
+    assert calls == [*walks, ("A", "rate")] and x == 0.0
+    # the switch: B (140) replaces A's polish (150) only when lower by more than it
+    x, calls = _mode_choice(monkeypatch, 3, 10.0, switch=5.0)
+    assert calls == [*walks, ("A", "rate"), ("B", "rate")] and x == 1.0
+    x, _ = _mode_choice(monkeypatch, 3, 10.0, switch=15.0)
+    assert x == 0.0
+    x, _ = _mode_choice(monkeypatch, 3, 1e9, switch=15.0)  # D (100) is lower by 50
+    assert x == 3.0
+    with pytest.raises(InputError, match="refine_polish_margin"):
+        Pose3dConfig(refine_polish_margin=-1.0)
+    with pytest.raises(InputError, match="refine_polish_margin"):
+        Pose3dConfig(refine_polish_margin=math.nan)
+    with pytest.raises(InputError, match="refine_polish_switch"):
+        Pose3dConfig(refine_polish_switch=-1.0)

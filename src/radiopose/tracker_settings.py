@@ -85,6 +85,8 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_height_accel_noise_mps2": (0.0, 1000.0),
     "refine_tilt_accel_noise_dps2": (0.0, 100_000.0),
     "refine_polish_starts": (0, 1000),
+    "refine_polish_margin": (0.0, 1e9),
+    "refine_polish_switch": (0.0, 1e9),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
@@ -99,6 +101,8 @@ POSE3D_ZERO_ALLOWED = frozenset(
         "refine_hybrid_segment_s",
         "refine_height_accel_noise_mps2",
         "refine_tilt_accel_noise_dps2",
+        "refine_polish_margin",
+        "refine_polish_switch",
     }
 )
 """Real ``[filter.pose3d]`` keys for which 0 is a value (it switches the part off)."""

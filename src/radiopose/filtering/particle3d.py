@@ -171,7 +171,8 @@ class Pose3dConfig:
         With the offset bank: also refine from each member's own smoothed
         track (and offset) and keep, per track, the refined track of the
         lowest MAP objective (the same objective for all: only the likelihood
-        and the priors choose).
+        and the priors choose; with a constant-rate prior, see
+        ``refine_polish_switch``).
     refine_height_accel_noise_mps2, refine_tilt_accel_noise_dps2
         The refinement's own motion prior for height and for pitch and roll
         (0: the filter's random walks, ``height_noise_mps`` and
@@ -185,7 +186,22 @@ class Pose3dConfig:
         With a constant-rate refinement prior: how many of the refined tracks
         (lowest objective first, found with the random walks) are polished
         with it; the lowest polished objective is kept. 0: every start is
-        refined with the constant-rate prior directly.
+        refined with the constant-rate prior directly. Only distinct modes
+        are polished (a refined track within 0.1 m and 2° of a lower one is
+        skipped: :func:`radiopose.filtering.refine3d.same_track`).
+    refine_polish_margin
+        Polish only refined tracks whose random-walk objective is within this
+        of the lowest (σ² units, the objective's; ``refine_polish_starts``
+        caps their number): the wrong mode often has the lower random-walk
+        objective and the right one a lower constant-rate objective
+        (docs/pose3d.md, "Mode choice, 2026-11-27").
+    refine_polish_switch
+        The polish of the lowest random-walk track is kept unless another
+        polished mode's constant-rate objective is lower by more than this
+        (σ² units: a log-likelihood ratio, nats; 0: the lowest polished
+        objective wins). Default since 2026-11-27: up to 3 modes within 10,
+        switch 5 (chosen on tuning seeds 7100–7119, held on 7120–7139; before:
+        1, any margin, 0).
     """
 
     n_particles: int = 2000
@@ -217,7 +233,9 @@ class Pose3dConfig:
     refine_hybrid_segment_s: float = 0.5
     refine_height_accel_noise_mps2: float = 1.0
     refine_tilt_accel_noise_dps2: float = 400.0
-    refine_polish_starts: int = 1
+    refine_polish_starts: int = 3
+    refine_polish_margin: float = 10.0
+    refine_polish_switch: float = 5.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -241,6 +259,10 @@ class Pose3dConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0 (0: off)")
+        for name in ("refine_polish_margin", "refine_polish_switch"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0")
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts
             raise InputError(f"3-D filter setting refine_polish_starts = {n!r} must be >= 0")

@@ -39,7 +39,10 @@ Offline only: the solve needs the whole track (the causal filter never calls
 it). :func:`refine_smoothed` applies it to the 3-D filter's smoothed
 estimates: per track, from the filter's track, from each offset-bank member's
 own track and from a hybrid spliced from those refined tracks, keeping the
-refined track of the lowest objective.
+refined track of the lowest objective — with a constant-rate prior, the
+polish of the lowest random-walk track unless another distinct mode's polish
+is lower by more than a switch margin (docs/pose3d.md, "Mode choice,
+2026-11-27").
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ from scipy.optimize import least_squares
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.config import FilterConfig, FilterEstimate
+from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
@@ -70,6 +74,21 @@ _FD_STEP = 1e-3
 bilinear cells are 0.25–1 m, the pattern's 2°: a step well inside one cell)."""
 _MIN_DT_S = 1e-3
 """Smallest interval used to scale a motion-prior residual, s (equal times)."""
+SAME_TRACK_M = 0.1
+SAME_TRACK_DEG = 2.0
+"""Two refined tracks whose mean position difference is below ``SAME_TRACK_M``
+metres and mean rotation angle between them below ``SAME_TRACK_DEG`` degrees are
+one mode: only the lower of them is polished (:func:`refine_smoothed`)."""
+
+
+def same_track(a: RefinedTrack, b: RefinedTrack) -> bool:
+    """Whether two refined tracks of the same packets are one mode
+    (:data:`SAME_TRACK_M`, :data:`SAME_TRACK_DEG`)."""
+    d_m = float(np.linalg.norm(a.position_m - b.position_m, axis=1).mean())
+    if d_m >= SAME_TRACK_M:
+        return False
+    d_deg = float(np.mean(orientation_error_deg(a.orientation_deg, b.orientation_deg)))
+    return d_deg < SAME_TRACK_DEG
 
 
 @dataclass(frozen=True)
@@ -550,6 +569,13 @@ def packet_costs(
     return np.bincount(pkt, weights=rho, minlength=n).astype(np.float64)
 
 
+def _same_start(
+    a: tuple[FloatArray, FloatArray, float], b: tuple[FloatArray, FloatArray, float]
+) -> bool:
+    """Whether two initial tracks ``(positions m, orientations °, offset dB)`` are equal."""
+    return bool(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) and a[2] == b[2])
+
+
 def refine_smoothed(
     model: FilterModel3d,
     records: Sequence[tuple[float, HeardRss, object]],
@@ -563,6 +589,8 @@ def refine_smoothed(
     height_accel_noise_mps2: float = 0.0,
     tilt_accel_noise_dps2: float = 0.0,
     polish_starts: int = 1,
+    polish_margin: float = math.inf,
+    polish_switch: float = 0.0,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -586,6 +614,15 @@ def refine_smoothed(
     again with the constant-rate prior and the lowest of those is kept; with
     ``polish_starts = 0`` every start is refined with the constant-rate prior
     directly (stiffer: more starts stay in a local minimum, docs/pose3d.md).
+    The polished tracks are distinct modes (:func:`same_track`: a refined
+    track within 0.1 m and 2° of a lower one is not polished again) whose
+    random-walk objective is within ``polish_margin`` (σ² units) of the
+    lowest (docs/pose3d.md, "Mode choice, 2026-11-27"); the polish of the
+    lowest random-walk track is kept unless another polished mode's
+    objective is lower by more than ``polish_switch`` (σ² units: a
+    log-likelihood ratio in nats; 0: the lowest polished objective wins).
+    Starts identical to an earlier one (the chosen member's own track) are
+    refined once.
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -621,8 +658,10 @@ def refine_smoothed(
         inits = [start(ests)]
         for alt in alt_keys:
             if all(r[2] in alt for r in rows):
-                inits.append(start([alt[r[2]] for r in rows]))
-        best: RefinedTrack | None = None
+                init = start([alt[r[2]] for r in rows])
+                # the chosen track is often one member's own: refining it twice adds nothing
+                if not any(_same_start(init, i) for i in inits):
+                    inits.append(init)
         t_rows = np.array([r[0] for r in rows])
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
@@ -654,12 +693,19 @@ def refine_smoothed(
             # the random walks found (their objectives are not comparable with
             # the polished ones: only polished tracks compete)
             done.sort(key=lambda r: r.cost)
+            picked: list[RefinedTrack] = []
+            for d in done:
+                if len(picked) >= polish_starts or d.cost > done[0].cost + polish_margin:
+                    break
+                if not any(same_track(d, p) for p in picked):
+                    picked.append(d)
             done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
-                    for d in done[:polish_starts]]  # fmt: skip
-        for res in done:
-            if best is None or res.cost < best.cost:
-                best = res
-        assert best is not None
+                    for d in picked]  # fmt: skip
+        score = [r.cost for r in done]
+        if polish:
+            # the search's own choice (done[0]) stays unless another mode is clearly lower
+            score[0] -= polish_switch
+        best = done[int(np.argmin(score))]
         for i, (r, e) in enumerate(zip(rows, ests, strict=True)):
             p, o = best.position_m[i], best.orientation_deg[i]
             out[r[2]] = replace(

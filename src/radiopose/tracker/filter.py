@@ -262,7 +262,8 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
         height_accel_noise_mps2=p3.refine_height_accel_noise_mps2,
         tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
-        polish_starts=p3.refine_polish_starts,
+        polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
+        polish_switch=p3.refine_polish_switch,
     )  # fmt: skip
 
 
