@@ -67,6 +67,8 @@ OFFLINE = TrackerConfig()
 ONE_PASS = TrackerConfig(filter=FilterConfig(offline_offset_selection=False))
 CAUSAL = TrackerConfig(smoothing_lag_s=None)
 REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True))
+REFINED = TrackerConfig(filter=FilterConfig(offline_refine=True))
+ARBITER = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=True))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, reversed": (REVERSED, "", "filter"),
@@ -75,6 +77,10 @@ VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter, +6 dB, one pass": (ONE_PASS, "loud", "filter"),
     "filter, +6 dB, reversed": (REVERSED, "loud", "filter"),
     "filter, +6 dB, causal": (CAUSAL, "loud", "filter"),
+    "filter, refined": (REFINED, "", "filter"),
+    "filter, reversed, refined": (ARBITER, "", "filter"),
+    "filter, +6 dB, refined": (REFINED, "loud", "filter"),
+    "filter, +6 dB, reversed, refined": (ARBITER, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),
 }

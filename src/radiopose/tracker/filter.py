@@ -33,6 +33,7 @@ import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.filtering.offset import OffsetPass, select_offset
+from radiopose.filtering.refine2d import arbitrate
 from radiopose.filtering.reverse import reverse_pass
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
@@ -107,7 +108,7 @@ class FilterMethod:
                 state.records, state.refine_smoothed = [], []
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.refine_smoothed.extend(smoothed)
-        if _reverses(device):  # round 5: the forward track, whole, for the combination
+        if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
@@ -147,18 +148,29 @@ class FilterMethod:
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
-        if not _reverses(device):
+        if not (_reverses(device) or _arbitrates(device)):
             return _as_delayed(chosen)
-        # round 5: a pass over the reversed packets, combined per segment
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
         forward = dict(chosen if best > 0 else kept + chosen)
-        combined, _ = reverse_pass(
-            pf, records, forward, passes[best].centre_db, seed, math.sqrt(state.sigma2_db2),
-            tight_evidence if best > 0 else evidence,
-        )  # fmt: skip
-        return _as_delayed(combined)
+        sigma_db = math.sqrt(state.sigma2_db2)
+        candidates = [forward]
+        if _reverses(device):
+            # round 5: a pass over the reversed packets, combined per segment
+            rev: dict[object, FilterEstimate] = {}
+            combined, _ = reverse_pass(
+                pf, records, forward, passes[best].centre_db, seed, sigma_db,
+                tight_evidence if best > 0 else evidence, rev,
+            )  # fmt: skip
+            if not _arbitrates(device):
+                return _as_delayed(combined)
+            candidates += [dict(combined), rev]
+        # round 6: each candidate refined by batch MAP, the lowest objective kept
+        out, _ = arbitrate(
+            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
+        )
+        return _as_delayed(out)
 
 
 def _outcome(est: FilterEstimate) -> Outcome:
@@ -183,7 +195,7 @@ def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed,
 def _replays(device: Device) -> bool:
     """Whether the offline passes after the first (offset selection, reversed
     pass) may run for ``device``, so that its packets are kept."""
-    return _selects_offset(device) or _reverses(device)
+    return _selects_offset(device) or _reverses(device) or _arbitrates(device)
 
 
 def _reverses(device: Device) -> bool:
@@ -194,6 +206,18 @@ def _reverses(device: Device) -> bool:
         device.offline
         and device.lag_s is not None
         and device.config.filter.offline_reverse_pass
+        and type(device.engine) is ParticleFilter
+    )
+
+
+def _arbitrates(device: Device) -> bool:
+    """Whether the offline 2-D batch MAP arbiter runs for ``device`` (round 6):
+    offline with a smoothing lag, switched on (``FilterConfig.offline_refine``),
+    a 2-D filter."""
+    return (
+        device.offline
+        and device.lag_s is not None
+        and device.config.filter.offline_refine
         and type(device.engine) is ParticleFilter
     )
 
