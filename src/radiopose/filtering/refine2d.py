@@ -312,9 +312,9 @@ def arbitrate(
     rows = [r for r in records if r[2] in ref and r[1].n_heard > 0]
     out = dict(ref)
     log: list[Arbitration] = []
-    sig = max(float(sigma_db), config.sigma_floor_db) if math.isfinite(sigma_db) else (
-        config.sigma_prior_db
-    )
+    sig = config.sigma_prior_db
+    if math.isfinite(sigma_db):
+        sig = max(float(sigma_db), config.sigma_floor_db)
     start = 0
     for j in range(1, len(rows) + 1):
         if j < len(rows) and rows[j][0] - rows[j - 1][0] <= config.reacquire_gap_s:
