@@ -22,6 +22,11 @@ Rows per σ:
 * ``filter, reversed`` / ``filter, +6 dB, reversed`` — offline with the
   time-reversed second pass (``FilterConfig.offline_reverse_pass``,
   docs/filter.md "Accuracy round 5");
+* ``filter, refined`` / ``filter, +6 dB, refined`` — offline with the forward
+  track refined by batch MAP (``FilterConfig.offline_refine``);
+  ``filter, reversed, refined`` / ``filter, +6 dB, reversed, refined`` — the
+  reversed pass with that refinement as the arbiter between the forward, the
+  reversed and the combined tracks (docs/filter.md "Accuracy round 6");
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.

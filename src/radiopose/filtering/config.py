@@ -141,10 +141,11 @@ class FilterConfig:
         Where the forward and reversed tracks count as disagreeing, metres and
         degrees of azimuth.
     offline_refine
-        Offline only, 2-D: refine the forward track (and, with
-        ``offline_reverse_pass``, the reversed pass's track and the combined
-        one) by batch MAP over the whole file (data, the motion prior, one
-        device offset) and emit the refined candidate of the lowest objective
+        Offline only, 2-D: refine the forward track, every other pass of the
+        offset selection and, with ``offline_reverse_pass``, the reversed
+        pass's track and the combined one, by batch MAP over the whole file
+        (data, the motion prior, one device offset) and emit the refined
+        candidate of the lowest objective
         (:mod:`radiopose.filtering.refine2d`; docs/filter.md, "Accuracy round
         6").
     refine_max_nfev

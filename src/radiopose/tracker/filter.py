@@ -136,6 +136,7 @@ class FilterMethod:
         first = pf.take_smoothed()  # pass 1's rest: its earlier packets went out already
         seed = filter_seed(device.config.seed, device.key)
         tight_evidence: dict[object, float] = {}
+        other_passes: list[dict[object, FilterEstimate]] = []
         if _selects_offset(device):
             chosen, passes = select_offset(
                 pf,
@@ -145,6 +146,7 @@ class FilterMethod:
                 first,
                 beliefs,
                 tight_evidence if _reverses(device) else None,
+                other_passes if _arbitrates(device) else None,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
@@ -166,6 +168,10 @@ class FilterMethod:
             if not _arbitrates(device):
                 return _as_delayed(combined)
             candidates += [dict(combined), rev]
+        # the offset selection's other passes (pass 1 when a further one won)
+        if best > 0:
+            candidates.append(dict(kept + first))
+        candidates += [t for i, t in enumerate(other_passes, start=1) if i != best]
         # round 6: each candidate refined by batch MAP, the lowest objective kept
         out, _ = arbitrate(
             pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
