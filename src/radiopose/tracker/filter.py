@@ -33,7 +33,6 @@ import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.filtering.offset import OffsetPass, select_offset
-from radiopose.filtering.refine2d import arbitrate
 from radiopose.filtering.reverse import reverse_pass
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
@@ -173,6 +172,10 @@ class FilterMethod:
             candidates.append(dict(kept + first))
         candidates += [t for i, t in enumerate(other_passes, start=1) if i != best]
         # round 6: each candidate refined by batch MAP, the lowest objective kept
+        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
+        # offline locate does not import; tests/test_startup_cache.py)
+        from radiopose.filtering.refine2d import arbitrate
+
         out, _ = arbitrate(
             pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
         )
