@@ -22,6 +22,11 @@ Rows per σ:
 * ``filter, reversed`` / ``filter, +6 dB, reversed`` — offline with the
   time-reversed second pass (``FilterConfig.offline_reverse_pass``,
   docs/filter.md "Accuracy round 5");
+* ``filter, refined`` / ``filter, +6 dB, refined`` — offline with the forward
+  track refined by batch MAP (``FilterConfig.offline_refine``);
+  ``filter, reversed, refined`` / ``filter, +6 dB, reversed, refined`` — the
+  reversed pass with that refinement as the arbiter between the forward, the
+  reversed and the combined tracks (docs/filter.md "Accuracy round 6");
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -67,6 +72,8 @@ OFFLINE = TrackerConfig()
 ONE_PASS = TrackerConfig(filter=FilterConfig(offline_offset_selection=False))
 CAUSAL = TrackerConfig(smoothing_lag_s=None)
 REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True))
+REFINED = TrackerConfig(filter=FilterConfig(offline_refine=True))
+ARBITER = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=True))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, reversed": (REVERSED, "", "filter"),
@@ -75,6 +82,10 @@ VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter, +6 dB, one pass": (ONE_PASS, "loud", "filter"),
     "filter, +6 dB, reversed": (REVERSED, "loud", "filter"),
     "filter, +6 dB, causal": (CAUSAL, "loud", "filter"),
+    "filter, refined": (REFINED, "", "filter"),
+    "filter, reversed, refined": (ARBITER, "", "filter"),
+    "filter, +6 dB, refined": (REFINED, "loud", "filter"),
+    "filter, +6 dB, reversed, refined": (ARBITER, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),
 }

@@ -15,7 +15,9 @@ the more likely (``Δ = truth − estimate > 0``), the wrong lock is a search
 failure that an offline method can fix; if the estimate is, no estimator on
 this likelihood fixes it. ``Δ bad`` is the same difference over the packets
 whose orientation error exceeds 15° only. With ``--reverse`` the combined
-track of the reversed pass (``FilterConfig.offline_reverse_pass``) is run too.
+track of the reversed pass (``FilterConfig.offline_reverse_pass``) is run too,
+with ``--arbiter`` the reversed pass with round 6's batch MAP arbiter
+(``FilterConfig.offline_refine``).
 
 Usage (tuning seeds 7000–7099 only)::
 
@@ -74,8 +76,9 @@ def _track_loglik(
 
 
 def diagnose(
-    seeds: list[int], sigma_db: float, loud: bool, reverse: bool, quick: bool
-) -> list[str]:
+    seeds: list[int], sigma_db: float, loud: bool, reverse: bool, quick: bool,
+    arbiter: bool = False,
+) -> list[str]:  # fmt: skip
     """One table row per seed (see the module docstring)."""
     base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
     cfg = TrackerConfig()
@@ -83,6 +86,10 @@ def diagnose(
     if reverse:
         variants["+ reversed pass"] = replace(
             cfg, filter=replace(cfg.filter, offline_reverse_pass=True)
+        )
+    if arbiter:
+        variants["+ reversed pass, MAP arbiter"] = replace(
+            cfg, filter=replace(cfg.filter, offline_reverse_pass=True, offline_refine=True)
         )
     rows = [
         "| seed | σ (dB) | device | track | ori mean (°) | pos mean (m) | offset (dB) "
@@ -129,10 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigma", type=float, default=3.0, help="simulated σ, dB")
     ap.add_argument("--loud", action="store_true", help="the device 6 dB above its enrolled power")
     ap.add_argument("--reverse", action="store_true", help="also the reversed pass's track")
+    ap.add_argument(
+        "--arbiter", action="store_true", help="also the reversed pass with the MAP arbiter"
+    )
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
     seeds = [5] if args.quick else args.seeds
-    rows = diagnose(seeds, args.sigma, args.loud, args.reverse, args.quick)
+    rows = diagnose(seeds, args.sigma, args.loud, args.reverse, args.quick, args.arbiter)
     print("\n".join(rows[:2]))
     print("\n".join(rows[2:]))
     print("offset: the truth's best single offset / the track's, dB")

@@ -77,9 +77,13 @@ def test_mirror_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_lock_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
-    printed = _run(SCRIPTS / "lock_diagnosis.py", ["--quick", "--reverse"], capsys)
+    printed = _run(SCRIPTS / "lock_diagnosis.py", ["--quick", "--reverse", "--arbiter"], capsys)
     rows = [row for row in _table_rows(printed) if row.startswith("| 5 |")]
-    assert {row.split("|")[4].strip() for row in rows} == {"filter", "+ reversed pass"}
+    assert {row.split("|")[4].strip() for row in rows} == {
+        "filter",
+        "+ reversed pass",
+        "+ reversed pass, MAP arbiter",
+    }
     assert all("Δ" not in row for row in rows)
 
 

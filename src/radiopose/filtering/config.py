@@ -140,6 +140,16 @@ class FilterConfig:
     reverse_disagree_m, reverse_disagree_deg
         Where the forward and reversed tracks count as disagreeing, metres and
         degrees of azimuth.
+    offline_refine
+        Offline only, 2-D: refine the forward track, every other pass of the
+        offset selection and, with ``offline_reverse_pass``, the reversed
+        pass's track and the combined one, by batch MAP over the whole file
+        (data, the motion prior, one device offset) and emit the refined
+        candidate of the lowest objective
+        (:mod:`radiopose.filtering.refine2d`; docs/filter.md, "Accuracy round
+        6").
+    refine_max_nfev
+        Residual evaluations of each candidate's refinement.
     """
 
     n_particles: int = 2000
@@ -191,6 +201,9 @@ class FilterConfig:
     offline_reverse_pass: bool = False
     reverse_disagree_m: float = 1.0
     reverse_disagree_deg: float = 30.0
+    # issue 15 (wrong locks, round 6): the offline 2-D batch MAP arbiter
+    offline_refine: bool = False
+    refine_max_nfev: int = 30
 
     def __post_init__(self) -> None:
         positive = (
@@ -231,6 +244,13 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")
+        if isinstance(self.refine_max_nfev, bool) or not (
+            isinstance(self.refine_max_nfev, int) and 1 <= self.refine_max_nfev <= 10_000
+        ):
+            raise InputError(
+                f"filter setting refine_max_nfev = {self.refine_max_nfev!r} must be an integer "
+                "in [1, 10000]"
+            )
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"

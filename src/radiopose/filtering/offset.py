@@ -131,6 +131,7 @@ def select_offset(
     first_pass: list[tuple[object, FilterEstimate]],
     beliefs_db: np.ndarray,
     evidence_out: dict[object, float] | None = None,
+    tracks_out: list[dict[object, FilterEstimate]] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[OffsetPass]]:
     """The offline selection (module docstring) after pass 1.
 
@@ -152,6 +153,9 @@ def select_offset(
         If given and a further pass is chosen, filled with that pass's log
         evidence of each packet by key, nats (the reversed pass's combination
         reads it; left empty when pass 1 stands).
+    tracks_out
+        If given, each further pass's estimates by key are appended, in the
+        order of ``passes[1:]`` (round 6's arbiter refines them too).
 
     Returns
     -------
@@ -173,6 +177,8 @@ def select_offset(
         per_packet: dict[object, float] | None = None if evidence_out is None else {}
         est, ll = run_pass(ParticleFilter(pf.model, tight, pf.lag_s), seed, records, c, per_packet)
         passes.append(OffsetPass(c, ll))
+        if tracks_out is not None:
+            tracks_out.append(dict(est))
         if ll > best_ll:
             best, best_ll = est, ll
             if evidence_out is not None and per_packet is not None:

@@ -281,6 +281,7 @@ def reverse_pass(
     seed: int,
     sigma_db: float,
     forward_evidence: dict[object, float] | None = None,
+    reversed_out: dict[object, FilterEstimate] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Segment]]:
     """Run the filter over the reversed ``records`` and combine its smoothed track
     with ``forward`` (:func:`combine_tracks`).
@@ -305,6 +306,9 @@ def reverse_pass(
     forward_evidence
         The chosen forward pass's log evidence of each packet by key, nats
         (reported in the segments, :func:`combine_tracks`; ``None``: not).
+    reversed_out
+        When given, filled with the reversed pass's own smoothed estimates by
+        key (round 6's arbiter refines that track too).
     """
     cfg = pf.config
     if math.isnan(centre_db):
@@ -317,6 +321,8 @@ def reverse_pass(
         ParticleFilter(pf.model, rcfg, pf.lag_s), (seed + 1) % 2**63, reversed_records(records),
         centre, rev_evidence,
     )  # fmt: skip
+    if reversed_out is not None:
+        reversed_out.update(rev)
     return combine_tracks(
         pf.model, records, forward, dict(rev),
         sigma_db=sigma_db,

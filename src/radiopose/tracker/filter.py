@@ -107,7 +107,7 @@ class FilterMethod:
                 state.records, state.refine_smoothed = [], []
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.refine_smoothed.extend(smoothed)
-        if _reverses(device):  # round 5: the forward track, whole, for the combination
+        if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
@@ -135,6 +135,7 @@ class FilterMethod:
         first = pf.take_smoothed()  # pass 1's rest: its earlier packets went out already
         seed = filter_seed(device.config.seed, device.key)
         tight_evidence: dict[object, float] = {}
+        other_passes: list[dict[object, FilterEstimate]] = []
         if _selects_offset(device):
             chosen, passes = select_offset(
                 pf,
@@ -144,21 +145,41 @@ class FilterMethod:
                 first,
                 beliefs,
                 tight_evidence if _reverses(device) else None,
+                other_passes if _arbitrates(device) else None,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
-        if not _reverses(device):
+        if not (_reverses(device) or _arbitrates(device)):
             return _as_delayed(chosen)
-        # round 5: a pass over the reversed packets, combined per segment
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
         forward = dict(chosen if best > 0 else kept + chosen)
-        combined, _ = reverse_pass(
-            pf, records, forward, passes[best].centre_db, seed, math.sqrt(state.sigma2_db2),
-            tight_evidence if best > 0 else evidence,
-        )  # fmt: skip
-        return _as_delayed(combined)
+        sigma_db = math.sqrt(state.sigma2_db2)
+        candidates = [forward]
+        if _reverses(device):
+            # round 5: a pass over the reversed packets, combined per segment
+            rev: dict[object, FilterEstimate] = {}
+            combined, _ = reverse_pass(
+                pf, records, forward, passes[best].centre_db, seed, sigma_db,
+                tight_evidence if best > 0 else evidence, rev,
+            )  # fmt: skip
+            if not _arbitrates(device):
+                return _as_delayed(combined)
+            candidates += [dict(combined), rev]
+        # the offset selection's other passes (pass 1 when a further one won)
+        if best > 0:
+            candidates.append(dict(kept + first))
+        candidates += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        # round 6: each candidate refined by batch MAP, the lowest objective kept
+        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
+        # offline locate does not import; tests/test_startup_cache.py)
+        from radiopose.filtering.refine2d import arbitrate
+
+        out, _ = arbitrate(
+            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
+        )
+        return _as_delayed(out)
 
 
 def _outcome(est: FilterEstimate) -> Outcome:
@@ -183,7 +204,7 @@ def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed,
 def _replays(device: Device) -> bool:
     """Whether the offline passes after the first (offset selection, reversed
     pass) may run for ``device``, so that its packets are kept."""
-    return _selects_offset(device) or _reverses(device)
+    return _selects_offset(device) or _reverses(device) or _arbitrates(device)
 
 
 def _reverses(device: Device) -> bool:
@@ -194,6 +215,18 @@ def _reverses(device: Device) -> bool:
         device.offline
         and device.lag_s is not None
         and device.config.filter.offline_reverse_pass
+        and type(device.engine) is ParticleFilter
+    )
+
+
+def _arbitrates(device: Device) -> bool:
+    """Whether the offline 2-D batch MAP arbiter runs for ``device`` (round 6):
+    offline with a smoothing lag, switched on (``FilterConfig.offline_refine``),
+    a 2-D filter."""
+    return (
+        device.offline
+        and device.lag_s is not None
+        and device.config.filter.offline_refine
         and type(device.engine) is ParticleFilter
     )
 

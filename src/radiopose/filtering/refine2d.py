@@ -1,0 +1,356 @@
+"""Offline: batch MAP refinement of 2-D tracks as the arbiter between candidates.
+
+Beyond the paper (issue 15, wrong locks; docs/filter.md, "Accuracy round 6").
+Round 5's combination of the forward and the time-reversed passes scored each
+candidate track by the per-packet likelihood of its smoothed means: a track
+sitting in a self-consistent wrong (pose, offset) mode is not penalised, a
+right one with 0.4 m of smoothing error is. Here each candidate is first taken
+to its own optimum of one objective, and the lowest optimum wins:
+
+    Σ_packets Σ_heard ρ((rss − E(pose_i) − b) / σ)                  (data)
+  + Σ motion-prior residuals² + (b / s_b)²                          (priors)
+
+* ``E`` is the 2-D filter's own expected RSS (:meth:`FilterModel.expected`);
+  ``ρ`` is ``soft_l1`` with scale ``robust_scale`` (σ units); σ is the
+  forward filter's estimate, the same for every candidate.
+* Variables: x, y (m) and azimuth (rad) per packet and the one device offset
+  ``b`` (dB); height, pitch and roll stay at the candidate's values (a 2-D
+  site has one of each).
+* The motion prior is the filter's process model: a velocity change between
+  consecutive intervals of x, y over ``accel_noise_mps2·√((dt₁ + dt₂)/3)``,
+  of the (wrapped) azimuth over ``angular_accel_noise_dps2·√(…)``.
+* Solved by :func:`radiopose.filtering.refine3d._levenberg_marquardt`
+  (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations);
+  the data Jacobian by central differences (6 model evaluations), the prior's
+  constant; x, y bounded by the survey map.
+
+:func:`arbitrate` splits the packets into tracks (silences longer than
+``reacquire_gap_s``), refines every candidate covering a track, and emits the
+refined poses of the candidate with the lowest objective.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from radiopose.errors import InputError
+from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.filtering.config import FilterConfig, FilterEstimate
+from radiopose.filtering.model import FilterModel
+from radiopose.filtering.refine3d import _levenberg_marquardt
+from radiopose.filtering.reverse import pose_residuals_db, profile_offset
+from radiopose.likelihood import HeardRss
+from radiopose.units import FloatArray
+
+_POSE = 3
+_FD_STEP = 1e-3
+"""Central-difference step of the data Jacobian, metres and radians."""
+_MIN_DT_S = 1e-3
+"""Smallest interval used to scale a motion-prior residual, s."""
+
+
+@dataclass(frozen=True)
+class Refined2d:
+    """One refined candidate track (:func:`refine_track_2d`).
+
+    Attributes
+    ----------
+    position_m
+        ``(n, 3)`` positions, metres (height as given).
+    orientation_deg
+        ``(n, 3)`` azimuth in [0, 360), pitch and roll as given, degrees.
+    offset_db
+        The device offset, dB.
+    cost
+        The objective at the optimum (½ Σ ρ + ½ Σ prior²), σ² units.
+    initial_cost
+        The objective at the candidate as given (its best single offset).
+    nfev
+        Residual evaluations.
+    """
+
+    position_m: FloatArray
+    orientation_deg: FloatArray
+    offset_db: float
+    cost: float
+    initial_cost: float
+    nfev: int
+
+
+def _wrap(a: FloatArray) -> FloatArray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def refine_track_2d(
+    model: FilterModel,
+    times_s: Sequence[float] | FloatArray,
+    heard: Sequence[HeardRss],
+    position_m: FloatArray,
+    orientation_deg: FloatArray,
+    sigma_db: float,
+    config: FilterConfig,
+    *,
+    offset_db: float | None = None,
+    robust_scale: float = 2.5,
+    max_nfev: int = 30,
+) -> Refined2d:
+    """One 2-D track refined by batch MAP (module docstring).
+
+    Parameters
+    ----------
+    model
+        The 2-D filter's device model.
+    times_s
+        ``(n,)`` packet times, seconds, non-decreasing.
+    heard
+        The ``n`` packets' readings.
+    position_m, orientation_deg
+        ``(n, 3)`` the candidate track: metres; azimuth, pitch, roll degrees.
+    sigma_db
+        Reading noise σ, dB.
+    config
+        The filter's settings: motion noise densities, the offset prior's sd.
+    offset_db
+        Initial offset, dB; ``None``: the candidate's best single offset under
+        the filter's mixture (:func:`radiopose.filtering.reverse.profile_offset`).
+    robust_scale
+        ``soft_l1`` scale of the data residuals, σ units.
+    max_nfev
+        Bound on the solver's residual evaluations.
+
+    Raises
+    ------
+    InputError
+        An empty track, arrays of different lengths, non-finite values, times
+        going backwards, σ not positive.
+    """
+    t = np.asarray(times_s, dtype=float).reshape(-1)
+    n = t.size
+    pos = np.asarray(position_m, dtype=float)
+    ori = np.asarray(orientation_deg, dtype=float)
+    if n == 0:
+        raise InputError("refine_track_2d: the track is empty (no packet to refine)")
+    if pos.shape != (n, 3) or ori.shape != (n, 3) or len(heard) != n:
+        raise InputError(
+            f"refine_track_2d: {n} times, {len(heard)} packets, positions {pos.shape} and "
+            f"orientations {ori.shape} (each must have one row per packet)"
+        )
+    if not (np.isfinite(t).all() and np.isfinite(pos).all() and np.isfinite(ori).all()):
+        raise InputError("refine_track_2d: non-finite time or pose")
+    if n > 1 and np.any(np.diff(t) < 0):
+        raise InputError("refine_track_2d: packet times go backwards")
+    if not (math.isfinite(sigma_db) and sigma_db > 0 and robust_scale > 0 and max_nfev >= 1):
+        raise InputError(
+            f"refine_track_2d: σ {sigma_db!r} dB and robust_scale must be positive, max_nfev >= 1"
+        )
+    pkt = np.concatenate([np.full(h.n_heard, i, dtype=np.int64) for i, h in enumerate(heard)])
+    rx = np.concatenate([np.asarray(h.receiver_index, dtype=np.int64) for h in heard])
+    rss = np.concatenate([np.asarray(h.rss_dbm, dtype=float) for h in heard])
+    if rx.size == 0:
+        raise InputError("refine_track_2d: no packet was heard by any receiver")
+    if offset_db is None:
+        res, _ = pose_residuals_db(model, list(heard), pos, ori)
+        offset_db = profile_offset(
+            res, sigma_db, config.outlier_probability, config.outlier_range_db
+        )
+    all_rx = np.unique(rx)
+    col = np.zeros(int(all_rx.max()) + 1, dtype=np.int64)
+    col[all_rx] = np.arange(all_rx.size)
+    rcol = col[rx]
+    m = rx.size
+    n_vars = _POSE * n + 1
+    S = np.zeros((n, K.N_COLUMNS))
+    S[:, K.Z_M] = pos[:, 2]
+    S[:, K.PITCH_RAD] = np.deg2rad(ori[:, 1])
+    S[:, K.ROLL_RAD] = np.deg2rad(ori[:, 2])
+
+    def expected(X: FloatArray) -> FloatArray:
+        S[:, K.X_M] = X[:, 0]
+        S[:, K.Y_M] = X[:, 1]
+        S[:, K.AZIMUTH_RAD] = X[:, 2] % (2 * np.pi)
+        return model.expected(S, all_rx)[pkt, rcol]
+
+    # the motion prior's rows: ((x_{i+1} − x_i)/d2 − (x_i − x_{i−1})/d1) · w
+    dt = np.maximum(np.diff(t), _MIN_DT_S)
+    blocks = ((0, config.accel_noise_mps2), (1, config.accel_noise_mps2),
+              (2, math.radians(config.angular_accel_noise_dps2)))  # fmt: skip
+    if n >= 3:
+        d1, d2 = dt[:-1], dt[1:]
+        i = np.arange(1, n - 1)
+        k = i.size
+        rows, cols, vals, ws = [], [], [], []
+        for b_i, (comp, q) in enumerate(blocks):
+            w = 1.0 / (q * np.sqrt((d1 + d2) / 3.0))
+            rr = b_i * k + np.arange(k)
+            rows += [rr, rr, rr]
+            cols += [_POSE * (i + 1) + comp, _POSE * i + comp, _POSE * (i - 1) + comp]
+            vals += [w / d2, -w / d2 - w / d1, w / d1]
+            ws.append(w)
+        A = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(3 * k, n_vars),
+        )
+        w_az = ws[2]
+    else:
+        k = 0
+        A = sp.csr_matrix((0, n_vars))
+        w_az = np.zeros(0)
+
+    def prior(x: FloatArray) -> FloatArray:
+        out = np.asarray(A @ x)
+        if k:
+            # azimuth first differences wrapped (the solver may cross ±π)
+            d = _wrap(np.diff(x[2 : _POSE * n : _POSE]))
+            out[2 * k :] = (d[1:] / dt[1:] - d[:-1] / dt[:-1]) * w_az
+        return out
+
+    sd_b = config.offset_prior_sd_db
+    sig = float(sigma_db)
+    c2 = float(robust_scale) ** 2
+
+    def fun(x: FloatArray) -> FloatArray:
+        X = x[: _POSE * n].reshape(n, _POSE)
+        b = float(x[-1])
+        data = (rss - expected(X) - b) / sig
+        return np.concatenate([data, prior(x), [b / sd_b]])
+
+    data_rows = np.repeat(np.arange(m), _POSE)
+    data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
+    last = sp.csr_matrix(([1.0 / sd_b], ([0], [n_vars - 1])), shape=(1, n_vars))
+    bcol = sp.csr_matrix(
+        (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
+    )
+
+    def jac(x: FloatArray) -> sp.csr_matrix:
+        X = x[: _POSE * n].reshape(n, _POSE)
+        d = np.empty((m, _POSE))
+        for c in range(_POSE):
+            Xp, Xm = X.copy(), X.copy()
+            Xp[:, c] += _FD_STEP
+            Xm[:, c] -= _FD_STEP
+            d[:, c] = -(expected(Xp) - expected(Xm)) / (2 * _FD_STEP * sig)
+        data = sp.csr_matrix((d.ravel(), (data_rows, data_cols)), shape=(m, n_vars))
+        return sp.vstack([data + bcol, A, last], format="csr")
+
+    def loss(z: FloatArray) -> FloatArray:
+        out = np.empty((3, z.size))
+        out[0], out[1], out[2] = z, 1.0, 0.0
+        s = np.sqrt(1.0 + z[:m] / c2)
+        out[0, :m] = 2.0 * c2 * (s - 1.0)
+        out[1, :m] = 1.0 / s
+        out[2, :m] = -0.5 / (c2 * s**3)
+        return out
+
+    box = np.asarray(model.box_m, dtype=float)
+    lo = np.tile([box[0], box[2], -np.inf], n)
+    hi = np.tile([box[1], box[3], np.inf], n)
+    X0 = np.column_stack([pos[:, 0], pos[:, 1], np.unwrap(np.deg2rad(ori[:, 0]))])
+    x0 = np.concatenate([X0.ravel(), [float(offset_db)]])
+    x0 = np.clip(x0, np.append(lo, -np.inf) + 1e-9, np.append(hi, np.inf) - 1e-9)
+    f0 = fun(x0)
+    initial_cost = 0.5 * float(loss(f0 * f0)[0].sum())
+    x_opt, cost, nfev = _levenberg_marquardt(
+        fun, jac, loss, x0, np.append(lo, -np.inf), np.append(hi, np.inf), max_nfev
+    )
+    X = x_opt[: _POSE * n].reshape(n, _POSE)
+    out_pos = pos.copy()
+    out_pos[:, :2] = X[:, :2]
+    out_ori = ori.copy()
+    out_ori[:, 0] = np.rad2deg(X[:, 2]) % 360.0
+    return Refined2d(out_pos, out_ori, float(x_opt[-1]), cost, initial_cost, nfev)
+
+
+@dataclass(frozen=True)
+class Arbitration:
+    """What :func:`arbitrate` chose for one track.
+
+    Attributes
+    ----------
+    start, stop
+        Packet indices ``[start, stop)`` of the track in the records' order.
+    costs
+        Each candidate's refined objective (``nan``: it did not cover the track).
+    initial_costs
+        Each candidate's objective before the refinement.
+    chosen
+        Index of the candidate kept.
+    """
+
+    start: int
+    stop: int
+    costs: tuple[float, ...]
+    initial_costs: tuple[float, ...]
+    chosen: int
+
+
+def arbitrate(
+    model: FilterModel,
+    records: Sequence[tuple[float, HeardRss, object]],
+    candidates: Sequence[dict[object, FilterEstimate]],
+    sigma_db: float,
+    config: FilterConfig,
+    max_nfev: int,
+    refine_output: bool = True,
+) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
+    """Every packet's estimate from the candidate track of the lowest refined
+    objective, per track (module docstring).
+
+    ``records`` are the packets ``(t_s, heard, key)`` in time order;
+    ``candidates[0]`` is the reference (a packet it has no estimate for is left
+    out). A candidate that lacks an estimate of some packet of a track does not
+    compete there. ``refine_output``: emit the refined poses (else the chosen
+    candidate's own). Spread and σ of the reference are kept.
+    """
+    if not candidates:
+        raise InputError("arbitrate: no candidate track")
+    ref = candidates[0]
+    rows = [r for r in records if r[2] in ref and r[1].n_heard > 0]
+    out = dict(ref)
+    log: list[Arbitration] = []
+    sig = config.sigma_prior_db
+    if math.isfinite(sigma_db):
+        sig = max(float(sigma_db), config.sigma_floor_db)
+    start = 0
+    for j in range(1, len(rows) + 1):
+        if j < len(rows) and rows[j][0] - rows[j - 1][0] <= config.reacquire_gap_s:
+            continue
+        track = rows[start:j]
+        t = np.array([r[0] for r in track])
+        h = [r[1] for r in track]
+        results: list[Refined2d | None] = []
+        for cand in candidates:
+            if not all(r[2] in cand for r in track):
+                results.append(None)
+                continue
+            ests = [cand[r[2]] for r in track]
+            pos = np.array([e.position_m for e in ests], dtype=float)
+            ori = np.array([e.orientation_deg for e in ests], dtype=float)
+            results.append(refine_track_2d(model, t, h, pos, ori, sig, config, max_nfev=max_nfev))
+        costs = tuple(r.cost if r is not None else math.nan for r in results)
+        best = min((i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i])
+        chosen = results[best]
+        assert chosen is not None
+        for i, r in enumerate(track):
+            if refine_output:
+                p, o = chosen.position_m[i], chosen.orientation_deg[i]
+                est = replace(
+                    ref[r[2]],
+                    position_m=(float(p[0]), float(p[1]), float(p[2])),
+                    orientation_deg=(float(o[0]), float(o[1]), float(o[2])),
+                    offset_db=chosen.offset_db,
+                )
+            else:
+                est = candidates[best][r[2]]
+            out[r[2]] = est
+        inits = tuple(r.initial_cost if r is not None else math.nan for r in results)
+        log.append(Arbitration(start, j, costs, inits, best))
+        start = j
+    return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
+
+
+__all__ = ["Arbitration", "Refined2d", "arbitrate", "refine_track_2d"]
