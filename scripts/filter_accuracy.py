@@ -18,7 +18,9 @@ Rows per σ:
   likelihood, ``FilterConfig.offline_offset_selection``, docs/filter.md
   "Accuracy round 4");
 * ``filter, +6 dB, one pass`` — the same offline without that selection (the
-  filter's single pass, the design before round 4);
+  filter's single pass, the design before round 4; no reversed pass, no arbiter);
+* ``filter, forward only`` / ``filter, +6 dB, forward only`` — offline without
+  the reversed pass and the MAP arbiter (the default before 2026-11-27);
 * ``filter, reversed`` / ``filter, +6 dB, reversed`` — offline with the
   time-reversed second pass (``FilterConfig.offline_reverse_pass``,
   docs/filter.md "Accuracy round 5");
@@ -26,7 +28,8 @@ Rows per σ:
   track refined by batch MAP (``FilterConfig.offline_refine``);
   ``filter, reversed, refined`` / ``filter, +6 dB, reversed, refined`` — the
   reversed pass with that refinement as the arbiter between the forward, the
-  reversed and the combined tracks (docs/filter.md "Accuracy round 6");
+  reversed and the combined tracks (docs/filter.md "Accuracy round 6"): the
+  same settings as ``filter`` / ``filter, +6 dB`` since they became the default;
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -68,17 +71,24 @@ from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
 
-OFFLINE = TrackerConfig()
-ONE_PASS = TrackerConfig(filter=FilterConfig(offline_offset_selection=False))
+OFFLINE = TrackerConfig()  # since round 6: the reversed pass and the MAP arbiter on
+FORWARD = TrackerConfig(filter=FilterConfig(offline_reverse_pass=False, offline_refine=False))
+ONE_PASS = TrackerConfig(
+    filter=FilterConfig(
+        offline_offset_selection=False, offline_reverse_pass=False, offline_refine=False
+    )
+)
 CAUSAL = TrackerConfig(smoothing_lag_s=None)
-REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True))
-REFINED = TrackerConfig(filter=FilterConfig(offline_refine=True))
+REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=False))
+REFINED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=False, offline_refine=True))
 ARBITER = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=True))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
+    "filter, forward only": (FORWARD, "", "filter"),
     "filter, reversed": (REVERSED, "", "filter"),
     "filter, causal": (CAUSAL, "", "filter"),
     "filter, +6 dB": (OFFLINE, "loud", "filter"),
+    "filter, +6 dB, forward only": (FORWARD, "loud", "filter"),
     "filter, +6 dB, one pass": (ONE_PASS, "loud", "filter"),
     "filter, +6 dB, reversed": (REVERSED, "loud", "filter"),
     "filter, +6 dB, causal": (CAUSAL, "loud", "filter"),

@@ -81,7 +81,9 @@ def diagnose(
 ) -> list[str]:  # fmt: skip
     """One table row per seed (see the module docstring)."""
     base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    # the forward pass alone (the offline default before round 6)
     cfg = TrackerConfig()
+    cfg = replace(cfg, filter=replace(cfg.filter, offline_reverse_pass=False, offline_refine=False))
     variants = {"filter": cfg}
     if reverse:
         variants["+ reversed pass"] = replace(

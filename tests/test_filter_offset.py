@@ -78,7 +78,10 @@ def _loud(sim, offset_db: float = 6.0):
 
 
 def _run(sim, scorer, **filter_settings: object):
-    cfg = TrackerConfig(filter=FilterConfig(**filter_settings))  # type: ignore[arg-type]
+    # round 4's selection on its own: without round 6's reversed pass and arbiter,
+    # which leave this run's wrong lock even without the selection
+    settings = {"offline_reverse_pass": False, "offline_refine": False, **filter_settings}
+    cfg = TrackerConfig(filter=FilterConfig(**settings))  # type: ignore[arg-type]
     return run_methods(sim, ("filter",), cfg, scorer)["filter"]
 
 

@@ -124,7 +124,7 @@ def test_refinement_inputs_and_settings_are_checked(small) -> None:
         FilterConfig(refine_max_nfev=0)
     with pytest.raises(InputError, match="refine_max_nfev"):
         FilterConfig(refine_max_nfev=True)  # type: ignore[arg-type]
-    assert FilterConfig().offline_refine is False  # an option, off by default
+    assert FilterConfig().offline_refine is True  # on by default since round 6
 
 
 # ------------------------------------------- end to end: tuning seeds 7030, 7055, 7011
@@ -138,7 +138,7 @@ def _runs(seed: int, sigma_db: float, loud: bool) -> dict:
     base = TrackerConfig()
     out = {}
     for name, over in (
-        ("forward", {}),
+        ("forward", {"offline_reverse_pass": False, "offline_refine": False}),
         ("arbiter", {"offline_reverse_pass": True, "offline_refine": True}),
     ):
         cfg = replace(base, filter=replace(base.filter, **over))

@@ -124,7 +124,7 @@ def test_combination_without_disagreement_is_the_forward_track(small) -> None:
 def test_reverse_settings_are_checked() -> None:
     with pytest.raises(InputError, match="reverse_disagree_m"):
         FilterConfig(reverse_disagree_m=0.0)
-    assert FilterConfig().offline_reverse_pass is False  # an option, off by default
+    assert FilterConfig().offline_reverse_pass is True  # on by default since round 6
 
 
 # ------------------------------------------------- end to end: tuning seed 7030, σ = 3 dB
@@ -135,7 +135,9 @@ def lock_runs():
     base = TrackerConfig()
     out = {}
     for on in (False, True):
-        cfg = replace(base, filter=replace(base.filter, offline_reverse_pass=on))
+        cfg = replace(
+            base, filter=replace(base.filter, offline_reverse_pass=on, offline_refine=False)
+        )
         out[on] = run_methods(sim, ("filter",), cfg, scorer)["filter"]
     return out
 

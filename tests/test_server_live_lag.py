@@ -23,6 +23,7 @@ import pytest
 from sqlalchemy import text
 
 from radiopose.estimates import read_estimates_csv, write_estimates_csv
+from radiopose.filtering import FilterConfig
 from radiopose.packets import group_packets, read_packets_csv
 from radiopose.server.app import import_site_dir
 from radiopose.server.auth import create_token
@@ -44,6 +45,12 @@ from server_support import (  # fixtures and helpers
 )
 
 LAG_S = 0.25
+REPLAY_CONFIG = TrackerConfig(
+    smoothing_lag_s=LAG_S,
+    filter=FilterConfig(offline_reverse_pass=False, offline_refine=False),
+)
+"""``locate`` as the live server runs the filter: the same lag, without the offline
+passes after the forward one (docs/filter.md, "Live lag": a replay)."""
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +86,7 @@ def test_streaming_lag_emits_each_estimate_once_the_lag_has_passed(sim):
         else:  # released by the first packet at least the lag later, not before
             assert t_rel == due.min()
             assert LAG_S - 1e-9 <= t_rel - t <= LAG_S + 0.006
-    batch = locate(sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=LAG_S))
+    batch = locate(sim.site, sim.packets, "filter", REPLAY_CONFIG)
     streamed = [released[pid][1] for pid in batch.estimates.packet_id]
     assert len(streamed) == len(obs)
     np.testing.assert_array_equal([e.position_m for e in streamed], batch.estimates.position_m)
@@ -177,7 +184,7 @@ def test_live_filter_answers_every_packet_with_its_uncertainty(tiny, db_url, tmp
         load_site(site_dir),
         read_packets_csv(packets_csv),
         "filter",
-        TrackerConfig(smoothing_lag_s=LAG_S),
+        REPLAY_CONFIG,
     )
     write_estimates_csv(again.estimates, tmp_path / "relocated.csv")
     assert (tmp_path / "relocated.csv").read_bytes() == estimates_csv.read_bytes()

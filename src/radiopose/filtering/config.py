@@ -136,7 +136,8 @@ class FilterConfig:
         ``reverse_disagree_m`` or ``reverse_disagree_deg``), keep per segment
         the track whose poses make the segment's packets more likely
         (:mod:`radiopose.filtering.reverse`; docs/filter.md, "Accuracy round
-        5"). Costs one more pass.
+        5"). Costs one more pass. On by default (2026-11-27, with
+        ``offline_refine``); ``false`` gives the forward pass alone.
     reverse_disagree_m, reverse_disagree_deg
         Where the forward and reversed tracks count as disagreeing, metres and
         degrees of azimuth.
@@ -147,7 +148,8 @@ class FilterConfig:
         (data, the motion prior, one device offset) and emit the refined
         candidate of the lowest objective
         (:mod:`radiopose.filtering.refine2d`; docs/filter.md, "Accuracy round
-        6").
+        6"). On by default (2026-11-27); without ``offline_reverse_pass`` the
+        candidates are the forward track and the offset selection's passes.
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
     """
@@ -197,12 +199,14 @@ class FilterConfig:
     smoother_azimuth_bandwidth_deg: float = 8.0
     smoother_reach: float = 3.0
     smoother_ghost_s: float = 0.5
-    # issue 15 (wrong locks, round 5): the offline time-reversed pass
-    offline_reverse_pass: bool = False
+    # issue 15 (wrong locks, round 5): the offline time-reversed pass (on by
+    # default since round 6, as a candidate of the arbiter)
+    offline_reverse_pass: bool = True
     reverse_disagree_m: float = 1.0
     reverse_disagree_deg: float = 30.0
-    # issue 15 (wrong locks, round 6): the offline 2-D batch MAP arbiter
-    offline_refine: bool = False
+    # issue 15 (wrong locks, round 6): the offline 2-D batch MAP arbiter (on by
+    # default: docs/filter.md, "Round 6 as the default")
+    offline_refine: bool = True
     refine_max_nfev: int = 30
 
     def __post_init__(self) -> None:

@@ -55,7 +55,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 from scipy.ndimage import uniform_filter1d
-from scipy.optimize import least_squares
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
@@ -471,6 +470,10 @@ def refine_track(
     if solver == "trf":
         lb_free = np.where(np.concatenate([free, [True]]), lb, -np.inf)
         ub_free = np.where(np.concatenate([free, [True]]), ub, np.inf)
+        # imported here: scipy.optimize pulls in scipy.spatial, which a plain
+        # offline 2-D locate (the MAP arbiter uses the LM solver only) never needs
+        from scipy.optimize import least_squares
+
         res = least_squares(
             fun, x0, jac=jac, bounds=(lb_free, ub_free), method="trf", loss=loss,
             tr_solver="lsmr", x_scale="jac", max_nfev=max_nfev, xtol=1e-6, ftol=1e-6,
