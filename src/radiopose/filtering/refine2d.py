@@ -42,7 +42,7 @@ from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.config import FilterConfig, FilterEstimate
 from radiopose.filtering.model import FilterModel
-from radiopose.filtering.refine3d import _levenberg_marquardt
+from radiopose.filtering.refine3d import _levenberg_marquardt, checked_track
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
@@ -129,21 +129,8 @@ def refine_track_2d(
         An empty track, arrays of different lengths, non-finite values, times
         going backwards, σ not positive.
     """
-    t = np.asarray(times_s, dtype=float).reshape(-1)
+    t, pos, ori = checked_track("refine_track_2d", times_s, position_m, orientation_deg, heard)
     n = t.size
-    pos = np.asarray(position_m, dtype=float)
-    ori = np.asarray(orientation_deg, dtype=float)
-    if n == 0:
-        raise InputError("refine_track_2d: the track is empty (no packet to refine)")
-    if pos.shape != (n, 3) or ori.shape != (n, 3) or len(heard) != n:
-        raise InputError(
-            f"refine_track_2d: {n} times, {len(heard)} packets, positions {pos.shape} and "
-            f"orientations {ori.shape} (each must have one row per packet)"
-        )
-    if not (np.isfinite(t).all() and np.isfinite(pos).all() and np.isfinite(ori).all()):
-        raise InputError("refine_track_2d: non-finite time or pose")
-    if n > 1 and np.any(np.diff(t) < 0):
-        raise InputError("refine_track_2d: packet times go backwards")
     if not (math.isfinite(sigma_db) and sigma_db > 0 and robust_scale > 0 and max_nfev >= 1):
         raise InputError(
             f"refine_track_2d: σ {sigma_db!r} dB and robust_scale must be positive, max_nfev >= 1"

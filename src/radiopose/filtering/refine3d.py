@@ -284,6 +284,34 @@ class _Prior:
         return out
 
 
+def checked_track(
+    where: str,
+    times_s: Sequence[float] | FloatArray,
+    position_m: FloatArray,
+    orientation_deg: FloatArray,
+    heard: Sequence[HeardRss],
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """A track to refine as float arrays ``(times s (n,), positions m (n, 3),
+    orientations ° (n, 3))``, checked: one row per packet, finite, times not
+    going backwards; otherwise a one-line :class:`InputError` naming ``where``."""
+    t = np.asarray(times_s, dtype=float).reshape(-1)
+    n = t.size
+    if n == 0:
+        raise InputError(f"{where}: the track is empty (no packet to refine)")
+    pos = np.asarray(position_m, dtype=float)
+    ori = np.asarray(orientation_deg, dtype=float)
+    if pos.shape != (n, 3) or ori.shape != (n, 3) or len(heard) != n:
+        raise InputError(
+            f"{where}: {n} times, {len(heard)} packets, positions {pos.shape} and "
+            f"orientations {ori.shape} (each must have one row per packet)"
+        )
+    if not (np.isfinite(t).all() and np.isfinite(pos).all() and np.isfinite(ori).all()):
+        raise InputError(f"{where}: non-finite time or initial pose")
+    if n > 1 and np.any(np.diff(t) < 0):
+        raise InputError(f"{where}: packet times go backwards")
+    return t, pos, ori
+
+
 def refine_track(
     model: FilterModel3d,
     times_s: Sequence[float] | FloatArray,
@@ -344,21 +372,8 @@ def refine_track(
         An empty track, arrays of different lengths, non-finite initial poses,
         offset or σ, or times going backwards.
     """
-    t = np.asarray(times_s, dtype=float).reshape(-1)
+    t, pos, ori = checked_track("refine_track", times_s, position_m, orientation_deg, heard)
     n = t.size
-    if n == 0:
-        raise InputError("refine_track: the track is empty (no packet to refine)")
-    pos = np.asarray(position_m, dtype=float)
-    ori = np.asarray(orientation_deg, dtype=float)
-    if pos.shape != (n, 3) or ori.shape != (n, 3) or len(heard) != n:
-        raise InputError(
-            f"refine_track: {n} times, {len(heard)} packets, positions {pos.shape} and "
-            f"orientations {ori.shape} (each must have one row per packet)"
-        )
-    if not (np.isfinite(t).all() and np.isfinite(pos).all() and np.isfinite(ori).all()):
-        raise InputError("refine_track: non-finite time or initial pose")
-    if n > 1 and np.any(np.diff(t) < 0):
-        raise InputError("refine_track: packet times go backwards")
     if not (math.isfinite(offset_db) and math.isfinite(sigma_db) and sigma_db > 0):
         raise InputError(
             f"refine_track: offset {offset_db!r} dB must be finite and σ {sigma_db!r} dB positive"
