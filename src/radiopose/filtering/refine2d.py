@@ -42,16 +42,19 @@ from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.config import FilterConfig, FilterEstimate
 from radiopose.filtering.model import FilterModel
-from radiopose.filtering.refine3d import _levenberg_marquardt, checked_track
+from radiopose.filtering.refine3d import (
+    _FD_STEP,
+    _MIN_DT_S,
+    _levenberg_marquardt,
+    _wrap,
+    checked_track,
+    soft_l1_head,
+)
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
 _POSE = 3
-_FD_STEP = 1e-3
-"""Central-difference step of the data Jacobian, metres and radians."""
-_MIN_DT_S = 1e-3
-"""Smallest interval used to scale a motion-prior residual, s."""
 
 
 @dataclass(frozen=True)
@@ -80,10 +83,6 @@ class Refined2d:
     cost: float
     initial_cost: float
     nfev: int
-
-
-def _wrap(a: FloatArray) -> FloatArray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
 
 
 def refine_track_2d(
@@ -224,14 +223,7 @@ def refine_track_2d(
         data = sp.csr_matrix((d.ravel(), (data_rows, data_cols)), shape=(m, n_vars))
         return sp.vstack([data + bcol, A, last], format="csr")
 
-    def loss(z: FloatArray) -> FloatArray:
-        out = np.empty((3, z.size))
-        out[0], out[1], out[2] = z, 1.0, 0.0
-        s = np.sqrt(1.0 + z[:m] / c2)
-        out[0, :m] = 2.0 * c2 * (s - 1.0)
-        out[1, :m] = 1.0 / s
-        out[2, :m] = -0.5 / (c2 * s**3)
-        return out
+    loss = soft_l1_head(m, c2)
 
     box = np.asarray(model.box_m, dtype=float)
     lo = np.tile([box[0], box[2], -np.inf], n)

@@ -284,6 +284,25 @@ class _Prior:
         return out
 
 
+def soft_l1_head(m: int, c2: float) -> Callable[[FloatArray], FloatArray]:
+    """The refinements' robust loss in :func:`scipy.optimize.least_squares`'s
+    form (``ρ, ρ′, ρ″`` of the squared residuals ``z``, shape ``(3, z.size)``):
+    soft-L1 at scale² ``c2`` (σ² units) on the first ``m`` (the data), plain
+    squares on the rest (the priors)."""
+
+    def loss(z: FloatArray) -> FloatArray:
+        out = np.empty((3, z.size))
+        out[0], out[1], out[2] = z, 1.0, 0.0
+        zd = z[:m] / c2
+        s = np.sqrt(1.0 + zd)
+        out[0, :m] = 2.0 * c2 * (s - 1.0)
+        out[1, :m] = 1.0 / s
+        out[2, :m] = -0.5 / (c2 * s**3)
+        return out
+
+    return loss
+
+
 def checked_track(
     where: str,
     times_s: Sequence[float] | FloatArray,
@@ -470,15 +489,7 @@ def refine_track(
         )
         return sp.vstack([data + bcol, prior_block, last], format="csr")
 
-    def loss(z: FloatArray) -> FloatArray:
-        out = np.empty((3, z.size))
-        out[0], out[1], out[2] = z, 1.0, 0.0
-        zd = z[:m] / c2
-        s = np.sqrt(1.0 + zd)
-        out[0, :m] = 2.0 * c2 * (s - 1.0)
-        out[1, :m] = 1.0 / s
-        out[2, :m] = -0.5 / (c2 * s**3)
-        return out
+    loss = soft_l1_head(m, c2)
 
     f0 = fun(x0)
     initial_cost = 0.5 * float(loss(f0**2)[0].sum())

@@ -207,41 +207,30 @@ def _replays(device: Device) -> bool:
     return _selects_offset(device) or _reverses(device) or _arbitrates(device)
 
 
+def _offline_2d(device: Device) -> bool:
+    """Whether ``device`` is tracked offline (batch ``locate``) with a smoothing
+    lag by the 2-D filter: where the passes after the first may run."""
+    return device.offline and device.lag_s is not None and type(device.engine) is ParticleFilter
+
+
 def _reverses(device: Device) -> bool:
-    """Whether the offline reversed pass runs for ``device`` (round 5): offline
-    with a smoothing lag, switched on (``FilterConfig.offline_reverse_pass``),
-    a 2-D filter."""
-    return (
-        device.offline
-        and device.lag_s is not None
-        and device.config.filter.offline_reverse_pass
-        and type(device.engine) is ParticleFilter
-    )
+    """Whether the offline reversed pass runs for ``device`` (round 5):
+    :func:`_offline_2d`, switched on (``FilterConfig.offline_reverse_pass``)."""
+    return _offline_2d(device) and device.config.filter.offline_reverse_pass
 
 
 def _arbitrates(device: Device) -> bool:
     """Whether the offline 2-D batch MAP arbiter runs for ``device`` (round 6):
-    offline with a smoothing lag, switched on (``FilterConfig.offline_refine``),
-    a 2-D filter."""
-    return (
-        device.offline
-        and device.lag_s is not None
-        and device.config.filter.offline_refine
-        and type(device.engine) is ParticleFilter
-    )
+    :func:`_offline_2d`, switched on (``FilterConfig.offline_refine``)."""
+    return _offline_2d(device) and device.config.filter.offline_refine
 
 
 def _selects_offset(device: Device) -> bool:
     """Whether the offline offset selection runs for ``device``: offline (batch
     ``locate``) with a smoothing lag, switched on
     (``FilterConfig.offline_offset_selection``), a 2-D filter (the 3-D filter
-    has its own offset handling)."""
-    return (
-        device.offline
-        and device.lag_s is not None
-        and device.config.filter.offline_offset_selection
-        and type(device.engine) is ParticleFilter
-    )
+    has its own offset handling): :func:`_offline_2d`."""
+    return _offline_2d(device) and device.config.filter.offline_offset_selection
 
 
 def _refines(device: Device) -> bool:
