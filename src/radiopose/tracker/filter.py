@@ -26,14 +26,16 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import cast
 
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
+from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers
 from radiopose.filtering.offset import OffsetPass, select_offset
-from radiopose.filtering.reverse import reverse_pass
+from radiopose.filtering.reverse import ReversedRun, reverse_pass, run_reversed
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
@@ -108,6 +110,9 @@ class FilterMethod:
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.refine_smoothed.extend(smoothed)
         if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
+            ahead = device.shared.get(_ahead_key(device))
+            if isinstance(ahead, _LookAhead) and ahead.job is None:
+                ahead.start(pf, filter_seed(device.config.seed, device.key))
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
@@ -121,7 +126,47 @@ class FilterMethod:
             return Step(state, Outcome(reason=PENDING), earlier)
         return Step(state, _outcome(est), earlier)
 
+    def look_ahead(
+        self,
+        device: Device,
+        state: FilterState,
+        packets: Sequence[tuple[float, HeardRss, str]],
+    ) -> None:
+        """Offline (batch ``locate``): every packet ``(t_s, heard, packet_id)`` of
+        the device before its first step. With the reversed pass on and
+        ``FilterConfig.offline_workers`` ≥ 2 (and a second core), the reversed
+        pass over these packets starts in a forked child after the first
+        forward step (the compiled kernels loaded by then, shared with it),
+        beside the forward pass; :meth:`flush` takes its result if the packets
+        the forward pass kept are these and pass 1 stood (the reversed pass of
+        a further offset-selection pass has another prior: then it runs there,
+        as without a look-ahead). The estimates do not change."""
+        if not (_reverses(device) and effective_workers(device.config.filter.offline_workers) > 1):
+            return
+        records: list[tuple[float, HeardRss, object]] = []
+        last = state.last_time_s
+        for t_s, heard, packet_id in packets:
+            if heard.n_heard == 0 or (last is not None and t_s < last):
+                continue  # as the step skips it
+            records.append((t_s, heard, (packet_id, t_s)))
+            last = t_s
+        old = device.shared.pop(_ahead_key(device), None)
+        if isinstance(old, _LookAhead):
+            old.cancel()
+        if records:
+            device.shared[_ahead_key(device)] = _LookAhead(records)
+
     def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
+        ahead = device.shared.pop(_ahead_key(device), None)
+        try:
+            return self._flush(device, state, ahead if isinstance(ahead, _LookAhead) else None)
+        finally:
+            if isinstance(ahead, _LookAhead):
+                ahead.cancel()  # not taken (or taken: then a no-op)
+
+    def _flush(
+        self, device: Device, state: FilterState, ahead: _LookAhead | None
+    ) -> tuple[Delayed, ...]:
         pf: ParticleFilter = device.engine
         pf.flush(state)
         if _refines(device) and state.records:
@@ -136,7 +181,10 @@ class FilterMethod:
         seed = filter_seed(device.config.seed, device.key)
         tight_evidence: dict[object, float] = {}
         other_passes: list[dict[object, FilterEstimate]] = []
+        workers = effective_workers(device.config.filter.offline_workers)
         if _selects_offset(device):
+            if ahead is not None:
+                ahead.wait()  # the look-ahead's core first: the passes below use both
             chosen, passes = select_offset(
                 pf,
                 state,
@@ -146,6 +194,7 @@ class FilterMethod:
                 beliefs,
                 tight_evidence if _reverses(device) else None,
                 other_passes if _arbitrates(device) else None,
+                workers,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
@@ -159,10 +208,12 @@ class FilterMethod:
         candidates = [forward]
         if _reverses(device):
             # round 5: a pass over the reversed packets, combined per segment
+            # (run beside the forward pass by the look-ahead when pass 1 stood)
+            pre = ahead.take(records) if ahead is not None and best == 0 else None
             rev: dict[object, FilterEstimate] = {}
             combined, _ = reverse_pass(
                 pf, records, forward, passes[best].centre_db, seed, sigma_db,
-                tight_evidence if best > 0 else evidence, rev,
+                tight_evidence if best > 0 else evidence, rev, pre,
             )  # fmt: skip
             if not _arbitrates(device):
                 return _as_delayed(combined)
@@ -177,9 +228,71 @@ class FilterMethod:
         from radiopose.filtering.refine2d import arbitrate
 
         out, _ = arbitrate(
-            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
-        )
+            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev,
+            workers=workers,
+        )  # fmt: skip
         return _as_delayed(out)
+
+
+def _ahead_key(device: Device) -> str:
+    """The key of a device's :class:`_LookAhead` in ``Device.shared``."""
+    return f"filter.look_ahead.{device.key}"
+
+
+class _LookAhead:
+    """The reversed pass of one device run in a forked child beside the forward
+    pass (:meth:`FilterMethod.look_ahead`): the packets it was given, its job."""
+
+    def __init__(self, records: list[tuple[float, HeardRss, object]]) -> None:
+        self.records = records
+        self.job: ForkedCall[ReversedRun] | None = None
+        self._result: ReversedRun | None = None
+        self._done = False
+
+    def start(self, pf: ParticleFilter, seed: int) -> None:
+        """Fork the child running :func:`run_reversed` with pass 1's prior."""
+        records = self.records
+        self.job = ForkedCall(lambda: run_reversed(pf, records, math.nan, seed))
+
+    def wait(self) -> None:
+        """Wait for the child's result (kept for :meth:`take`); a failed child
+        leaves none."""
+        if self._done or self.job is None:
+            return
+        self._done = True
+        try:
+            self._result = self.job.result()
+        except ChildFailedError:
+            self._result = None
+
+    def take(self, records: list[tuple[float, HeardRss, object]]) -> ReversedRun | None:
+        """The child's result if it ran over exactly ``records`` (the packets
+        the forward pass kept), else ``None`` (then the caller runs it)."""
+        if not _same_records(self.records, records):
+            self.cancel()
+            return None
+        self.wait()
+        out, self._result = self._result, None
+        return out
+
+    def cancel(self) -> None:
+        """Kill the child if it still runs; forget its result."""
+        if self.job is not None and not self._done:
+            self.job.cancel()
+        self._done, self._result = True, None
+
+
+def _same_records(
+    a: list[tuple[float, HeardRss, object]], b: list[tuple[float, HeardRss, object]]
+) -> bool:
+    """Whether two packet lists are the same packets: keys, times and readings."""
+    return len(a) == len(b) and all(
+        ka == kb
+        and ta == tb
+        and np.array_equal(ha.receiver_index, hb.receiver_index)
+        and np.array_equal(ha.rss_dbm, hb.rss_dbm)
+        for (ta, ha, ka), (tb, hb, kb) in zip(a, b, strict=True)
+    )
 
 
 def _outcome(est: FilterEstimate) -> Outcome:
