@@ -116,6 +116,11 @@ class ForkedCall(Generic[R]):
         """The child's process id."""
         return self._proc.pid
 
+    def ready(self) -> bool:
+        """Whether the result has arrived (or the child ended): :meth:`result`
+        would not wait."""
+        return self._done or bool(self._recv.poll(0))
+
     def result(self) -> R:
         """The call's result, once the child sends it.
 

@@ -278,6 +278,7 @@ def arbitrate(
     max_nfev: int,
     refine_output: bool = True,
     workers: int = 1,
+    cache: dict[tuple[object, ...], Refined2d] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
     """Every packet's estimate from the candidate track of the lowest refined
     objective, per track (module docstring).
@@ -290,7 +291,11 @@ def arbitrate(
     processes the refinements may use, this one included
     (:func:`radiopose.filtering.forked.map_forked`; the result does not depend
     on it). A candidate identical to an earlier one over a track is refined
-    once there (the same input, the same optimum).
+    once there (the same input, the same optimum). ``cache``: refinements by
+    their input (track, σ, ``max_nfev``, the candidate's poses), read and
+    filled: an earlier call with the same ``records``, ``candidates[0]`` and
+    settings over some of the candidates (e.g. while another process runs the
+    pass that gives the others) spares this one their work.
     """
     if not candidates:
         raise InputError("arbitrate: no candidate track")
@@ -312,6 +317,7 @@ def arbitrate(
     # one over the track (e.g. the combined track where no segment took the
     # reversed poses) refined once: the same input gives the same optimum
     jobs: list[tuple[FloatArray, list[HeardRss], FloatArray, FloatArray]] = []
+    keys: list[tuple[object, ...]] = []
     job_of: list[list[int | None]] = []
     for a, b in spans:
         track = rows[a:b]
@@ -337,17 +343,22 @@ def arbitrate(
             )
             if same is None:
                 jobs.append((t, h, pos, ori))
+                keys.append((a, b, sig, max_nfev, pos.tobytes(), ori.tobytes()))
                 same = len(jobs) - 1
             mine.append(same)
         job_of.append(mine)
-    refined = map_forked(
+    memo = {} if cache is None else cache
+    todo = [q for q, key in enumerate(keys) if key not in memo]
+    done = map_forked(
         [
             partial(refine_track_2d, model, t, h, pos, ori, sig, config, max_nfev=max_nfev)
-            for t, h, pos, ori in jobs
+            for t, h, pos, ori in (jobs[q] for q in todo)
         ],
         workers,
-        weights=[float(job[0].size) for job in jobs],
+        weights=[float(jobs[q][0].size) for q in todo],
     )
+    memo.update({keys[q]: r for q, r in zip(todo, done, strict=True)})
+    refined = [memo[key] for key in keys]
     for (a, j), mine in zip(spans, job_of, strict=True):
         track = rows[a:j]
         results = [None if q is None else refined[q] for q in mine]

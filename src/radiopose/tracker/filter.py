@@ -28,6 +28,7 @@ import math
 import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import cast
 
 import numpy as np
@@ -183,8 +184,6 @@ class FilterMethod:
         other_passes: list[dict[object, FilterEstimate]] = []
         workers = effective_workers(device.config.filter.offline_workers)
         if _selects_offset(device):
-            if ahead is not None:
-                ahead.wait()  # the look-ahead's core first: the passes below use both
             chosen, passes = select_offset(
                 pf,
                 state,
@@ -200,16 +199,37 @@ class FilterMethod:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
         if not (_reverses(device) or _arbitrates(device)):
             return _as_delayed(chosen)
+        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
+        # offline locate does not import; tests/test_startup_cache.py)
+        from radiopose.filtering.refine2d import Refined2d, arbitrate
+
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
         forward = dict(chosen if best > 0 else kept + chosen)
         sigma_db = math.sqrt(state.sigma2_db2)
         candidates = [forward]
+        # the offset selection's other passes (pass 1 when a further one won)
+        others = [dict(kept + first)] if best > 0 else []
+        others += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        cache: dict[tuple[object, ...], Refined2d] = {}
         if _reverses(device):
             # round 5: a pass over the reversed packets, combined per segment
-            # (run beside the forward pass by the look-ahead when pass 1 stood)
-            pre = ahead.take(records) if ahead is not None and best == 0 else None
+            # (run beside the forward pass by the look-ahead when pass 1 stood,
+            # else on a child now), while the candidates that do not need it
+            # are refined here (round 6; the arbiter below reuses them)
+            if ahead is not None and best != 0:
+                ahead.cancel()  # its prior is pass 1's, not the chosen pass's
+                ahead = None
+            job: ForkedCall[ReversedRun] | None = None
+            if ahead is None and workers > 1 and _arbitrates(device):
+                job = ForkedCall(partial(run_reversed, pf, records, passes[best].centre_db, seed))
+            if _arbitrates(device) and (
+                job is not None or (ahead is not None and not ahead.ready())
+            ):
+                arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
+                          pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+            pre = ahead.take(records) if ahead is not None else _result(job)
             rev: dict[object, FilterEstimate] = {}
             combined, _ = reverse_pass(
                 pf, records, forward, passes[best].centre_db, seed, sigma_db,
@@ -218,18 +238,11 @@ class FilterMethod:
             if not _arbitrates(device):
                 return _as_delayed(combined)
             candidates += [dict(combined), rev]
-        # the offset selection's other passes (pass 1 when a further one won)
-        if best > 0:
-            candidates.append(dict(kept + first))
-        candidates += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        candidates += others
         # round 6: each candidate refined by batch MAP, the lowest objective kept
-        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
-        # offline locate does not import; tests/test_startup_cache.py)
-        from radiopose.filtering.refine2d import arbitrate
-
         out, _ = arbitrate(
             pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev,
-            workers=workers,
+            workers=workers, cache=cache,
         )  # fmt: skip
         return _as_delayed(out)
 
@@ -253,6 +266,10 @@ class _LookAhead:
         """Fork the child running :func:`run_reversed` with pass 1's prior."""
         records = self.records
         self.job = ForkedCall(lambda: run_reversed(pf, records, math.nan, seed))
+
+    def ready(self) -> bool:
+        """Whether the child's result can be taken without waiting."""
+        return self.job is None or self._done or self.job.ready()
 
     def wait(self) -> None:
         """Wait for the child's result (kept for :meth:`take`); a failed child
@@ -280,6 +297,17 @@ class _LookAhead:
         if self.job is not None and not self._done:
             self.job.cancel()
         self._done, self._result = True, None
+
+
+def _result(job: ForkedCall[ReversedRun] | None) -> ReversedRun | None:
+    """``job``'s result, ``None`` without a job or if its child failed (the
+    caller then runs the pass here)."""
+    if job is None:
+        return None
+    try:
+        return job.result()
+    except ChildFailedError:
+        return None
 
 
 def _same_records(
