@@ -248,3 +248,21 @@ def test_the_streaming_tracker_never_forks(sim, monkeypatch: pytest.MonkeyPatch)
         tr.update(o)
     tr.flush()
     assert forks.n == 0
+
+
+@needs_fork
+def test_a_running_child_takes_the_spare_core(monkeypatch: pytest.MonkeyPatch) -> None:
+    import math
+
+    import radiopose.likelihood.compiled as compiled
+
+    monkeypatch.setenv("NUMBA_NUM_THREADS", "2")
+    monkeypatch.setattr(compiled, "_SPARE", [math.inf, True])  # "the machine is idle"
+    assert compiled.spare_core()
+    job = forked.ForkedCall(compiled.spare_core)
+    assert not compiled.spare_core()  # the parent's compiled work stays on one thread
+    assert job.result() is False  # and so does the child's
+    assert compiled.spare_core()
+    job = forked.ForkedCall(lambda: 1)
+    job.cancel()
+    assert compiled.spare_core()

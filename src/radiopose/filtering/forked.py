@@ -78,6 +78,12 @@ def check_workers(setting: object, name: str = "filter setting offline_workers")
     return setting
 
 
+def _claim(n: int) -> None:
+    from radiopose.likelihood.compiled import claim_core
+
+    claim_core(n)
+
+
 class ChildFailedError(RuntimeError):
     """A forked child gave no result (it died, or its call raised)."""
 
@@ -107,7 +113,14 @@ class ForkedCall(Generic[R]):
         ctx = multiprocessing.get_context("fork")
         self._recv, send = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(target=_child, args=(send, fn), daemon=True)
-        self._proc.start()
+        # a core taken: neither this process's compiled work nor the child's
+        # (which inherits the claim) starts a second thread meanwhile
+        _claim(1)
+        try:
+            self._proc.start()
+        except BaseException:
+            _claim(-1)
+            raise
         send.close()
         self._done = False
 
@@ -133,6 +146,7 @@ class ForkedCall(Generic[R]):
         if self._done:
             raise ChildFailedError("the result was taken already or the call was cancelled")
         self._done = True
+        _claim(-1)
         try:
             ok, value = self._recv.recv()
         except (EOFError, OSError) as exc:
@@ -150,6 +164,7 @@ class ForkedCall(Generic[R]):
         if self._done:
             return
         self._done = True
+        _claim(-1)
         self._proc.kill()
         self._proc.join()
         self._recv.close()
