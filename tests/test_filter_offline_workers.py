@@ -266,3 +266,35 @@ def test_a_running_child_takes_the_spare_core(monkeypatch: pytest.MonkeyPatch) -
     job = forked.ForkedCall(lambda: 1)
     job.cancel()
     assert compiled.spare_core()
+
+
+@needs_fork
+def test_look_ahead_children_are_bounded_and_die_with_their_owner(sim) -> None:
+    import gc
+    import time
+
+    from radiopose.tracker.filter import _ahead_key, _core_free, _LookAhead
+
+    tr = Tracker(sim.site, "filter", _config(2), lag_s=1.0, offline=True)
+    obs = group_packets(sim.packets)
+    tr.look_ahead(obs)
+    dev = next(iter(tr._devices.values()))
+    ahead = dev.shared[_ahead_key(dev)]
+    assert isinstance(ahead, _LookAhead) and ahead.job is None
+    assert _core_free(dev)
+    ahead.start(lambda: time.sleep(60))  # type: ignore[arg-type,return-value]
+    assert ahead.running()
+    assert not _core_free(dev)  # offline_workers = 2: one look-ahead child at a time
+    assert ahead.job is not None
+    pid = ahead.job.pid
+    assert pid is not None
+    del dev.shared[_ahead_key(dev)], ahead
+    gc.collect()
+    for _ in range(50):  # killed when dropped untaken
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail("the dropped look-ahead's child still runs")

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
@@ -33,8 +34,9 @@ MAX_OFFLINE_WORKERS = 64
 
 
 def fork_available() -> bool:
-    """Whether this platform can fork (Linux, macOS; never Windows)."""
-    return "fork" in multiprocessing.get_all_start_methods()
+    """Whether the offline passes may fork here: Linux only (macOS's system
+    libraries are not fork-safe; Windows cannot fork)."""
+    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
 
 
 def available_cores() -> int:

@@ -25,8 +25,9 @@ whose marginal likelihood of the whole file is largest
 from __future__ import annotations
 
 import math
+import weakref
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from typing import cast
@@ -112,8 +113,9 @@ class FilterMethod:
             state.refine_smoothed.extend(smoothed)
         if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
             ahead = device.shared.get(_ahead_key(device))
-            if isinstance(ahead, _LookAhead) and ahead.job is None:
-                ahead.start(pf, filter_seed(device.config.seed, device.key))
+            if isinstance(ahead, _LookAhead) and ahead.job is None and _core_free(device):
+                seed = filter_seed(device.config.seed, device.key)
+                ahead.start(partial(run_reversed, pf, ahead.records, math.nan, seed))
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
@@ -138,7 +140,9 @@ class FilterMethod:
         ``FilterConfig.offline_workers`` ≥ 2 (and a second core), the reversed
         pass over these packets starts in a forked child after the first
         forward step (the compiled kernels loaded by then, shared with it),
-        beside the forward pass; :meth:`flush` takes its result if the packets
+        beside the forward pass (at most ``offline_workers − 1`` such children
+        at once over the tracker's devices: a later device's starts when one
+        ends); :meth:`flush` takes its result if the packets
         the forward pass kept are these and pass 1 stood (the reversed pass of
         a further offset-selection pass has another prior: then it runs there,
         as without a look-ahead). The estimates do not change."""
@@ -262,10 +266,16 @@ class _LookAhead:
         self._result: ReversedRun | None = None
         self._done = False
 
-    def start(self, pf: ParticleFilter, seed: int) -> None:
-        """Fork the child running :func:`run_reversed` with pass 1's prior."""
-        records = self.records
-        self.job = ForkedCall(lambda: run_reversed(pf, records, math.nan, seed))
+    def start(self, call: Callable[[], ReversedRun]) -> None:
+        """Fork the child running ``call`` (:func:`run_reversed` over
+        :attr:`records` with pass 1's prior); it is killed when this object is
+        dropped untaken (e.g. when ``locate`` raises)."""
+        self.job = ForkedCall(call)
+        weakref.finalize(self, self.job.cancel)
+
+    def running(self) -> bool:
+        """Whether its child is started and still working."""
+        return self.job is not None and not self._done and not self.job.ready()
 
     def ready(self) -> bool:
         """Whether the child's result can be taken without waiting."""
@@ -297,6 +307,13 @@ class _LookAhead:
         if self.job is not None and not self._done:
             self.job.cancel()
         self._done, self._result = True, None
+
+
+def _core_free(device: Device) -> bool:
+    """Whether a look-ahead child may start now: the tracker's running ones
+    (one per device) fewer than ``offline_workers − 1``."""
+    running = sum(1 for v in device.shared.values() if isinstance(v, _LookAhead) and v.running())
+    return running < effective_workers(device.config.filter.offline_workers) - 1
 
 
 def _result(job: ForkedCall[ReversedRun] | None) -> ReversedRun | None:
