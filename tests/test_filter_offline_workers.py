@@ -298,3 +298,35 @@ def test_look_ahead_children_are_bounded_and_die_with_their_owner(sim) -> None:
         time.sleep(0.1)
     else:
         pytest.fail("the dropped look-ahead's child still runs")
+
+
+@needs_fork
+def test_a_late_look_ahead_leaves_the_forward_refinement_to_the_parent(
+    sim, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import time
+
+    import radiopose.tracker.filter as tf
+
+    serial = locate(sim.site, sim.packets, "filter", _config(1)).estimates
+    real = tf.run_reversed
+
+    def late(*a, **k):  # type: ignore[no-untyped-def]
+        time.sleep(3.0)  # the forward pass ends first
+        return real(*a, **k)
+
+    monkeypatch.setattr(tf, "run_reversed", late)
+    batches: list[list[bytes]] = []  # each map_forked call's refinements (their poses)
+    real_map = refine2d.map_forked
+
+    def seen(fns, workers, weights=None):  # type: ignore[no-untyped-def]
+        batches.append([f.args[3].tobytes() for f in fns])
+        return real_map(fns, workers, weights)
+
+    monkeypatch.setattr(refine2d, "map_forked", seen)
+    parallel = locate(sim.site, sim.packets, "filter", _config(2)).estimates
+    _assert_same(serial, parallel)
+    # the forward track refined while the child finished, then only the others
+    assert len(batches) == 2 and len(batches[0]) == 1
+    everything = [b for batch in batches for b in batch]
+    assert len(everything) == len(set(everything))  # nothing refined twice
