@@ -228,11 +228,16 @@ class FilterMethod:
             job: ForkedCall[ReversedRun] | None = None
             if ahead is None and workers > 1 and _arbitrates(device):
                 job = ForkedCall(partial(run_reversed, pf, records, passes[best].centre_db, seed))
-            if _arbitrates(device) and (
-                job is not None or (ahead is not None and not ahead.ready())
-            ):
-                arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
-                          pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+            try:
+                if _arbitrates(device) and (
+                    job is not None or (ahead is not None and not ahead.ready())
+                ):
+                    arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
+                              pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+            except BaseException:
+                if job is not None:
+                    job.cancel()
+                raise
             pre = ahead.take(records) if ahead is not None else _result(job)
             rev: dict[object, FilterEstimate] = {}
             combined, _ = reverse_pass(
