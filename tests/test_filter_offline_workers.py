@@ -280,7 +280,7 @@ def test_look_ahead_children_are_bounded_and_die_with_their_owner(sim) -> None:
     tr.look_ahead(obs)
     dev = next(iter(tr._devices.values()))
     ahead = dev.shared[_ahead_key(dev)]
-    assert isinstance(ahead, _LookAhead) and ahead.job is None
+    assert isinstance(ahead, _LookAhead) and ahead.job is None and ahead.pending()
     assert _core_free(dev)
     ahead.start(lambda: time.sleep(60))  # type: ignore[arg-type,return-value]
     assert ahead.running()
@@ -330,3 +330,18 @@ def test_a_late_look_ahead_leaves_the_forward_refinement_to_the_parent(
     assert len(batches) == 2 and len(batches[0]) == 1
     everything = [b for batch in batches for b in batch]
     assert len(everything) == len(set(everything))  # nothing refined twice
+
+
+def test_no_fork_in_a_daemonic_process(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Dask worker of ``radiopose evaluate`` is daemonic: it may not have
+    children, so every call runs in it."""
+    from types import SimpleNamespace
+
+    monkeypatch.setattr(
+        forked.multiprocessing, "current_process", lambda: SimpleNamespace(daemon=True)
+    )
+    assert not forked.fork_available()
+    assert forked.effective_workers(2) == 1
+    assert forked.try_fork(lambda: 1) is None
+    out = forked.map_forked([os.getpid, os.getpid, os.getpid], 2)
+    assert out == [os.getpid()] * 3

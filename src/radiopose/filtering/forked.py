@@ -35,8 +35,26 @@ MAX_OFFLINE_WORKERS = 64
 
 def fork_available() -> bool:
     """Whether the offline passes may fork here: Linux only (macOS's system
-    libraries are not fork-safe; Windows cannot fork)."""
-    return sys.platform.startswith("linux") and "fork" in multiprocessing.get_all_start_methods()
+    libraries are not fork-safe; Windows cannot fork), and not in a daemonic
+    process (e.g. a Dask worker of ``radiopose evaluate``, which may not have
+    children and already has its own core)."""
+    return (
+        sys.platform.startswith("linux")
+        and "fork" in multiprocessing.get_all_start_methods()
+        and not multiprocessing.current_process().daemon
+    )
+
+
+def try_fork(fn: Callable[[], R]) -> ForkedCall[R] | None:
+    """A :class:`ForkedCall` of ``fn``, or ``None`` if no child could be
+    started (no fork here, out of processes or memory): the caller then runs
+    ``fn`` itself."""
+    if not fork_available():
+        return None
+    try:
+        return ForkedCall(fn)
+    except (OSError, AssertionError, ValueError):
+        return None
 
 
 def available_cores() -> int:
@@ -189,8 +207,8 @@ def map_forked(
     The calls are split into ``workers`` bins by ``weights`` (their expected
     costs; equal by default), heaviest first into the lightest bin; each bin but
     the first runs in a forked child (:class:`ForkedCall`), the first here. A
-    bin whose child fails is run here afterwards. With ``workers`` ≤ 1, one
-    call, or no fork, every call runs here in order.
+    bin whose child fails (or cannot be started) is run here afterwards. With
+    ``workers`` ≤ 1, one call, or no fork, every call runs here in order.
     """
     n = len(fns)
     if workers <= 1 or n <= 1 or not fork_available():
@@ -203,18 +221,21 @@ def map_forked(
         bins[lightest].append(i)
         load[lightest] += w[i]
     away = [b for b in bins[1:] if b]
-    children = [ForkedCall(_bin_call(fns, b)) for b in away]
+    children = [try_fork(_bin_call(fns, b)) for b in away]
     out: list[Any] = [None] * n
     try:
         here = _run_bin(fns, bins[0])
     except BaseException:
         for child in children:
-            child.cancel()
+            if child is not None:
+                child.cancel()
         raise
     for i, r in zip(bins[0], here, strict=True):
         out[i] = r
     for b, child in zip(away, children, strict=True):
         try:
+            if child is None:
+                raise ChildFailedError("not started")
             res = child.result()
         except ChildFailedError:
             res = _run_bin(fns, b)  # the same calls here: their error, if any, is raised here
@@ -232,4 +253,5 @@ __all__ = [
     "effective_workers",
     "fork_available",
     "map_forked",
+    "try_fork",
 ]

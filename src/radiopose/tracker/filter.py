@@ -35,7 +35,7 @@ from typing import cast
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
-from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers
+from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers, try_fork
 from radiopose.filtering.offset import OffsetPass, select_offset
 from radiopose.filtering.reverse import ReversedRun, reverse_pass, run_reversed
 from radiopose.likelihood import HeardRss
@@ -113,7 +113,7 @@ class FilterMethod:
             state.refine_smoothed.extend(smoothed)
         if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
             ahead = device.shared.get(_ahead_key(device))
-            if isinstance(ahead, _LookAhead) and ahead.job is None and _core_free(device):
+            if isinstance(ahead, _LookAhead) and ahead.pending() and _core_free(device):
                 seed = filter_seed(device.config.seed, device.key)
                 ahead.start(partial(run_reversed, pf, ahead.records, math.nan, seed))
             if state.forward_kept is None:
@@ -227,7 +227,7 @@ class FilterMethod:
                 ahead = None
             job: ForkedCall[ReversedRun] | None = None
             if ahead is None and workers > 1 and _arbitrates(device):
-                job = ForkedCall(partial(run_reversed, pf, records, passes[best].centre_db, seed))
+                job = try_fork(partial(run_reversed, pf, records, passes[best].centre_db, seed))
             try:
                 if _arbitrates(device) and (
                     job is not None or (ahead is not None and not ahead.ready())
@@ -275,8 +275,15 @@ class _LookAhead:
         """Fork the child running ``call`` (:func:`run_reversed` over
         :attr:`records` with pass 1's prior); it is killed when this object is
         dropped untaken (e.g. when ``locate`` raises)."""
-        self.job = ForkedCall(call)
+        self.job = try_fork(call)
+        if self.job is None:  # no child: flush runs the pass
+            self._done = True
+            return
         weakref.finalize(self, self.job.cancel)
+
+    def pending(self) -> bool:
+        """Whether its child is still to be started."""
+        return self.job is None and not self._done
 
     def running(self) -> bool:
         """Whether its child is started and still working."""
