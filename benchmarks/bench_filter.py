@@ -16,9 +16,13 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    parsing), ``M`` = ``filter`` and ``full``, ``R`` repeats, median, after one
    untimed run of each (so numba's on-disk cache and the memo of the site's
    scipy-computed arrays, :mod:`radiopose.diskcache`, are filled: a second
-   ``locate`` on a site). Peak memory: the
-   process's ``ru_maxrss`` (read in a small launcher, since Linux carries a
-   parent's ``ru_maxrss`` into its children).
+   ``locate`` on a site); and the row ``filter, offline_workers = 1`` (the
+   offline passes all in the one process, as before the eighth pass: the
+   site's ``tracker.toml`` says so). CPU: the process's and its forked
+   children's. Peak memory: the largest ``ru_maxrss`` of the process and its
+   children (read in a small launcher, since Linux carries a parent's
+   ``ru_maxrss`` into its children); a forked child shares the parent's pages,
+   so the two together use less than the sum.
 3. **Where a fresh process spends its time**: imports of the command line,
    site load, packets CSV parsing, scorer tables, the filter's model, the
    first packet (the kernels' cache loads, the track's acquisition) and the
@@ -141,33 +145,44 @@ def _run_cli(args: list[str]) -> tuple[float, float, float]:
     return float(wall), int(kb) / 1024.0, float(cpu)
 
 
+SERIAL_FILTER = "filter, offline_workers = 1"
+"""Section 2's row of ``filter`` with every offline pass in the one process (the
+site's ``tracker.toml`` says so; docs/performance.md, "Eighth pass")."""
+
+
 def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     sim = standard_trace(n_packets)
     site_dir = tmp / "site"
     write_site(sim.site, site_dir)
+    serial_dir = tmp / "site_serial"
+    write_site(sim.site, serial_dir)
+    (serial_dir / "tracker.toml").write_text("[filter]\noffline_workers = 1\n", encoding="utf-8")
     packets = tmp / "packets.csv"
     write_packets_csv(sim.packets, packets)
     n = len(group_packets(sim.packets))
+    rows = {m: (m, site_dir) for m in METHODS} | {SERIAL_FILTER: ("filter", serial_dir)}
 
-    def args(m: str) -> list[str]:
-        return ["locate", str(site_dir), str(packets), "-o", str(tmp / f"est_{m}.csv")]
+    def args(label: str) -> list[str]:
+        m, site = rows[label]
+        out = tmp / f"est_{label.replace(' ', '_').replace(',', '')}.csv"
+        return ["locate", str(site), str(packets), "-o", str(out), "--method", m, "--quiet"]
 
-    for m in METHODS:  # fill numba's cache; not timed
-        _run_cli([*args(m), "--method", m, "--quiet"])
-    runs: dict[str, list[tuple[float, float, float]]] = {m: [] for m in METHODS}
+    for label in rows:  # fill numba's cache; not timed
+        _run_cli(args(label))
+    runs: dict[str, list[tuple[float, float, float]]] = {label: [] for label in rows}
     for _ in range(repeat):
-        for m in METHODS:
-            runs[m].append(_run_cli([*args(m), "--method", m, "--quiet"]))
+        for label in rows:
+            runs[label].append(_run_cli(args(label)))
     full_wall = float(np.median([r[0] for r in runs["full"]]))
     full_cpu = float(np.median([r[2] for r in runs["full"]]))
     out = []
-    for m in METHODS:
-        walls = [r[0] for r in runs[m]]
+    for label in rows:
+        walls = [r[0] for r in runs[label]]
         wall = float(np.median(walls))
-        cpu = float(np.median([r[2] for r in runs[m]]))
+        cpu = float(np.median([r[2] for r in runs[label]]))
         out.append(
             {
-                "method": m,
+                "method": label,
                 "packets": n,
                 "wall_s": wall,
                 "range_s": f"{min(walls):.2f}-{max(walls):.2f}",
@@ -175,7 +190,7 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
                 "ratio_vs_full": full_wall / wall,
                 "cpu_s": cpu,
                 "cpu_ratio_vs_full": full_cpu / cpu,
-                "peak_rss_mb": max(r[1] for r in runs[m]),
+                "peak_rss_mb": max(r[1] for r in runs[label]),
             }
         )
     return out

@@ -58,6 +58,7 @@ TIERS: dict[str, str] = {
     "test_evaluate_report": "e2e",
     "test_evaluate_runner": "e2e",
     "test_filter": "e2e",
+    "test_filter_offline_workers": "e2e",
     "test_filter_offset": "e2e",
     "test_filter_refine2d": "e2e",
     "test_filter_reverse": "e2e",

@@ -11,6 +11,7 @@ import math
 from dataclasses import dataclass
 
 from radiopose.errors import InputError
+from radiopose.filtering.forked import check_workers
 
 LIKELIHOODS = ("mixture", "huber")
 """The values of :attr:`FilterConfig.likelihood`."""
@@ -152,6 +153,15 @@ class FilterConfig:
         candidates are the forward track and the offset selection's passes.
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
+    offline_workers
+        Offline only (batch ``locate``, 2-D): processes the passes after the
+        forward one may use, this one included (at most the cores available):
+        with 2 the time-reversed pass runs in a forked child beside the
+        forward pass, and the offset selection's passes and the arbiter's
+        refinements are spread over both (:mod:`radiopose.filtering.forked`;
+        docs/performance.md, "Eighth pass"). The estimates are the same as
+        with 1 (every pass in this process), bit for bit. The live server and
+        the streaming ``Tracker`` never fork.
     """
 
     n_particles: int = 2000
@@ -208,6 +218,8 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
+    # issue 15 (whole-process speed): the offline passes on forked children
+    offline_workers: int = 2
 
     def __post_init__(self) -> None:
         positive = (
@@ -255,6 +267,7 @@ class FilterConfig:
                 f"filter setting refine_max_nfev = {self.refine_max_nfev!r} must be an integer "
                 "in [1, 10000]"
             )
+        check_workers(self.offline_workers)
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"

@@ -32,11 +32,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.config import FilterConfig, FilterEstimate
+from radiopose.filtering.forked import map_forked
 from radiopose.filtering.particle import FilterState, ParticleFilter
 from radiopose.likelihood import HeardRss
 
@@ -132,6 +134,7 @@ def select_offset(
     beliefs_db: np.ndarray,
     evidence_out: dict[object, float] | None = None,
     tracks_out: list[dict[object, FilterEstimate]] | None = None,
+    workers: int = 1,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[OffsetPass]]:
     """The offline selection (module docstring) after pass 1.
 
@@ -156,6 +159,10 @@ def select_offset(
     tracks_out
         If given, each further pass's estimates by key are appended, in the
         order of ``passes[1:]`` (round 6's arbiter refines them too).
+    workers
+        Processes the further passes may use, this one included
+        (:func:`radiopose.filtering.forked.map_forked`); the result does not
+        depend on it.
 
     Returns
     -------
@@ -173,9 +180,18 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
-    for c in candidates:
+
+    def tight_pass(
+        c: float,
+    ) -> tuple[list[tuple[object, FilterEstimate]], float, dict[object, float] | None]:
         per_packet: dict[object, float] | None = None if evidence_out is None else {}
         est, ll = run_pass(ParticleFilter(pf.model, tight, pf.lag_s), seed, records, c, per_packet)
+        return est, ll, per_packet
+
+    # the passes are independent (each a fresh filter from the same seed): on
+    # ``workers`` processes they give what they give one after another
+    runs = map_forked([partial(tight_pass, c) for c in candidates], workers)
+    for c, (est, ll, per_packet) in zip(candidates, runs, strict=True):
         passes.append(OffsetPass(c, ll))
         if tracks_out is not None:
             tracks_out.append(dict(est))

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 import scipy.sparse as sp
@@ -41,6 +42,7 @@ import scipy.sparse as sp
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
 from radiopose.filtering.config import FilterConfig, FilterEstimate
+from radiopose.filtering.forked import map_forked
 from radiopose.filtering.model import FilterModel
 from radiopose.filtering.refine3d import (
     _FD_STEP,
@@ -275,6 +277,8 @@ def arbitrate(
     config: FilterConfig,
     max_nfev: int,
     refine_output: bool = True,
+    workers: int = 1,
+    cache: dict[tuple[object, ...], Refined2d] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
     """Every packet's estimate from the candidate track of the lowest refined
     objective, per track (module docstring).
@@ -283,7 +287,15 @@ def arbitrate(
     ``candidates[0]`` is the reference (a packet it has no estimate for is left
     out). A candidate that lacks an estimate of some packet of a track does not
     compete there. ``refine_output``: emit the refined poses (else the chosen
-    candidate's own). Spread and σ of the reference are kept.
+    candidate's own). Spread and σ of the reference are kept. ``workers``:
+    processes the refinements may use, this one included
+    (:func:`radiopose.filtering.forked.map_forked`; the result does not depend
+    on it). A candidate identical to an earlier one over a track is refined
+    once there (the same input, the same optimum). ``cache``: refinements by
+    their input (track, σ, ``max_nfev``, the candidate's poses), read and
+    filled: an earlier call with the same ``records``, ``candidates[0]`` and
+    settings over some of the candidates (e.g. while another process runs the
+    pass that gives the others) spares this one their work.
     """
     if not candidates:
         raise InputError("arbitrate: no candidate track")
@@ -294,22 +306,62 @@ def arbitrate(
     sig = config.sigma_prior_db
     if math.isfinite(sigma_db):
         sig = max(float(sigma_db), config.sigma_floor_db)
+    spans: list[tuple[int, int]] = []
     start = 0
     for j in range(1, len(rows) + 1):
         if j < len(rows) and rows[j][0] - rows[j - 1][0] <= config.reacquire_gap_s:
             continue
-        track = rows[start:j]
+        spans.append((start, j))
+        start = j
+    # every (track, candidate) refinement, a candidate identical to an earlier
+    # one over the track (e.g. the combined track where no segment took the
+    # reversed poses) refined once: the same input gives the same optimum
+    jobs: list[tuple[FloatArray, list[HeardRss], FloatArray, FloatArray]] = []
+    keys: list[tuple[object, ...]] = []
+    job_of: list[list[int | None]] = []
+    for a, b in spans:
+        track = rows[a:b]
         t = np.array([r[0] for r in track])
         h = [r[1] for r in track]
-        results: list[Refined2d | None] = []
+        mine: list[int | None] = []
         for cand in candidates:
             if not all(r[2] in cand for r in track):
-                results.append(None)
+                mine.append(None)
                 continue
             ests = [cand[r[2]] for r in track]
             pos = np.array([e.position_m for e in ests], dtype=float)
             ori = np.array([e.orientation_deg for e in ests], dtype=float)
-            results.append(refine_track_2d(model, t, h, pos, ori, sig, config, max_nfev=max_nfev))
+            same = next(
+                (
+                    q
+                    for q in mine
+                    if q is not None
+                    and np.array_equal(jobs[q][2], pos)
+                    and np.array_equal(jobs[q][3], ori)
+                ),
+                None,
+            )
+            if same is None:
+                jobs.append((t, h, pos, ori))
+                keys.append((a, b, sig, max_nfev, pos.tobytes(), ori.tobytes()))
+                same = len(jobs) - 1
+            mine.append(same)
+        job_of.append(mine)
+    memo = {} if cache is None else cache
+    todo = [q for q, key in enumerate(keys) if key not in memo]
+    done = map_forked(
+        [
+            partial(refine_track_2d, model, t, h, pos, ori, sig, config, max_nfev=max_nfev)
+            for t, h, pos, ori in (jobs[q] for q in todo)
+        ],
+        workers,
+        weights=[float(jobs[q][0].size) for q in todo],
+    )
+    memo.update({keys[q]: r for q, r in zip(todo, done, strict=True)})
+    refined = [memo[key] for key in keys]
+    for (a, j), mine in zip(spans, job_of, strict=True):
+        track = rows[a:j]
+        results = [None if q is None else refined[q] for q in mine]
         costs = tuple(r.cost if r is not None else math.nan for r in results)
         best = min((i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i])
         chosen = results[best]
@@ -327,8 +379,7 @@ def arbitrate(
                 est = candidates[best][r[2]]
             out[r[2]] = est
         inits = tuple(r.initial_cost if r is not None else math.nan for r in results)
-        log.append(Arbitration(start, j, costs, inits, best))
-        start = j
+        log.append(Arbitration(a, j, costs, inits, best))
     return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
 
 

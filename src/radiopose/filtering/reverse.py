@@ -35,7 +35,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
-from radiopose.filtering.config import FilterEstimate
+from radiopose.filtering.config import FilterConfig, FilterEstimate
 from radiopose.filtering.model import FilterModel
 from radiopose.filtering.offset import run_pass, tight_config
 from radiopose.filtering.particle import ParticleFilter
@@ -273,6 +273,38 @@ def combine_tracks(
     return [(key, chosen[key]) for _, _, key in rows], out_segs
 
 
+ReversedRun = tuple[list[tuple[object, FilterEstimate]], dict[object, float]]
+"""What :func:`run_reversed` returns: the reversed pass's smoothed estimates
+``(key, estimate)`` and its log evidence of each packet by key, nats."""
+
+
+def reversed_config(config: FilterConfig, centre_db: float) -> tuple[FilterConfig, float]:
+    """The reversed pass's settings and offset prior centre (dB) after a forward
+    pass whose prior was centred on ``centre_db`` (``nan``: pass 1's wide prior)."""
+    if math.isnan(centre_db):
+        rcfg, centre = replace(config, offline_offset_selection=False), 0.0
+    else:
+        rcfg, centre = tight_config(config), centre_db
+    return replace(rcfg, offline_reverse_pass=False), centre
+
+
+def run_reversed(
+    pf: ParticleFilter, records: list[Record], centre_db: float, seed: int
+) -> ReversedRun:
+    """The filter (``pf``'s model, settings and lag, a fresh state) over the
+    time-reversed ``records``, its offset prior as after a forward pass centred
+    on ``centre_db`` (:func:`reversed_config`), seeded from ``seed`` on a stream
+    of its own. Depends on nothing else: it may run before or beside the
+    forward pass."""
+    rcfg, centre = reversed_config(pf.config, centre_db)
+    rev_evidence: dict[object, float] = {}
+    rev, _ = run_pass(
+        ParticleFilter(pf.model, rcfg, pf.lag_s), (seed + 1) % 2**63, reversed_records(records),
+        centre, rev_evidence,
+    )  # fmt: skip
+    return rev, rev_evidence
+
+
 def reverse_pass(
     pf: ParticleFilter,
     records: list[Record],
@@ -282,9 +314,10 @@ def reverse_pass(
     sigma_db: float,
     forward_evidence: dict[object, float] | None = None,
     reversed_out: dict[object, FilterEstimate] | None = None,
+    precomputed: ReversedRun | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Segment]]:
-    """Run the filter over the reversed ``records`` and combine its smoothed track
-    with ``forward`` (:func:`combine_tracks`).
+    """Run the filter over the reversed ``records`` (:func:`run_reversed`) and
+    combine its smoothed track with ``forward`` (:func:`combine_tracks`).
 
     Parameters
     ----------
@@ -309,18 +342,15 @@ def reverse_pass(
     reversed_out
         When given, filled with the reversed pass's own smoothed estimates by
         key (round 6's arbiter refines that track too).
+    precomputed
+        :func:`run_reversed`'s result for the same ``pf``, ``records``,
+        ``centre_db`` and ``seed`` (e.g. from a forked child,
+        :mod:`radiopose.filtering.forked`); ``None``: run it here.
     """
     cfg = pf.config
-    if math.isnan(centre_db):
-        rcfg, centre = replace(cfg, offline_offset_selection=False), 0.0
-    else:
-        rcfg, centre = tight_config(cfg), centre_db
-    rcfg = replace(rcfg, offline_reverse_pass=False)
-    rev_evidence: dict[object, float] = {}
-    rev, _ = run_pass(
-        ParticleFilter(pf.model, rcfg, pf.lag_s), (seed + 1) % 2**63, reversed_records(records),
-        centre, rev_evidence,
-    )  # fmt: skip
+    if precomputed is None:
+        precomputed = run_reversed(pf, records, centre_db, seed)
+    rev, rev_evidence = precomputed
     if reversed_out is not None:
         reversed_out.update(rev)
     return combine_tracks(
@@ -340,6 +370,7 @@ def reverse_pass(
 __all__ = [
     "OFFSET_GRID_DB",
     "Record",
+    "ReversedRun",
     "Segment",
     "combine_tracks",
     "disagreement_segments",
@@ -347,5 +378,7 @@ __all__ = [
     "pose_residuals_db",
     "profile_offset",
     "reverse_pass",
+    "reversed_config",
     "reversed_records",
+    "run_reversed",
 ]

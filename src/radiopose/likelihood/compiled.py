@@ -709,6 +709,16 @@ def thread_pool(n_threads: int) -> ThreadPoolExecutor:
 
 
 _SPARE = [-math.inf, False]  # monotonic time of the last look at the load, and its answer
+_CLAIMED = [0]  # cores taken by this process's forked workers (radiopose.filtering.forked)
+
+
+def claim_core(n: int = 1) -> None:
+    """Note that a forked worker of this process now runs on a core (``n`` = −1:
+    it ended): :func:`spare_core` then answers no while the cores left are
+    fewer than two, so that the parent's compiled work does not start a second
+    thread that would wait for a core the worker holds. Only speed depends on
+    it."""
+    _CLAIMED[0] = max(0, _CLAIMED[0] + n)
 
 
 def spare_core() -> bool:
@@ -718,7 +728,8 @@ def spare_core() -> bool:
     second). On a busy machine the second thread waits for a core while the
     first waits for it: measured slower in wall and CPU time at loads of 15-23
     on 2 cores (docs/performance.md, "The Bayesian tracker"). Results never
-    depend on it."""
+    depend on it. No while this process's forked workers
+    (:func:`claim_core`) leave fewer than two of numba's threads' cores."""
     now = time.monotonic()
     if now - _SPARE[0] >= 1.0:
         try:
@@ -727,7 +738,7 @@ def spare_core() -> bool:
         except (AttributeError, OSError):
             load, cores = 0.0, os.cpu_count() or 1
         _SPARE[0], _SPARE[1] = now, threads() > 1 and load < cores
-    return bool(_SPARE[1])
+    return bool(_SPARE[1]) and threads() - _CLAIMED[0] > 1
 
 
 def threads() -> int:

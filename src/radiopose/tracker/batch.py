@@ -147,6 +147,7 @@ def locate(
     obs = _check_packets(site, packets)
     cfg = config or TrackerConfig()
     tracker = Tracker(site, method, cfg, scorers, lag_s=cfg.smoothing_lag_s, offline=True)
+    tracker.look_ahead(obs)  # a method may start on the whole file (the filter's reversed pass)
     found: dict[tuple[str, str], PoseEstimate] = {}
     reasons: list[str | None] = []
     for i, o in enumerate(obs):

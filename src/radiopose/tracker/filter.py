@@ -25,15 +25,19 @@ whose marginal likelihood of the whole file is largest
 from __future__ import annotations
 
 import math
+import weakref
 import zlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import cast
 
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
+from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers, try_fork
 from radiopose.filtering.offset import OffsetPass, select_offset
-from radiopose.filtering.reverse import reverse_pass
+from radiopose.filtering.reverse import ReversedRun, reverse_pass, run_reversed
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
@@ -108,6 +112,10 @@ class FilterMethod:
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.refine_smoothed.extend(smoothed)
         if _reverses(device) or _arbitrates(device):  # rounds 5, 6: the whole forward track
+            ahead = device.shared.get(_ahead_key(device))
+            if isinstance(ahead, _LookAhead) and ahead.pending() and _core_free(device):
+                seed = filter_seed(device.config.seed, device.key)
+                ahead.start(partial(run_reversed, pf, ahead.records, math.nan, seed))
             if state.forward_kept is None:
                 state.forward_kept = []
             state.forward_kept += smoothed
@@ -121,7 +129,49 @@ class FilterMethod:
             return Step(state, Outcome(reason=PENDING), earlier)
         return Step(state, _outcome(est), earlier)
 
+    def look_ahead(
+        self,
+        device: Device,
+        state: FilterState,
+        packets: Sequence[tuple[float, HeardRss, str]],
+    ) -> None:
+        """Offline (batch ``locate``): every packet ``(t_s, heard, packet_id)`` of
+        the device before its first step. With the reversed pass on and
+        ``FilterConfig.offline_workers`` ≥ 2 (and a second core), the reversed
+        pass over these packets starts in a forked child after the first
+        forward step (the compiled kernels loaded by then, shared with it),
+        beside the forward pass (at most ``offline_workers − 1`` such children
+        at once over the tracker's devices: a later device's starts when one
+        ends); :meth:`flush` takes its result if the packets
+        the forward pass kept are these and pass 1 stood (the reversed pass of
+        a further offset-selection pass has another prior: then it runs there,
+        as without a look-ahead). The estimates do not change."""
+        if not (_reverses(device) and effective_workers(device.config.filter.offline_workers) > 1):
+            return
+        records: list[tuple[float, HeardRss, object]] = []
+        last = state.last_time_s
+        for t_s, heard, packet_id in packets:
+            if heard.n_heard == 0 or (last is not None and t_s < last):
+                continue  # as the step skips it
+            records.append((t_s, heard, (packet_id, t_s)))
+            last = t_s
+        old = device.shared.pop(_ahead_key(device), None)
+        if isinstance(old, _LookAhead):
+            old.cancel()
+        if records:
+            device.shared[_ahead_key(device)] = _LookAhead(records)
+
     def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
+        ahead = device.shared.pop(_ahead_key(device), None)
+        try:
+            return self._flush(device, state, ahead if isinstance(ahead, _LookAhead) else None)
+        finally:
+            if isinstance(ahead, _LookAhead):
+                ahead.cancel()  # not taken (or taken: then a no-op)
+
+    def _flush(
+        self, device: Device, state: FilterState, ahead: _LookAhead | None
+    ) -> tuple[Delayed, ...]:
         pf: ParticleFilter = device.engine
         pf.flush(state)
         if _refines(device) and state.records:
@@ -136,6 +186,7 @@ class FilterMethod:
         seed = filter_seed(device.config.seed, device.key)
         tight_evidence: dict[object, float] = {}
         other_passes: list[dict[object, FilterEstimate]] = []
+        workers = effective_workers(device.config.filter.offline_workers)
         if _selects_offset(device):
             chosen, passes = select_offset(
                 pf,
@@ -146,40 +197,159 @@ class FilterMethod:
                 beliefs,
                 tight_evidence if _reverses(device) else None,
                 other_passes if _arbitrates(device) else None,
+                workers,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
         if not (_reverses(device) or _arbitrates(device)):
             return _as_delayed(chosen)
+        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
+        # offline locate does not import; tests/test_startup_cache.py)
+        from radiopose.filtering.refine2d import Refined2d, arbitrate
+
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
         forward = dict(chosen if best > 0 else kept + chosen)
         sigma_db = math.sqrt(state.sigma2_db2)
         candidates = [forward]
+        # the offset selection's other passes (pass 1 when a further one won)
+        others = [dict(kept + first)] if best > 0 else []
+        others += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        cache: dict[tuple[object, ...], Refined2d] = {}
         if _reverses(device):
             # round 5: a pass over the reversed packets, combined per segment
+            # (run beside the forward pass by the look-ahead when pass 1 stood,
+            # else on a child now), while the candidates that do not need it
+            # are refined here (round 6; the arbiter below reuses them)
+            if ahead is not None and best != 0:
+                ahead.cancel()  # its prior is pass 1's, not the chosen pass's
+                ahead = None
+            job: ForkedCall[ReversedRun] | None = None
+            if ahead is None and workers > 1 and _arbitrates(device):
+                job = try_fork(partial(run_reversed, pf, records, passes[best].centre_db, seed))
+            try:
+                if _arbitrates(device) and (
+                    job is not None or (ahead is not None and not ahead.ready())
+                ):
+                    arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
+                              pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+            except BaseException:
+                if job is not None:
+                    job.cancel()
+                raise
+            pre = ahead.take(records) if ahead is not None else _result(job)
             rev: dict[object, FilterEstimate] = {}
             combined, _ = reverse_pass(
                 pf, records, forward, passes[best].centre_db, seed, sigma_db,
-                tight_evidence if best > 0 else evidence, rev,
+                tight_evidence if best > 0 else evidence, rev, pre,
             )  # fmt: skip
             if not _arbitrates(device):
                 return _as_delayed(combined)
             candidates += [dict(combined), rev]
-        # the offset selection's other passes (pass 1 when a further one won)
-        if best > 0:
-            candidates.append(dict(kept + first))
-        candidates += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        candidates += others
         # round 6: each candidate refined by batch MAP, the lowest objective kept
-        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
-        # offline locate does not import; tests/test_startup_cache.py)
-        from radiopose.filtering.refine2d import arbitrate
-
         out, _ = arbitrate(
-            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
-        )
+            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev,
+            workers=workers, cache=cache,
+        )  # fmt: skip
         return _as_delayed(out)
+
+
+def _ahead_key(device: Device) -> str:
+    """The key of a device's :class:`_LookAhead` in ``Device.shared``."""
+    return f"filter.look_ahead.{device.key}"
+
+
+class _LookAhead:
+    """The reversed pass of one device run in a forked child beside the forward
+    pass (:meth:`FilterMethod.look_ahead`): the packets it was given, its job."""
+
+    def __init__(self, records: list[tuple[float, HeardRss, object]]) -> None:
+        self.records = records
+        self.job: ForkedCall[ReversedRun] | None = None
+        self._result: ReversedRun | None = None
+        self._done = False
+
+    def start(self, call: Callable[[], ReversedRun]) -> None:
+        """Fork the child running ``call`` (:func:`run_reversed` over
+        :attr:`records` with pass 1's prior); it is killed when this object is
+        dropped untaken (e.g. when ``locate`` raises)."""
+        self.job = try_fork(call)
+        if self.job is None:  # no child: flush runs the pass
+            self._done = True
+            return
+        weakref.finalize(self, self.job.cancel)
+
+    def pending(self) -> bool:
+        """Whether its child is still to be started."""
+        return self.job is None and not self._done
+
+    def running(self) -> bool:
+        """Whether its child is started and still working."""
+        return self.job is not None and not self._done and not self.job.ready()
+
+    def ready(self) -> bool:
+        """Whether the child's result can be taken without waiting."""
+        return self.job is None or self._done or self.job.ready()
+
+    def wait(self) -> None:
+        """Wait for the child's result (kept for :meth:`take`); a failed child
+        leaves none."""
+        if self._done or self.job is None:
+            return
+        self._done = True
+        try:
+            self._result = self.job.result()
+        except ChildFailedError:
+            self._result = None
+
+    def take(self, records: list[tuple[float, HeardRss, object]]) -> ReversedRun | None:
+        """The child's result if it ran over exactly ``records`` (the packets
+        the forward pass kept), else ``None`` (then the caller runs it)."""
+        if not _same_records(self.records, records):
+            self.cancel()
+            return None
+        self.wait()
+        out, self._result = self._result, None
+        return out
+
+    def cancel(self) -> None:
+        """Kill the child if it still runs; forget its result."""
+        if self.job is not None and not self._done:
+            self.job.cancel()
+        self._done, self._result = True, None
+
+
+def _core_free(device: Device) -> bool:
+    """Whether a look-ahead child may start now: the tracker's running ones
+    (one per device) fewer than ``offline_workers − 1``."""
+    running = sum(1 for v in device.shared.values() if isinstance(v, _LookAhead) and v.running())
+    return running < effective_workers(device.config.filter.offline_workers) - 1
+
+
+def _result(job: ForkedCall[ReversedRun] | None) -> ReversedRun | None:
+    """``job``'s result, ``None`` without a job or if its child failed (the
+    caller then runs the pass here)."""
+    if job is None:
+        return None
+    try:
+        return job.result()
+    except ChildFailedError:
+        return None
+
+
+def _same_records(
+    a: list[tuple[float, HeardRss, object]], b: list[tuple[float, HeardRss, object]]
+) -> bool:
+    """Whether two packet lists are the same packets: keys, times and readings."""
+    return len(a) == len(b) and all(
+        ka == kb
+        and ta == tb
+        and np.array_equal(ha.receiver_index, hb.receiver_index)
+        and np.array_equal(ha.rss_dbm, hb.rss_dbm)
+        for (ta, ha, ka), (tb, hb, kb) in zip(a, b, strict=True)
+    )
 
 
 def _outcome(est: FilterEstimate) -> Outcome:

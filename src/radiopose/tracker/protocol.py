@@ -26,7 +26,7 @@ A method declares:
 
 from __future__ import annotations
 
-from collections.abc import MutableMapping
+from collections.abc import MutableMapping, Sequence
 from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import Any, Protocol, runtime_checkable
@@ -208,6 +208,25 @@ class Method(Protocol):
 
     def flush(self, device: Device, state: Any) -> tuple[Delayed, ...]:
         """Emit every estimate held back (lagged methods; others return ``()``)."""
+        ...
+
+
+@runtime_checkable
+class LooksAhead(Protocol):
+    """A method that can use the whole file before its first step (offline).
+
+    Batch :func:`~radiopose.tracker.locate` calls :meth:`look_ahead` once per
+    device, before the device's first :meth:`Method.step`, with every packet of
+    the device in time order (the ``filter`` starts its time-reversed pass
+    there, beside the forward one). The method's outputs must not depend on
+    whether it was called; the live server and the streaming ``Tracker``
+    never call it.
+    """
+
+    def look_ahead(
+        self, device: Device, state: Any, packets: Sequence[tuple[float, HeardRss, str]]
+    ) -> None:
+        """See the class docstring: ``packets`` are ``(t_s, heard, packet_id)``."""
         ...
 
 

@@ -11,17 +11,17 @@ every one still held back.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from radiopose.errors import InputError
 from radiopose.estimates import PoseEstimate
-from radiopose.likelihood import Scorer, candidate_space, make_scorer
+from radiopose.likelihood import HeardRss, Scorer, candidate_space, make_scorer
 from radiopose.packets import PacketObservation
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
 from radiopose.tracker.filter import reads_site_scorer
-from radiopose.tracker.protocol import Delayed, Device, Method, Outcome
+from radiopose.tracker.protocol import Delayed, Device, LooksAhead, Method, Outcome
 from radiopose.tracker.reasons import SKIP_UNKNOWN_TRANSMITTER
 from radiopose.tracker.registry import get_method
 
@@ -135,6 +135,30 @@ class Tracker:
         if not out.ok:
             return None, out.reason
         return self._pose(dev, t, packet.packet_id, out), None
+
+    def look_ahead(self, packets: Sequence[PacketObservation]) -> None:
+        """Offline (batch :func:`~radiopose.tracker.locate`, before the first
+        :meth:`update`): hand a method that can use them
+        (:class:`~radiopose.tracker.protocol.LooksAhead`) every packet of each
+        enrolled device, in the order of the devices' first packets. Prepares
+        those devices and their states as their first update would. The
+        estimates do not depend on it."""
+        if not isinstance(self.impl, LooksAhead):
+            return
+        by_device: dict[str, list[tuple[float, HeardRss, str]]] = {}
+        for packet in packets:
+            if not self.is_enrolled(packet.transmitter):
+                continue
+            dev = self._device(packet.transmitter)
+            by_device.setdefault(dev.key, []).append(
+                (float(packet.timestamp_s), dev.space.heard(packet), packet.packet_id)
+            )
+        for key, rows in by_device.items():
+            dev = self._devices[key]
+            state = self.states.get(key)
+            if not isinstance(state, self.impl.state_type):
+                state = self.states[key] = self.impl.new_state(dev)
+            self.impl.look_ahead(dev, state, rows)
 
     def take_delayed(self) -> list[PoseEstimate]:
         """Estimates of earlier packets emitted since the last call (lagged methods)."""
