@@ -41,6 +41,15 @@ SMALL = ScenarioConfig(
 needs_fork = pytest.mark.skipif(forked.effective_workers(2) < 2, reason="needs fork and two cores")
 
 
+@pytest.fixture(autouse=True)
+def _numba_allows_fork(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Earlier tests of the session may have launched numba's GNU OpenMP layer,
+    after which a real run does not fork (:func:`forked.numba_fork_safe`);
+    these tests' children never enter a parallel region (plain ``locate``: the
+    filter's one-thread scorer, ``serial_only``), so forking is safe here."""
+    monkeypatch.setattr(forked, "numba_fork_safe", lambda: True)
+
+
 def _config(workers: int) -> TrackerConfig:
     base = TrackerConfig()
     return replace(base, filter=replace(base.filter, offline_workers=workers))
@@ -345,3 +354,29 @@ def test_no_fork_in_a_daemonic_process(monkeypatch: pytest.MonkeyPatch) -> None:
     assert forked.try_fork(lambda: 1) is None
     out = forked.map_forked([os.getpid, os.getpid, os.getpid], 2)
     assert out == [os.getpid()] * 3
+
+
+def test_no_fork_after_gnu_openmp_was_launched(monkeypatch: pytest.MonkeyPatch) -> None:
+    import numba
+
+    monkeypatch.undo()  # the real check, not the autouse fixture's
+    for layer, safe in (("omp", False), ("workqueue", True), ("tbb", True)):
+        monkeypatch.setattr(numba, "threading_layer", lambda layer=layer: layer)
+        assert forked.numba_fork_safe() is safe
+
+    def not_launched() -> str:
+        raise ValueError("Threading layer is not initialized.")
+
+    monkeypatch.setattr(numba, "threading_layer", not_launched)
+    assert forked.numba_fork_safe()
+    monkeypatch.setattr(numba, "threading_layer", lambda: "omp")
+    assert not forked.fork_available()
+    assert forked.try_fork(lambda: 1) is None
+
+
+@needs_fork
+def test_a_child_computes_the_exact_mse_on_one_thread() -> None:
+    from radiopose.likelihood import exact
+
+    assert forked.ForkedCall(lambda: exact._SERIAL_ONLY[0]).result() is True
+    assert exact._SERIAL_ONLY[0] is False  # the parent keeps its threads

@@ -22,6 +22,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import sys
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
@@ -42,7 +43,26 @@ def fork_available() -> bool:
         sys.platform.startswith("linux")
         and "fork" in multiprocessing.get_all_start_methods()
         and not multiprocessing.current_process().daemon
+        and numba_fork_safe()
     )
+
+
+def numba_fork_safe() -> bool:
+    """Whether this process may fork for the offline passes as far as numba is
+    concerned: not once it has launched numba's threading layer as ``omp``.
+    GNU OpenMP is not fork-safe: numba terminates a child that enters a
+    parallel region after such a fork ("fork() called from a process already
+    using GNU OpenMP"), and where a filter shares a paper method's parallel
+    scorer (``radiopose demo``, ``evaluate``'s runs in one process) its passes
+    would. Such a process runs the offline passes here, serially; a plain
+    ``locate --method filter`` (the filter's own one-thread scorer) forks
+    before any parallel region (docs/performance.md, "Eighth pass")."""
+    try:
+        import numba
+
+        return bool(numba.threading_layer() != "omp")
+    except ValueError:  # the threading layer was not launched in this process
+        return True
 
 
 def try_fork(fn: Callable[[], R]) -> ForkedCall[R] | None:
@@ -98,6 +118,12 @@ def check_workers(setting: object, name: str = "filter setting offline_workers")
     return setting
 
 
+def _drop_pool() -> None:
+    from radiopose.likelihood.compiled import drop_thread_pool
+
+    drop_thread_pool()
+
+
 def _claim(n: int) -> None:
     from radiopose.likelihood.compiled import claim_core
 
@@ -109,7 +135,13 @@ class ChildFailedError(RuntimeError):
 
 
 def _child(send: Any, fn: Callable[[], Any]) -> None:
-    """The child's body: run ``fn``, send ``(True, result)`` or ``(False, error)``."""
+    """The child's body: run ``fn``, send ``(True, result)`` or ``(False, error)``.
+    It never enters a numba parallel region (:func:`~radiopose.likelihood.exact.serial_only`;
+    the filter's own scorer is one-thread), which GNU OpenMP does not allow
+    after a fork."""
+    from radiopose.likelihood.exact import serial_only
+
+    serial_only()
     try:
         out: tuple[bool, Any] = (True, fn())
     except BaseException as exc:  # reported to the parent, which re-runs the call
@@ -137,7 +169,19 @@ class ForkedCall(Generic[R]):
         # (which inherits the claim) starts a second thread meanwhile
         _claim(1)
         try:
-            self._proc.start()
+            _drop_pool()
+            with warnings.catch_warnings():
+                # Python ≥ 3.12 warns when a process with several OS threads
+                # forks. Ours has none of its own at this point (the pool is
+                # dropped above, calls run from the main thread between
+                # compiled calls); numba's threads, if a parallel kernel ran,
+                # belong to its workqueue layer, which numba documents as
+                # fork-safe (numba/np/ufunc/parallel.py). docs/performance.md,
+                # "Eighth pass".
+                warnings.filterwarnings(
+                    "ignore", r".*fork\(\) may lead to deadlocks", DeprecationWarning
+                )
+                self._proc.start()
         except BaseException:
             _claim(-1)
             raise

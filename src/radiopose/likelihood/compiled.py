@@ -708,6 +708,17 @@ def thread_pool(n_threads: int) -> ThreadPoolExecutor:
     return _POOL[0]
 
 
+def drop_thread_pool() -> None:
+    """Shut this process's thread pool down (its idle threads end; the next
+    :func:`thread_pool` makes a new one): called before a fork
+    (:mod:`radiopose.filtering.forked`), so that no Python thread of ours is
+    alive while the process is copied."""
+    global _POOL
+    if _POOL is not None and _POOL[2] == os.getpid():
+        _POOL[0].shutdown(wait=True)
+    _POOL = None
+
+
 _SPARE = [-math.inf, False]  # monotonic time of the last look at the load, and its answer
 _CLAIMED = [0]  # cores taken by this process's forked workers (radiopose.filtering.forked)
 

@@ -152,6 +152,18 @@ def expected_rss_all_dbm(space, candidate_idx: NDArray) -> NDArray[np.float64]:
     return _expected(_candidates(space, candidate_idx), *_space_args(space))
 
 
+_SERIAL_ONLY = [False]
+
+
+def serial_only() -> None:
+    """From now on this process computes :func:`mse_db2` on one thread (the same
+    values: each candidate's MSE is independent). Called first in a child forked
+    by :mod:`radiopose.filtering.forked`: numba terminates a child that enters
+    a parallel region after its parent launched GNU OpenMP ("fork() called
+    from a process already using GNU OpenMP")."""
+    _SERIAL_ONLY[0] = True
+
+
 def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDArray) -> NDArray:
     """Exact MSE ``(n,)`` dB² of candidates over the heard receivers.
 
@@ -159,7 +171,8 @@ def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDA
     (NaN where a heard receiver's ``M_r(p)`` is NaN).
     """
     cand = _candidates(space, candidate_idx)
-    fn = _mse_parallel if cand.size >= PARALLEL_MIN_CANDIDATES else _mse_serial
+    parallel = cand.size >= PARALLEL_MIN_CANDIDATES and not _SERIAL_ONLY[0]
+    fn = _mse_parallel if parallel else _mse_serial
     return fn(
         cand,
         np.ascontiguousarray(receiver_index, dtype=np.int64),
