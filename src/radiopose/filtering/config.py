@@ -152,6 +152,21 @@ class FilterConfig:
         candidates are the forward track and the offset selection's passes.
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
+    arbiter_offset_evidence
+        Offline only, with ``offline_refine`` (round 7, docs/filter.md
+        "Accuracy round 7"; default off): each candidate's refined objective
+        gets a penalty from its refined device offset, the offset selection's
+        tight passes' whole-file evidence near that offset against the best
+        pass's, nats (:func:`radiopose.filtering.offset_refit.evidence_penalty`).
+    offline_offset_refit
+        Offline only, with ``offline_refine`` (round 7; default off): when the
+        arbiter's chosen candidate refines to an offset
+        ``offset_selection_trigger_db`` or more from the enrolled power and no
+        tight pass ran within ``offset_refit_tolerance_db`` of it, one more
+        tight pass runs there and its track competes
+        (:func:`radiopose.filtering.offset_refit.arbitrate_offline`).
+    offset_refit_tolerance_db
+        See ``offline_offset_refit``, dB.
     """
 
     n_particles: int = 2000
@@ -208,6 +223,11 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
+    # issue 15 (+6 dB tails, round 7): the arbiter's offset judged by the passes'
+    # evidence, and a tight pass at the arbiter's offset (both off by default)
+    arbiter_offset_evidence: bool = False
+    offline_offset_refit: bool = False
+    offset_refit_tolerance_db: float = 1.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -216,7 +236,7 @@ class FilterConfig:
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
-            "reverse_disagree_m", "reverse_disagree_deg",
+            "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)

@@ -32,7 +32,7 @@ refined poses of the candidate with the lowest objective.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -258,6 +258,13 @@ class Arbitration:
         Each candidate's objective before the refinement.
     chosen
         Index of the candidate kept.
+    offsets_db
+        Each candidate's refined device offset, dB (``nan``: it did not cover
+        the track).
+    penalties
+        Each candidate's offset penalty, nats (``offset_penalty`` of
+        :func:`arbitrate`; zeros without one): the choice is the lowest
+        ``costs + penalties``.
     """
 
     start: int
@@ -265,6 +272,8 @@ class Arbitration:
     costs: tuple[float, ...]
     initial_costs: tuple[float, ...]
     chosen: int
+    offsets_db: tuple[float, ...] = ()
+    penalties: tuple[float, ...] = ()
 
 
 def arbitrate(
@@ -275,6 +284,7 @@ def arbitrate(
     config: FilterConfig,
     max_nfev: int,
     refine_output: bool = True,
+    offset_penalty: Callable[[float], float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
     """Every packet's estimate from the candidate track of the lowest refined
     objective, per track (module docstring).
@@ -284,6 +294,9 @@ def arbitrate(
     out). A candidate that lacks an estimate of some packet of a track does not
     compete there. ``refine_output``: emit the refined poses (else the chosen
     candidate's own). Spread and σ of the reference are kept.
+    ``offset_penalty``: nats added to a candidate's refined objective as a
+    function of its refined device offset (dB) before the lowest is taken
+    (round 7, :func:`radiopose.filtering.offset_refit.evidence_penalty`).
     """
     if not candidates:
         raise InputError("arbitrate: no candidate track")
@@ -311,7 +324,14 @@ def arbitrate(
             ori = np.array([e.orientation_deg for e in ests], dtype=float)
             results.append(refine_track_2d(model, t, h, pos, ori, sig, config, max_nfev=max_nfev))
         costs = tuple(r.cost if r is not None else math.nan for r in results)
-        best = min((i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i])
+        offs = tuple(r.offset_db if r is not None else math.nan for r in results)
+        pen = tuple(
+            0.0 if r is None or offset_penalty is None else float(offset_penalty(r.offset_db))
+            for r in results
+        )
+        best = min(
+            (i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i] + pen[i]
+        )
         chosen = results[best]
         assert chosen is not None
         for i, r in enumerate(track):
@@ -327,7 +347,7 @@ def arbitrate(
                 est = candidates[best][r[2]]
             out[r[2]] = est
         inits = tuple(r.initial_cost if r is not None else math.nan for r in results)
-        log.append(Arbitration(start, j, costs, inits, best))
+        log.append(Arbitration(start, j, costs, inits, best, offs, pen))
         start = j
     return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
 

@@ -174,11 +174,10 @@ class FilterMethod:
         # round 6: each candidate refined by batch MAP, the lowest objective kept
         # (imported here: scipy.optimize pulls scipy.spatial, which a plain
         # offline locate does not import; tests/test_startup_cache.py)
-        from radiopose.filtering.refine2d import arbitrate
+        # round 7: with the offset's evidence and a refit pass (both off by default)
+        from radiopose.filtering.offset_refit import arbitrate_offline
 
-        out, _ = arbitrate(
-            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev
-        )
+        out, _, _ = arbitrate_offline(pf, records, candidates, sigma_db, passes, seed)
         return _as_delayed(out)
 
 
