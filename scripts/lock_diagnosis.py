@@ -258,7 +258,11 @@ def diagnose_candidates(
             }
             labels = _candidate_labels(passes, len(candidates), tcfg.filter.offline_reverse_pass)
             if n_arb:  # round 7's refit: the first arbitration's output against the new pass
-                labels = ["first arbitration", "refit pass"][: len(candidates)]
+                kinds = {"forward": ["forward"], "reversed": ["reversed"]}
+                kinds["both"] = ["forward", "reversed"]
+                labels = ["first arbitration"] + [
+                    f"refit {k}" for k in kinds[tcfg.filter.offset_refit_passes]
+                ]
             chosen = [a.chosen for a in log]
             for label, cand in [*zip(labels, candidates, strict=True), ("truth", truth_track)]:
                 refined, arb = offset_refit.arbitrate(

@@ -18,6 +18,9 @@ LIKELIHOODS = ("mixture", "huber")
 SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
 
+REFIT_PASSES = ("forward", "reversed", "both")
+"""The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -167,6 +170,10 @@ class FilterConfig:
         (:func:`radiopose.filtering.offset_refit.arbitrate_offline`).
     offset_refit_tolerance_db
         See ``offline_offset_refit``, dB.
+    offset_refit_passes
+        Which passes the refit runs at that offset: ``"forward"``,
+        ``"reversed"`` (over the time-reversed packets, as
+        ``offline_reverse_pass``) or ``"both"``.
     """
 
     n_particles: int = 2000
@@ -228,6 +235,7 @@ class FilterConfig:
     arbiter_offset_evidence: bool = False
     offline_offset_refit: bool = False
     offset_refit_tolerance_db: float = 1.0
+    offset_refit_passes: str = "forward"
 
     def __post_init__(self) -> None:
         positive = (
@@ -278,6 +286,11 @@ class FilterConfig:
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
+        if self.offset_refit_passes not in REFIT_PASSES:
+            raise InputError(
+                f"filter setting offset_refit_passes = {self.offset_refit_passes!r} is not one "
+                f"of {REFIT_PASSES}"
             )
         if self.smoother not in SMOOTHERS:
             raise InputError(

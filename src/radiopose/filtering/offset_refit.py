@@ -41,6 +41,7 @@ from radiopose.filtering.config import FilterEstimate
 from radiopose.filtering.offset import OffsetPass, Record, run_pass, tight_config
 from radiopose.filtering.particle import ParticleFilter
 from radiopose.filtering.refine2d import Arbitration, arbitrate
+from radiopose.filtering.reverse import reversed_records
 
 
 def evidence_penalty(passes: Sequence[OffsetPass], sd_db: float) -> Callable[[float], float] | None:
@@ -137,14 +138,22 @@ def arbitrate_offline(
     b = _chosen_offset_db(log)
     if not needs_refit(b, passes, cfg.offset_refit_tolerance_db, cfg.offset_selection_trigger_db):
         return out, log, passes
-    track, ll = run_pass(ParticleFilter(pf.model, tight_config(cfg), pf.lag_s), seed, records, b)
-    passes.append(OffsetPass(b, ll))
+    tight = ParticleFilter(pf.model, tight_config(cfg), pf.lag_s)
+    # the first arbitration's output (already at its optimum) against the new pass(es)
+    contenders = [dict(out)]
+    if cfg.offset_refit_passes in ("forward", "both"):
+        track, ll = run_pass(tight, seed, records, b)
+        passes.append(OffsetPass(b, ll))
+        contenders.append(dict(track))
+    if cfg.offset_refit_passes in ("reversed", "both"):
+        # the reversed pass's own stream, as radiopose.filtering.reverse.reverse_pass's
+        track, ll = run_pass(tight, (seed + 1) % 2**63, reversed_records(records), b)
+        if cfg.offset_refit_passes == "reversed":  # its evidence: p(y) factored backwards
+            passes.append(OffsetPass(b, ll))
+        contenders.append(dict(track))
     penalty = evidence_penalty(passes, sd) if cfg.arbiter_offset_evidence else None
-    # the first arbitration's output (already at its optimum) against the new pass
-    first = dict(out)
-    new = dict(track)
     out, log = arbitrate(
-        pf.model, records, [first, new], sigma_db, cfg, cfg.refine_max_nfev, offset_penalty=penalty
+        pf.model, records, contenders, sigma_db, cfg, cfg.refine_max_nfev, offset_penalty=penalty
     )
     return out, log, passes
 
