@@ -168,15 +168,17 @@ def _errors(
 
 
 def _candidate_labels(passes: list[Any], n_candidates: int, reverses: bool) -> list[str]:
-    """The arbiter's candidates in :meth:`FilterMethod.flush`'s order."""
+    """The arbiter's candidates in :meth:`FilterMethod.flush`'s order (pass 1 is
+    the filter's own pass, wide offset prior; passes 2… the offset selection's
+    tight ones, as in docs/filter.md "Accuracy round 4")."""
     best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
     centre = ["wide"] + [f"{p.centre_db:+.1f}" for p in passes[1:]]
-    labels = [f"forward (pass {best} @ {centre[best]})"]
+    labels = [f"forward (pass {best + 1} @ {centre[best]})"]
     if reverses:
         labels += ["combined", "reversed"]
     if best > 0:
-        labels.append("pass 0 @ wide")
-    labels += [f"pass {i} @ {centre[i]}" for i in range(1, len(passes)) if i != best]
+        labels.append("pass 1 @ wide")
+    labels += [f"pass {i + 1} @ {centre[i]}" for i in range(1, len(passes)) if i != best]
     labels += [f"candidate {i}" for i in range(len(labels), n_candidates)]
     return labels[:n_candidates]
 
