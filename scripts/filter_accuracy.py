@@ -30,6 +30,10 @@ Rows per σ:
   reversed pass with that refinement as the arbiter between the forward, the
   reversed and the combined tracks (docs/filter.md "Accuracy round 6"): the
   same settings as ``filter`` / ``filter, +6 dB`` since they became the default;
+* ``filter, offset refit`` / ``filter, +6 dB, offset refit`` — the offline
+  default with round 7's options (``arbiter_offset_evidence``,
+  ``offline_offset_refit`` with the reversed pass, tolerance 1.5 dB; off by
+  default, docs/filter.md "Accuracy round 7");
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -82,6 +86,14 @@ CAUSAL = TrackerConfig(smoothing_lag_s=None)
 REVERSED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=False))
 REFINED = TrackerConfig(filter=FilterConfig(offline_reverse_pass=False, offline_refine=True))
 ARBITER = TrackerConfig(filter=FilterConfig(offline_reverse_pass=True, offline_refine=True))
+ROUND7 = TrackerConfig(
+    filter=FilterConfig(
+        arbiter_offset_evidence=True,
+        offline_offset_refit=True,
+        offset_refit_passes="reversed",
+        offset_refit_tolerance_db=1.5,
+    )
+)
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, forward only": (FORWARD, "", "filter"),
@@ -96,6 +108,8 @@ VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter, reversed, refined": (ARBITER, "", "filter"),
     "filter, +6 dB, refined": (REFINED, "loud", "filter"),
     "filter, +6 dB, reversed, refined": (ARBITER, "loud", "filter"),
+    "filter, offset refit": (ROUND7, "", "filter"),
+    "filter, +6 dB, offset refit": (ROUND7, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),
 }

@@ -19,23 +19,41 @@ track of the reversed pass (``FilterConfig.offline_reverse_pass``) is run too,
 with ``--arbiter`` the reversed pass with round 6's batch MAP arbiter
 (``FilterConfig.offline_refine``).
 
+With ``--candidates`` (round 7, +6 dB tails) the offline default (forward
+pass, offset selection, reversed pass, MAP arbiter) is run with its insides
+recorded, one block per run: each offset pass (its prior centre, dB, and its
+whole-file evidence, nats), then each candidate the arbiter saw (its track's
+errors before and after the refinement, its refined offset and objective, σ²
+units) and the truth's poses refined the same way. A truth objective below the
+chosen candidate's is a search failure (no candidate in the truth's basin);
+above it, an objective failure (the arbiter's objective prefers a wrong pair).
+
 Usage (tuning seeds 7000–7099 only)::
 
     python scripts/lock_diagnosis.py --seeds 7030 --sigma 3
     python scripts/lock_diagnosis.py --seeds 7010 --sigma 0.5 --loud --reverse
+    python scripts/lock_diagnosis.py --seeds 7061 --sigma 3 --loud --candidates
     python scripts/lock_diagnosis.py --quick
 """
 
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
+import math
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 
+import radiopose.filtering.offset_refit as offset_refit
+import radiopose.tracker.filter as tracker_filter
+from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.filtering import FilterConfig, FilterModel
+from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
+from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
 from radiopose.packets import Packets, group_packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
@@ -132,6 +150,164 @@ def diagnose(
     return rows
 
 
+def _errors(
+    track: dict[object, FilterEstimate], truth: dict[object, tuple[np.ndarray, np.ndarray]]
+) -> tuple[float, float]:
+    """Mean position (m) and orientation (°) error of ``track`` against ``truth`` by key."""
+    keys = [k for k in track if k in truth]
+    if not keys:
+        return math.nan, math.nan
+    pos = np.array([track[k].position_m for k in keys])
+    ori = np.array([track[k].orientation_deg for k in keys])
+    tp = np.array([truth[k][0] for k in keys])
+    to = np.array([truth[k][1] for k in keys])
+    return (
+        float(np.linalg.norm(pos - tp, axis=1).mean()),
+        float(orientation_error_deg(ori, to).mean()),
+    )
+
+
+def _candidate_labels(passes: list[Any], n_candidates: int, reverses: bool) -> list[str]:
+    """The arbiter's candidates in :meth:`FilterMethod.flush`'s order (pass 1 is
+    the filter's own pass, wide offset prior; passes 2… the offset selection's
+    tight ones, as in docs/filter.md "Accuracy round 4")."""
+    best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
+    centre = ["wide"] + [f"{p.centre_db:+.1f}" for p in passes[1:]]
+    labels = [f"forward (pass {best + 1} @ {centre[best]})"]
+    if reverses:
+        labels += ["combined", "reversed"]
+    if best > 0:
+        labels.append("pass 1 @ wide")
+    labels += [f"pass {i + 1} @ {centre[i]}" for i in range(1, len(passes)) if i != best]
+    labels += [f"candidate {i}" for i in range(len(labels), n_candidates)]
+    return labels[:n_candidates]
+
+
+def _run_recorded(sim: Simulation, tcfg: TrackerConfig, scorer: Any) -> tuple[Any, dict[str, Any]]:
+    """The offline ``filter`` on ``sim`` with the offset selection's passes, every
+    arbitration's inputs and log, and a refit pass's offset recorded."""
+    seen: dict[str, Any] = {"passes": [], "arb": []}
+    select0, arbitrate0 = tracker_filter.select_offset, offset_refit.arbitrate
+    run_pass0 = offset_refit.run_pass
+
+    def select(*a: Any, **kw: Any) -> Any:
+        chosen, passes = select0(*a, **kw)
+        seen["passes"] = list(passes)
+        return chosen, passes
+
+    def arbitrate(model, records, candidates, sigma, cfg, max_nfev, *a: Any, **kw: Any):  # type: ignore[no-untyped-def]
+        out = arbitrate0(model, records, candidates, sigma, cfg, max_nfev, *a, **kw)
+        pen = kw.get("offset_penalty")
+        seen["arb"].append((model, list(records), list(candidates), sigma, cfg, max_nfev, out, pen))
+        return out
+
+    def run_pass(pf: Any, seed_: int, records: Any, centre_db: float, *a: Any) -> Any:
+        seen["refit"] = centre_db
+        return run_pass0(pf, seed_, records, centre_db, *a)
+
+    tracker_filter.select_offset = select  # type: ignore[assignment]
+    offset_refit.arbitrate = arbitrate  # type: ignore[assignment]
+    offset_refit.run_pass = run_pass  # type: ignore[assignment]
+    try:
+        run = run_methods(sim, ("filter",), tcfg, scorer)["filter"]
+    finally:
+        tracker_filter.select_offset, offset_refit.arbitrate = select0, arbitrate0
+        offset_refit.run_pass = run_pass0
+    return run, seen
+
+
+def diagnose_candidates(
+    seeds: list[int], sigma_db: float, loud: bool, quick: bool, config: TrackerConfig | None = None
+) -> list[str]:
+    """Per run, the offset passes and the arbiter's candidates (module docstring)."""
+    base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    tcfg = config or TrackerConfig()
+    lines: list[str] = []
+    for seed in seeds:
+        sim = simulate(replace(base, noise_db=sigma_db), seed)
+        if loud:
+            sim = _loud(sim)
+        scorer = build_scorer(sim, "numba")
+        t_truth = sim.truth.timestamp_s
+        run, seen = _run_recorded(sim, tcfg, scorer)
+        start = len(lines)
+        head = (
+            f"seed {seed} σ {sigma_db:g} {'+6 dB' if loud else 'matched'}: "
+            f"{run.position_error_m.mean():.3f} m / {run.orientation_error_deg.mean():.2f}°"
+        )
+        lines.append(head)
+        passes = seen["passes"]
+        lines.append(
+            "  passes (centre dB: evidence nats): "
+            + ", ".join(
+                f"{'wide' if math.isnan(p.centre_db) else f'{p.centre_db:+.2f}'}: "
+                f"{p.log_evidence:.1f}"
+                for p in passes
+            )
+        )
+        for n_arb, (model, records, candidates, sigma, cfg, max_nfev, (_, log), pen) in enumerate(
+            seen["arb"]
+        ):
+            truth: dict[object, tuple[np.ndarray, np.ndarray]] = {}
+            for _, _, key in records:
+                i = int(np.argmin(np.abs(t_truth - key[1])))
+                truth[key] = (sim.truth.position_m[i], sim.truth.orientation_deg[i])
+            ref = candidates[0]
+            truth_track = {
+                k: replace(ref[k], position_m=tuple(p), orientation_deg=tuple(o))
+                for k, (p, o) in truth.items()
+                if k in ref
+            }
+            labels = _candidate_labels(passes, len(candidates), tcfg.filter.offline_reverse_pass)
+            if n_arb:  # round 7's refit: the first arbitration's output against the new pass
+                kinds = {"forward": ["forward"], "reversed": ["reversed"]}
+                kinds["both"] = ["forward", "reversed"]
+                labels = ["first arbitration"] + [
+                    f"refit {k}" for k in kinds[tcfg.filter.offset_refit_passes]
+                ]
+            chosen = [a.chosen for a in log]
+            for label, cand in [*zip(labels, candidates, strict=True), ("truth", truth_track)]:
+                refined, arb = offset_refit.arbitrate(
+                    model, records, [cand], sigma, cfg, max_nfev, offset_penalty=pen
+                )
+                pe0, oe0 = _errors(cand, truth)
+                pe1, oe1 = _errors(dict(refined), truth)
+                offs = {round(e.offset_db, 2) for _, e in refined}
+                idx = labels.index(label) if label in labels else -1
+                mark = " *" if idx in chosen else ""
+                lines.append(
+                    f"  {label:<24} {pe0:7.3f} m {oe0:7.2f}° → {pe1:7.3f} m {oe1:7.2f}°  "
+                    f"offset {'/'.join(f'{o:+.2f}' for o in sorted(offs))} dB  "
+                    f"objective {' / '.join(f'{a.costs[0]:.1f}' for a in arb)}"
+                    f" + {' / '.join(f'{a.penalties[0]:.1f}' for a in arb)}{mark}"
+                )
+        if "refit" in seen:
+            lines.append(f"  refit pass at {seen['refit']:+.2f} dB")
+        for line in lines[start:]:
+            print(line, flush=True)
+    return lines
+
+
+def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
+    """``FIELD=VALUE`` items as :class:`FilterConfig` overrides (argparse errors
+    for unknown fields, non-literals and values the config refuses)."""
+    fields = {f.name for f in dataclasses.fields(FilterConfig)}
+    out: dict[str, object] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in fields:
+            ap.error(f"--set {item}: {key!r} is not a FilterConfig field")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            ap.error(f"--set {item}: {value!r} is not a Python literal")
+    try:
+        replace(FilterConfig(), **out)
+    except (InputError, TypeError) as exc:
+        ap.error(str(exc))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[7030], help="tuning seeds only")
@@ -141,9 +317,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--arbiter", action="store_true", help="also the reversed pass with the MAP arbiter"
     )
+    ap.add_argument(
+        "--candidates", action="store_true",
+        help="the offline default's offset passes and arbiter candidates, the truth refined too",
+    )  # fmt: skip
+    ap.add_argument(
+        "--set", nargs="*", default=[], metavar="FIELD=VALUE",
+        help="FilterConfig overrides of the offline default (with --candidates)",
+    )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
     seeds = [5] if args.quick else args.seeds
+    if args.candidates:
+        tcfg = TrackerConfig()
+        overrides = _overrides(ap, args.set)
+        tcfg = replace(tcfg, filter=replace(tcfg.filter, **overrides))
+        diagnose_candidates(seeds, args.sigma, args.loud, args.quick, tcfg)
+        return 0
     rows = diagnose(seeds, args.sigma, args.loud, args.reverse, args.quick, args.arbiter)
     print("\n".join(rows[:2]))
     print("\n".join(rows[2:]))

@@ -87,6 +87,14 @@ def test_lock_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
     assert all("Δ" not in row for row in rows)
 
 
+def test_lock_diagnosis_candidates(capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["--quick", "--candidates", "--loud", "--set", "offline_offset_refit=True"]
+    printed = _run(SCRIPTS / "lock_diagnosis.py", args, capsys)
+    assert printed.startswith("seed 5 σ 3 +6 dB: ")
+    assert "passes (centre dB: evidence nats): wide: " in printed
+    assert "  forward (pass " in printed and "  truth " in printed and " *" in printed
+
+
 def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--grid", "test", "--windows", "0.1"]
     printed = _run(SCRIPTS / "orientation_outliers.py", argv, capsys)

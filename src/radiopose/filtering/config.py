@@ -19,6 +19,9 @@ LIKELIHOODS = ("mixture", "huber")
 SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
 
+REFIT_PASSES = ("forward", "reversed", "both")
+"""The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
+
 
 @dataclass(frozen=True)
 class FilterConfig:
@@ -162,6 +165,25 @@ class FilterConfig:
         docs/performance.md, "Eighth pass"). The estimates are the same as
         with 1 (every pass in this process), bit for bit. The live server and
         the streaming ``Tracker`` never fork.
+    arbiter_offset_evidence
+        Offline only, with ``offline_refine`` (round 7, docs/filter.md
+        "Accuracy round 7"; default off): each candidate's refined objective
+        gets a penalty from its refined device offset, the offset selection's
+        tight passes' whole-file evidence near that offset against the best
+        pass's, nats (:func:`radiopose.filtering.offset_refit.evidence_penalty`).
+    offline_offset_refit
+        Offline only, with ``offline_refine`` (round 7; default off): when the
+        arbiter's chosen candidate refines to an offset
+        ``offset_selection_trigger_db`` or more from the enrolled power and no
+        tight pass ran within ``offset_refit_tolerance_db`` of it, one more
+        tight pass runs there and its track competes
+        (:func:`radiopose.filtering.offset_refit.arbitrate_offline`).
+    offset_refit_tolerance_db
+        See ``offline_offset_refit``, dB.
+    offset_refit_passes
+        Which passes the refit runs at that offset: ``"forward"``,
+        ``"reversed"`` (over the time-reversed packets, as
+        ``offline_reverse_pass``) or ``"both"``.
     """
 
     n_particles: int = 2000
@@ -220,6 +242,12 @@ class FilterConfig:
     refine_max_nfev: int = 30
     # issue 15 (whole-process speed): the offline passes on forked children
     offline_workers: int = 2
+    # issue 15 (+6 dB tails, round 7): the arbiter's offset judged by the passes'
+    # evidence, and a tight pass at the arbiter's offset (both off by default)
+    arbiter_offset_evidence: bool = False
+    offline_offset_refit: bool = False
+    offset_refit_tolerance_db: float = 1.0
+    offset_refit_passes: str = "forward"
 
     def __post_init__(self) -> None:
         positive = (
@@ -228,7 +256,7 @@ class FilterConfig:
             "huber_c", "offset_prior_sd_db", "reacquire_gap_s", "difference_max_dt_s",
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
-            "reverse_disagree_m", "reverse_disagree_deg",
+            "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -271,6 +299,11 @@ class FilterConfig:
         if self.likelihood not in LIKELIHOODS:
             raise InputError(
                 f"filter setting likelihood = {self.likelihood!r} is not one of {LIKELIHOODS}"
+            )
+        if self.offset_refit_passes not in REFIT_PASSES:
+            raise InputError(
+                f"filter setting offset_refit_passes = {self.offset_refit_passes!r} is not one "
+                f"of {REFIT_PASSES}"
             )
         if self.smoother not in SMOOTHERS:
             raise InputError(

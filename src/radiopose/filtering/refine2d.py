@@ -32,7 +32,7 @@ refined poses of the candidate with the lowest objective.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -260,6 +260,13 @@ class Arbitration:
         Each candidate's objective before the refinement.
     chosen
         Index of the candidate kept.
+    offsets_db
+        Each candidate's refined device offset, dB (``nan``: it did not cover
+        the track).
+    penalties
+        Each candidate's offset penalty, nats (``offset_penalty`` of
+        :func:`arbitrate`; zeros without one): the choice is the lowest
+        ``costs + penalties``.
     """
 
     start: int
@@ -267,6 +274,8 @@ class Arbitration:
     costs: tuple[float, ...]
     initial_costs: tuple[float, ...]
     chosen: int
+    offsets_db: tuple[float, ...] = ()
+    penalties: tuple[float, ...] = ()
 
 
 def arbitrate(
@@ -279,6 +288,7 @@ def arbitrate(
     refine_output: bool = True,
     workers: int = 1,
     cache: dict[tuple[object, ...], Refined2d] | None = None,
+    offset_penalty: Callable[[float], float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
     """Every packet's estimate from the candidate track of the lowest refined
     objective, per track (module docstring).
@@ -296,6 +306,9 @@ def arbitrate(
     filled: an earlier call with the same ``records``, ``candidates[0]`` and
     settings over some of the candidates (e.g. while another process runs the
     pass that gives the others) spares this one their work.
+    ``offset_penalty``: nats added to a candidate's refined objective as a
+    function of its refined device offset (dB) before the lowest is taken
+    (round 7, :func:`radiopose.filtering.offset_refit.evidence_penalty`).
     """
     if not candidates:
         raise InputError("arbitrate: no candidate track")
@@ -363,7 +376,14 @@ def arbitrate(
         track = rows[a:j]
         results = [None if q is None else refined[q] for q in mine]
         costs = tuple(r.cost if r is not None else math.nan for r in results)
-        best = min((i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i])
+        offs = tuple(r.offset_db if r is not None else math.nan for r in results)
+        pen = tuple(
+            0.0 if r is None or offset_penalty is None else float(offset_penalty(r.offset_db))
+            for r in results
+        )
+        best = min(
+            (i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i] + pen[i]
+        )
         chosen = results[best]
         assert chosen is not None
         for i, r in enumerate(track):
@@ -379,7 +399,7 @@ def arbitrate(
                 est = candidates[best][r[2]]
             out[r[2]] = est
         inits = tuple(r.initial_cost if r is not None else math.nan for r in results)
-        log.append(Arbitration(a, j, costs, inits, best))
+        log.append(Arbitration(a, j, costs, inits, best, offs, pen))
     return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
 
 

@@ -248,11 +248,13 @@ class FilterMethod:
                 return _as_delayed(combined)
             candidates += [dict(combined), rev]
         candidates += others
-        # round 6: each candidate refined by batch MAP, the lowest objective kept
-        out, _ = arbitrate(
-            pf.model, records, candidates, sigma_db, pf.config, pf.config.refine_max_nfev,
-            workers=workers, cache=cache,
-        )  # fmt: skip
+        # round 6: each candidate refined by batch MAP, the lowest objective kept;
+        # round 7: with the offset's evidence and a refit pass (both off by default)
+        from radiopose.filtering.offset_refit import arbitrate_offline
+
+        out, _, _ = arbitrate_offline(
+            pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache
+        )
         return _as_delayed(out)
 
 

@@ -1,0 +1,151 @@
+"""Round 7 of the offline ``filter``'s +6 dB tails (issue 15, unknown transmit power;
+docs/filter.md "Accuracy round 7"): the arbiter's device offset judged by the
+offset selection's evidence (``FilterConfig.arbiter_offset_evidence``) and a
+tight pass at the arbiter's offset (``offline_offset_refit``), both off by
+default.
+
+The penalty and the refit test on hand-made passes; the arbiter's choice with
+a penalty on a small simulated site; end to end on tuning seeds 7060 (σ = 3 dB,
++6 dB: no tight pass near the device's offset; 78.1° by default, 0.90° with the
+reversed refit pass at the arbiter's offset) and 7063 (σ = 3 dB, +6 dB: a
+mirror track at +1 dB ties the truth's basin on the objective; 134.9° by
+default, 2.58° with the evidence penalty).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from radiopose.errors import InputError
+from radiopose.evaluate.demo import build_scorer, run_methods
+from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
+from radiopose.filtering.offset import OffsetPass
+from radiopose.filtering.offset_refit import evidence_penalty, needs_refit
+from radiopose.filtering.refine2d import arbitrate
+from radiopose.likelihood import MemoScorer, candidate_space
+from radiopose.packets import Packets, group_packets
+from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.tracker import TrackerConfig
+
+WIDE = OffsetPass(math.nan, -100.0)
+
+
+def test_evidence_penalty_is_the_evidence_lost_near_a_pass() -> None:
+    passes = [WIDE, OffsetPass(0.0, -110.0), OffsetPass(6.0, -102.0)]
+    pen = evidence_penalty(passes, 1.0)
+    assert pen is not None
+    assert pen(6.0) == pytest.approx(0.0, abs=1e-6)  # the best pass's centre
+    assert pen(0.0) == pytest.approx(8.0, abs=0.01)  # the pass that lost by 8 nats
+    assert pen(7.0) == pytest.approx(0.5, abs=0.01)  # one sd from the best: ½
+    assert pen(3.0) > 4.0  # between them, far from both
+    assert pen(math.nan) == math.inf
+    # pass 1 (wide, no centre) does not count; one tight pass compares nothing
+    assert evidence_penalty([WIDE, OffsetPass(0.0, -110.0)], 1.0) is None
+    assert evidence_penalty([WIDE], 1.0) is None
+    with pytest.raises(ValueError, match="positive"):
+        evidence_penalty(passes, 0.0)
+
+
+def test_refit_runs_only_away_from_every_tight_pass_and_the_enrolled_power() -> None:
+    passes = [WIDE, OffsetPass(0.0, -110.0), OffsetPass(3.0, -105.0)]
+    assert needs_refit(5.25, passes, 1.5, 1.5)  # 2.25 dB from the nearest pass
+    assert not needs_refit(4.0, passes, 1.5, 1.5)  # within 1.5 dB of +3
+    assert not needs_refit(1.0, [WIDE], 1.5, 1.5)  # at the enrolled power
+    assert needs_refit(-2.0, [WIDE], 1.5, 1.5)  # pass 1 alone, found away from it
+    assert not needs_refit(math.nan, passes, 1.5, 1.5)
+
+
+def test_settings_are_checked() -> None:
+    cfg = FilterConfig()
+    assert not cfg.arbiter_offset_evidence and not cfg.offline_offset_refit  # off by default
+    with pytest.raises(InputError, match="offset_refit_passes"):
+        FilterConfig(offset_refit_passes="sideways")
+    with pytest.raises(InputError, match="offset_refit_tolerance_db"):
+        FilterConfig(offset_refit_tolerance_db=0.0)
+
+
+SMALL = ScenarioConfig(
+    size_m=10.0, step_m=0.25, duration_s=0.5, min_receiver_spacing_m=3.0, noise_db=0.5
+)
+
+
+def test_arbiter_adds_the_offset_penalty_to_the_objective() -> None:
+    sim = simulate(SMALL, 11)
+    tx = sim.site.devices[0].transmitter
+    space = candidate_space(sim.site, tx)
+    model = FilterModel.build(sim.site, space, MemoScorer(build_scorer(sim, "numba")))
+    obs = group_packets(sim.packets)
+    records = [(o.timestamp_s, space.heard(o), o.packet_id) for o in obs]
+    idx = np.searchsorted(sim.truth.timestamp_s, [o.timestamp_s for o in obs])
+    pos, ori = sim.truth.position_m[idx], sim.truth.orientation_deg[idx]
+    truth = {
+        o.packet_id: FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0)
+        for i, o in enumerate(obs)
+    }
+    wrong = dict(truth)
+    for _, _, key in records[len(records) // 4 : 3 * len(records) // 4]:
+        e = truth[key]
+        az, p, r = e.orientation_deg
+        wrong[key] = replace(e, orientation_deg=((az + 90.0) % 360.0, p, r))
+    cfg = FilterConfig()
+    _, log = arbitrate(model, records, [wrong, truth], 0.5, cfg, 30)
+    assert log[0].chosen == 1 and log[0].penalties == (0.0, 0.0)
+    b_wrong, b_truth = log[0].offsets_db
+    assert abs(b_wrong - b_truth) > 0.01  # the two optima sit at different offsets
+    cut = 0.5 * (b_wrong + b_truth)
+
+    def against_truth(b: float) -> float:
+        return 1e6 if (b - cut) * (b_truth - cut) > 0 else 0.0
+
+    _, log = arbitrate(model, records, [wrong, truth], 0.5, cfg, 30, offset_penalty=against_truth)
+    assert log[0].chosen == 0  # the penalty outweighs the truth's lead
+    assert log[0].penalties == (0.0, 1e6)
+    assert log[0].costs[1] < log[0].costs[0]  # the objective itself is unchanged
+
+
+# ------------------------------------------------- end to end: tuning seeds 7060, 7063
+ROUND7 = {
+    "arbiter_offset_evidence": True,
+    "offline_offset_refit": True,
+    "offset_refit_passes": "reversed",
+    "offset_refit_tolerance_db": 1.5,
+}
+
+
+def _loud_run(seed: int, sigma_db: float, over: dict) -> tuple[float, float]:
+    sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)
+    scorer = build_scorer(sim, "numba")
+    p = sim.packets
+    up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
+    sim = replace(sim, packets=up6)
+    base = TrackerConfig()
+    cfg = replace(base, filter=replace(base.filter, **over))
+    run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
+    assert run.summary.coverage == 1.0
+    return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
+
+
+@pytest.mark.parametrize(
+    ("seed", "part", "default_above_deg"),
+    [
+        # no tight pass near +6 dB; the reversed pass at the arbiter's +5.25 dB finds the
+        # truth's basin. Measured: default 78.1° / 3.55 m, round 7 0.90° / 0.200 m
+        (7060, "offline_offset_refit", 40.0),
+        # the mirror track at +1 dB (objective 723.8) against the truth's basin at +6.3 dB
+        # (724.4), whose tight pass won the evidence by 8 nats. Default 134.9° / 12.7 m,
+        # round 7 2.58° / 0.343 m
+        (7063, "arbiter_offset_evidence", 100.0),
+    ],
+)
+def test_round7_leaves_the_wrong_lock_of_a_tuning_seed(
+    seed: int, part: str, default_above_deg: float
+) -> None:
+    assert _loud_run(seed, 3.0, {})[1] > default_above_deg
+    pos_m, ori_deg = _loud_run(seed, 3.0, ROUND7)
+    assert ori_deg < 5.0 and pos_m < 0.6
+    # the part removed: the wrong lock stays
+    assert _loud_run(seed, 3.0, {**ROUND7, part: False})[1] > default_above_deg
