@@ -69,6 +69,7 @@ TIERS: dict[str, str] = {
     "test_pipeline_cli": "e2e",
     "test_pose3d": "e2e",
     "test_refine3d": "e2e",
+    "test_reverse3d": "e2e",
     "test_realdata": "e2e",
     "test_scripts_smoke": "e2e",
     "test_security_experiments": "e2e",

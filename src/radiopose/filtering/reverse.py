@@ -362,7 +362,7 @@ def reversed_tracks3d(
     """
     from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
 
-    p3 = pf.pose3d if pf.pose3d.heading_prior_deg == 0 else replace(pf.pose3d, heading_prior_deg=0.0)
+    p3 = replace(pf.pose3d, heading_prior_deg=0.0)  # not time-reversible: off
     rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, p3)
     st = rpf.new_state(seed)
     if members and isinstance(st, FilterState3d) and st.bank:
