@@ -172,7 +172,8 @@ def test_the_reversed_pass_leaves_a_wrong_mode():
     (measured 4.2°, 0.18 m). Removing the reversed pass breaks the second bound."""
     from radiopose.evaluate.pose3d import axis_errors
 
-    sim = simulate_handheld(replace(HandheldConfig(), n_receivers=6, noise_db=1.0, duration_s=4.0), seed=7114)
+    cfg = replace(HandheldConfig(), n_receivers=6, noise_db=1.0, duration_s=4.0)
+    sim = simulate_handheld(cfg, seed=7114)
     base = TrackerConfig()
     off = replace(base, pose3d=replace(base.pose3d, refine_reverse_pass=False))
     on = replace(base, pose3d=replace(base.pose3d, refine_reverse_pass=True))
