@@ -26,7 +26,8 @@ Usage::
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
-        [--oracle] [--polish-modes K MARGIN SWITCH] [--quick] [--out FILE.md]
+        [--oracle] [--polish-modes K MARGIN SWITCH] [--reverse-pass] [--reverse-members]
+        [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
 included (``Pose3dConfig.refine``); ``--no-refine`` adds the filter without it,
@@ -198,6 +199,18 @@ def main(argv: list[str] | None = None) -> int:
         "refine_polish_switch; docs/pose3d.md, 'Mode choice')",
     )
     ap.add_argument(
+        "--reverse-pass",
+        action="store_true",
+        help="also run each condition with the offline reversed pass's track as one more "
+        "refinement start (refine_reverse_pass; docs/pose3d.md, 'Reversed pass')",
+    )
+    ap.add_argument(
+        "--reverse-members",
+        action="store_true",
+        help="also run each condition with the reversed pass's track and its bank members' "
+        "tracks as starts (refine_reverse_pass and refine_reverse_members)",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -239,6 +252,11 @@ def main(argv: list[str] | None = None) -> int:
               "refine_polish_switch": switch}  # fmt: skip
         label = f"polish up to {k} modes within {margin:g}, switch {switch:g}"
         variants.append((label, pm, 0.0))
+    if args.reverse_pass:
+        variants.append(("+ reversed pass", {"refine_reverse_pass": True}, 0.0))
+    if args.reverse_members:
+        rm = {"refine_reverse_pass": True, "refine_reverse_members": True}
+        variants.append(("+ reversed pass and its members", rm, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:

@@ -184,7 +184,7 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
     variants = ["--heading-prior-deg", "30", "--power-error-db", "4", "--no-refine", "--oracle"]
     variants += ["--refine-accel", "1", "400", "--refine-polish", "1"]
-    variants += ["--polish-modes", "3", "10", "5"]
+    variants += ["--polish-modes", "3", "10", "5", "--reverse-pass", "--reverse-members"]
     printed = _run(
         SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3", *variants], capsys
     )
@@ -199,6 +199,8 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
         "refinement prior constant-rate (height 1, tilt 400), polish 1",
         "oracle, refinement prior constant-rate (height 1, tilt 400)",
         "polish up to 3 modes within 10, switch 5",
+        "+ reversed pass",
+        "+ reversed pass and its members",
     ):
         assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 

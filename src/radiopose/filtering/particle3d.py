@@ -202,6 +202,17 @@ class Pose3dConfig:
         objective wins). Default since 2026-11-27: up to 3 modes within 10,
         switch 5 (chosen on tuning seeds 7100–7119, held on 7120–7139; before:
         1, any margin, 0).
+    refine_reverse_pass
+        Offline only (with ``refine``): also run the filter over the
+        time-reversed packets (a fresh state, its own seed;
+        :func:`radiopose.filtering.reverse.reversed_tracks3d`) and refine its
+        smoothed track as one more start (docs/pose3d.md, "Reversed pass,
+        2026-11-27"): a wrong mode over the start or end of the forward track
+        is entered from the other side. The causal filter and the live server
+        never run it.
+    refine_reverse_members
+        With ``refine_reverse_pass`` and the offset bank: also refine from
+        each of the reversed pass's bank members' own smoothed tracks.
     """
 
     n_particles: int = 2000
@@ -236,6 +247,8 @@ class Pose3dConfig:
     refine_polish_starts: int = 3
     refine_polish_margin: float = 10.0
     refine_polish_switch: float = 5.0
+    refine_reverse_pass: bool = False
+    refine_reverse_members: bool = False
 
     def __post_init__(self) -> None:
         for name in (

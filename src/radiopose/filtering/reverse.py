@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -41,6 +42,9 @@ from radiopose.filtering.offset import run_pass, tight_config
 from radiopose.filtering.particle import ParticleFilter
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray, angle_diff_deg
+
+if TYPE_CHECKING:
+    from radiopose.filtering.particle3d import ParticleFilter3d
 
 Record = tuple[float, HeardRss, object]
 """One packet as the passes replay it: ``(t_s, heard, key)``."""
@@ -367,6 +371,45 @@ def reverse_pass(
     )  # fmt: skip
 
 
+def reversed_tracks3d(
+    pf: ParticleFilter3d, records: list[Record], seed: int, members: bool
+) -> list[list[tuple[object, FilterEstimate]]]:
+    """The 3-D filter's pass over the time-reversed packets (offline; docs/pose3d.md,
+    "Reversed pass, 2026-11-27"): smoothed tracks ``(key, estimate)`` of the same
+    packets, to be refined as more starts by
+    :func:`radiopose.filtering.refine3d.refine_smoothed`.
+
+    A fresh filter with ``pf``'s model, settings and lag runs over
+    :func:`reversed_records` from a new state seeded ``seed``. The 3-D motion
+    model is time-reversible: x, y nearly constant velocity and azimuth constant
+    turn rate (their velocity and rate come out negated, which the pose
+    estimates do not read), height, pitch and roll random walks (symmetric,
+    reflected at the same supports). The optional heading prior is not (it
+    ties the azimuth to the velocity, which the reversal negates), so the
+    reversed pass runs without it. Returns the pass's own smoothed track (the
+    offset bank's chosen member by its whole-track evidence) and, with
+    ``members`` and the offset bank on, each bank member's own smoothed track.
+    """
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+
+    p3 = replace(pf.pose3d, heading_prior_deg=0.0)  # not time-reversible: off
+    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, p3)
+    st = rpf.new_state(seed)
+    if members and isinstance(st, FilterState3d) and st.bank:
+        st.bank_smoothed = [[] for _ in st.bank]
+    chosen: list[tuple[object, FilterEstimate]] = []
+    for t_s, heard, key in reversed_records(records):
+        rpf.step(st, t_s, heard, key)
+        chosen += rpf.take_smoothed()
+    rpf.flush(st)
+    chosen += rpf.take_smoothed()
+    out = [chosen]
+    if isinstance(st, FilterState3d) and st.bank_smoothed is not None:
+        out += st.bank_smoothed
+        st.bank_smoothed = None
+    return out
+
+
 __all__ = [
     "OFFSET_GRID_DB",
     "Record",
@@ -380,5 +423,6 @@ __all__ = [
     "reverse_pass",
     "reversed_config",
     "reversed_records",
+    "reversed_tracks3d",
     "run_reversed",
 ]

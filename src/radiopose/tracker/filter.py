@@ -37,7 +37,7 @@ import numpy as np
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers, try_fork
 from radiopose.filtering.offset import OffsetPass, select_offset
-from radiopose.filtering.reverse import ReversedRun, reverse_pass, run_reversed
+from radiopose.filtering.reverse import ReversedRun, reverse_pass, reversed_tracks3d, run_reversed
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
 from radiopose.tracker.config import filter_config
@@ -451,6 +451,11 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
     if isinstance(state, FilterState3d) and state.bank_smoothed is not None:
         members, state.bank_smoothed = state.bank_smoothed, None
     p3 = pf.pose3d
+    if p3.refine_reverse_pass and records:
+        # the filter over the time-reversed packets: its smoothed track (and its
+        # members') as more starts (docs/pose3d.md, "Reversed pass, 2026-11-27")
+        seed = (filter_seed(device.config.seed, device.key) + 1) % 2**63
+        members = members + reversed_tracks3d(pf, records, seed, p3.refine_reverse_members)
     return refine_smoothed(
         pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
         p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
