@@ -58,8 +58,6 @@ Tuning (seeds 7000–7059 only; each run's numbers go to stderr)::
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -71,6 +69,7 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
+from radiopose.filtering.config import config_overrides
 from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
@@ -141,23 +140,12 @@ def _edited(sim: Simulation, edit: str) -> Simulation:
 
 
 def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
-    """``FIELD=VALUE`` items as :class:`FilterConfig` overrides (argparse errors
-    for unknown fields, non-literals and values the config refuses)."""
-    fields = {f.name for f in dataclasses.fields(FilterConfig)}
-    out: dict[str, object] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        if key not in fields:
-            ap.error(f"--set {item}: {key!r} is not a FilterConfig field")
-        try:
-            out[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            ap.error(f"--set {item}: {value!r} is not a Python literal")
+    """``--set FIELD=VALUE`` items as :class:`FilterConfig` overrides
+    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors)."""
     try:
-        replace(FilterConfig(), **out)
-    except (InputError, TypeError) as exc:
-        ap.error(str(exc))
-    return out
+        return config_overrides(items)
+    except InputError as exc:
+        ap.error(f"--set {exc}")
 
 
 def _one(

@@ -39,8 +39,6 @@ Usage (tuning seeds 7000–7099 only)::
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import math
 from dataclasses import replace
 from typing import Any
@@ -52,6 +50,7 @@ import radiopose.tracker.filter as tracker_filter
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
+from radiopose.filtering.config import config_overrides
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
 from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
@@ -289,23 +288,12 @@ def diagnose_candidates(
 
 
 def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
-    """``FIELD=VALUE`` items as :class:`FilterConfig` overrides (argparse errors
-    for unknown fields, non-literals and values the config refuses)."""
-    fields = {f.name for f in dataclasses.fields(FilterConfig)}
-    out: dict[str, object] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        if key not in fields:
-            ap.error(f"--set {item}: {key!r} is not a FilterConfig field")
-        try:
-            out[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            ap.error(f"--set {item}: {value!r} is not a Python literal")
+    """``--set FIELD=VALUE`` items as :class:`FilterConfig` overrides
+    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors)."""
     try:
-        replace(FilterConfig(), **out)
-    except (InputError, TypeError) as exc:
-        ap.error(str(exc))
-    return out
+        return config_overrides(items)
+    except InputError as exc:
+        ap.error(f"--set {exc}")
 
 
 def main(argv: list[str] | None = None) -> int:

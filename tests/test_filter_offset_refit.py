@@ -17,17 +17,16 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
-import numpy as np
 import pytest
 
+from filter_support import small_site, turned
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
+from radiopose.filtering import FilterConfig
 from radiopose.filtering.offset import OffsetPass
 from radiopose.filtering.offset_refit import evidence_penalty, needs_refit
 from radiopose.filtering.refine2d import arbitrate
-from radiopose.likelihood import MemoScorer, candidate_space
-from radiopose.packets import Packets, group_packets
+from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
@@ -68,29 +67,10 @@ def test_settings_are_checked() -> None:
         FilterConfig(offset_refit_tolerance_db=0.0)
 
 
-SMALL = ScenarioConfig(
-    size_m=10.0, step_m=0.25, duration_s=0.5, min_receiver_spacing_m=3.0, noise_db=0.5
-)
-
-
 def test_arbiter_adds_the_offset_penalty_to_the_objective() -> None:
-    sim = simulate(SMALL, 11)
-    tx = sim.site.devices[0].transmitter
-    space = candidate_space(sim.site, tx)
-    model = FilterModel.build(sim.site, space, MemoScorer(build_scorer(sim, "numba")))
-    obs = group_packets(sim.packets)
-    records = [(o.timestamp_s, space.heard(o), o.packet_id) for o in obs]
-    idx = np.searchsorted(sim.truth.timestamp_s, [o.timestamp_s for o in obs])
-    pos, ori = sim.truth.position_m[idx], sim.truth.orientation_deg[idx]
-    truth = {
-        o.packet_id: FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0)
-        for i, o in enumerate(obs)
-    }
-    wrong = dict(truth)
-    for _, _, key in records[len(records) // 4 : 3 * len(records) // 4]:
-        e = truth[key]
-        az, p, r = e.orientation_deg
-        wrong[key] = replace(e, orientation_deg=((az + 90.0) % 360.0, p, r))
+    site = small_site()
+    model, records, truth = site.model, site.records, site.truth
+    wrong = turned(truth, records, len(records) // 4, 3 * len(records) // 4)
     cfg = FilterConfig()
     _, log = arbitrate(model, records, [wrong, truth], 0.5, cfg, 30)
     assert log[0].chosen == 1 and log[0].penalties == (0.0, 0.0)

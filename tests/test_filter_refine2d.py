@@ -19,47 +19,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from filter_support import small_site, turned
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
+from radiopose.filtering import FilterConfig
 from radiopose.filtering.refine2d import arbitrate, refine_track_2d
-from radiopose.likelihood import MemoScorer, candidate_space
-from radiopose.packets import Packets, group_packets
+from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 from radiopose.units import angle_diff_deg
 
-SMALL = ScenarioConfig(
-    size_m=10.0, step_m=0.25, duration_s=0.5, min_receiver_spacing_m=3.0, noise_db=0.5
-)
-
 
 @pytest.fixture(scope="module")
 def small():
-    sim = simulate(SMALL, 11)
-    tx = sim.site.devices[0].transmitter
-    space = candidate_space(sim.site, tx)
-    model = FilterModel.build(sim.site, space, MemoScorer(build_scorer(sim, "numba")))
-    obs = group_packets(sim.packets)
-    records = [(o.timestamp_s, space.heard(o), o.packet_id) for o in obs]
-    idx = np.searchsorted(sim.truth.timestamp_s, [o.timestamp_s for o in obs])
-    pos = sim.truth.position_m[idx]
-    ori = sim.truth.orientation_deg[idx]
-    truth = {
-        o.packet_id: FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0)
-        for i, o in enumerate(obs)
-    }
-    return model, records, truth, pos, ori
-
-
-def _turned(truth: dict, records: list, lo: int, hi: int) -> dict:
-    """The truth with the packets ``lo:hi`` turned 90° (a wrong lock)."""
-    out = dict(truth)
-    for _, _, key in records[lo:hi]:
-        e = truth[key]
-        az, p, r = e.orientation_deg
-        out[key] = replace(e, orientation_deg=((az + 90.0) % 360.0, p, r))
-    return out
+    site = small_site()
+    return site.model, site.records, site.truth, site.position_m, site.orientation_deg
 
 
 def test_refinement_takes_a_jittered_track_towards_the_truth(small) -> None:
@@ -86,7 +60,7 @@ def test_refinement_takes_a_jittered_track_towards_the_truth(small) -> None:
 def test_arbiter_keeps_the_truth_over_a_wrong_lock(small) -> None:
     model, records, truth, _, _ = small
     n = len(records)
-    wrong = _turned(truth, records, n // 4, 3 * n // 4)
+    wrong = turned(truth, records, n // 4, 3 * n // 4)
     cfg = FilterConfig()
     for cands, want in (([wrong, truth], 1), ([truth, wrong], 0)):
         out, log = arbitrate(model, records, cands, 0.5, cfg, 30)

@@ -15,22 +15,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from filter_support import small_site, turned
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
+from radiopose.filtering import FilterConfig
 from radiopose.filtering.reverse import (
     combine_tracks,
     disagreement_segments,
     reversed_records,
 )
-from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
-from radiopose.packets import group_packets
+from radiopose.likelihood import HeardRss
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
-
-SMALL = ScenarioConfig(
-    size_m=10.0, step_m=0.25, duration_s=0.5, min_receiver_spacing_m=3.0, noise_db=0.5
-)
 
 
 def test_reversed_records_run_backwards_from_the_same_start() -> None:
@@ -58,30 +54,8 @@ def test_disagreement_segments_are_joined_across_short_gaps() -> None:
 
 @pytest.fixture(scope="module")
 def small():
-    sim = simulate(SMALL, 11)
-    tx = sim.site.devices[0].transmitter
-    space = candidate_space(sim.site, tx)
-    model = FilterModel.build(sim.site, space, MemoScorer(build_scorer(sim, "numba")))
-    obs = group_packets(sim.packets)
-    records = [(o.timestamp_s, space.heard(o), o.packet_id) for o in obs]
-    idx = np.searchsorted(sim.truth.timestamp_s, [o.timestamp_s for o in obs])
-    truth = {
-        o.packet_id: FilterEstimate(
-            tuple(sim.truth.position_m[i]), tuple(sim.truth.orientation_deg[i]), 0.1, 1.0
-        )
-        for o, i in zip(obs, idx, strict=True)
-    }
-    return model, records, truth
-
-
-def _turned(truth: dict, records: list, lo: int, hi: int) -> dict:
-    """The truth with the packets ``lo:hi`` turned 90° (a wrong lock)."""
-    out = dict(truth)
-    for _, _, key in records[lo:hi]:
-        e = truth[key]
-        az, p, r = e.orientation_deg
-        out[key] = replace(e, orientation_deg=((az + 90.0) % 360.0, p, r))
-    return out
+    site = small_site()
+    return site.model, site.records, site.truth
 
 
 def _combine(small, forward: dict, reverse: dict):
@@ -98,7 +72,7 @@ def _combine(small, forward: dict, reverse: dict):
 def test_combination_takes_the_likelier_track_per_segment(small) -> None:
     _, records, truth = small
     n = len(records)
-    wrong = _turned(truth, records, n // 4, n // 2)
+    wrong = turned(truth, records, n // 4, n // 2)
     # the forward track holds the wrong lock: the reversed one (the truth) is taken there
     combined, segs = _combine(small, wrong, truth)
     assert [(s.start, s.stop) for s in segs] == [(n // 4, n // 2)]

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from filter_support import SCENE_3D, SEED_3D, scene_3d
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors_of
 from radiopose.filtering import FilterConfig
@@ -17,27 +18,15 @@ from radiopose.filtering.particle3d import FilterModel3d, Pose3dConfig
 from radiopose.filtering.refine3d import MotionPrior, refine_track
 from radiopose.likelihood import HeardRss, candidate_space
 from radiopose.packets import group_packets
-from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+from radiopose.simulate.handheld import simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 
-# tests/test_pose3d.py's noise-free scene (a 1 s walk), with 8 receivers: each
-# packet alone fixes the pose (docs/pose3d.md, "Why a single packet does not fix
-# a 3-D pose"), so the truth is the refinement's optimum up to the map's error
-SCENE = HandheldConfig(
-    size_m=10.0, step_m=0.5, n_receivers=8, duration_s=1.0, noise_db=0.0,
-    min_receiver_spacing_m=3.0, survey_step_m=1.0,
-)  # fmt: skip
-SEED = 424242
+SCENE, SEED = SCENE_3D, SEED_3D  # filter_support's noise-free 3-D scene
 
 
 @pytest.fixture(scope="module")
 def scene():
-    sim = simulate_handheld(SCENE, seed=SEED)
-    site = sim.site
-    space = candidate_space(site, site.devices[0].transmitter)
-    p3 = Pose3dConfig()
-    model = FilterModel3d.build3d(site, space, p3)
-    obs = group_packets(sim.packets)
+    sim, space, p3, model, obs = scene_3d()
     heard = [space.heard(o) for o in obs]
     t = np.array([o.timestamp_s for o in obs])
     prior = MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)

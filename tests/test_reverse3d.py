@@ -16,33 +16,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from filter_support import SCENE_3D, SEED_3D, scene_3d
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors_of
 from radiopose.filtering import FilterConfig
-from radiopose.filtering.particle3d import FilterModel3d, ParticleFilter3d, Pose3dConfig
+from radiopose.filtering.particle3d import ParticleFilter3d, Pose3dConfig
 from radiopose.filtering.reverse import reversed_records, reversed_tracks3d
-from radiopose.likelihood import candidate_space
-from radiopose.packets import group_packets
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 from radiopose.tracker_settings import read_tracker_settings, write_tracker_toml
 
-# tests/test_refine3d.py's noise-free scene (a 1 s walk, 8 receivers)
-SCENE = HandheldConfig(
-    size_m=10.0, step_m=0.5, n_receivers=8, duration_s=1.0, noise_db=0.0,
-    min_receiver_spacing_m=3.0, survey_step_m=1.0,
-)  # fmt: skip
-SEED = 424242
+SCENE, SEED = SCENE_3D, SEED_3D  # filter_support's noise-free 3-D scene
 
 
 @pytest.fixture(scope="module")
 def scene():
-    sim = simulate_handheld(SCENE, seed=SEED)
-    site = sim.site
-    space = candidate_space(site, site.devices[0].transmitter)
-    p3 = Pose3dConfig()
-    model = FilterModel3d.build3d(site, space, p3)
-    obs = group_packets(sim.packets)
+    sim, space, p3, model, obs = scene_3d()
     records = [(o.timestamp_s, space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
     return sim, model, p3, records
 

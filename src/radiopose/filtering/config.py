@@ -7,7 +7,10 @@ uncertainty); :mod:`radiopose.filtering.particle` runs the filter they describe.
 
 from __future__ import annotations
 
+import ast
+import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from radiopose.errors import InputError
@@ -341,3 +344,30 @@ class FilterEstimate:
     azimuth_std_deg: float
     offset_db: float = math.nan
     sigma_db: float = math.nan
+
+
+def config_overrides(items: Sequence[str]) -> dict[str, object]:
+    """``FIELD=VALUE`` items (the scripts' ``--set``; VALUE a Python literal)
+    as :class:`FilterConfig` overrides, checked by building the config.
+
+    Raises
+    ------
+    InputError
+        An unknown field, a VALUE that is not a literal, or a value the
+        config refuses; the message names the item.
+    """
+    fields = {f.name for f in dataclasses.fields(FilterConfig)}
+    out: dict[str, object] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in fields:
+            raise InputError(f"{item}: {key!r} is not a FilterConfig field")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            raise InputError(f"{item}: {value!r} is not a Python literal") from None
+    try:
+        dataclasses.replace(FilterConfig(), **out)  # type: ignore[arg-type]
+    except TypeError as exc:
+        raise InputError(str(exc)) from None
+    return out

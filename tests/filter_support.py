@@ -1,0 +1,95 @@
+"""Shared inputs of the offline pass tests: 2-D (arbiter, reversed pass,
+round 7) and 3-D (refinement, reversed pass).
+
+A small simulated site (10 m, 0.25 m grid, 0.5 s at σ = 0.5 dB, seed 11) with
+its filter model, the packets as the offline passes replay them and the
+truth as a candidate track; and a wrong lock made from the truth. A noise-free
+3-D hand-held scene whose single packets fix the pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from radiopose.evaluate.demo import build_scorer
+from radiopose.filtering import FilterEstimate, FilterModel
+from radiopose.filtering.particle3d import FilterModel3d, Pose3dConfig
+from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
+from radiopose.likelihood.candidates import CandidateSpace
+from radiopose.packets import PacketObservation, group_packets
+from radiopose.simulate import ScenarioConfig, Simulation, simulate
+from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+from radiopose.units import FloatArray
+
+SMALL = ScenarioConfig(
+    size_m=10.0, step_m=0.25, duration_s=0.5, min_receiver_spacing_m=3.0, noise_db=0.5
+)
+"""The small site's scenario."""
+
+
+@dataclass(frozen=True)
+class SmallSite:
+    """The small site's filter model, its packets ``(t_s, heard, key)`` in time
+    order, the truth by key (a candidate track) and the true positions (m) and
+    orientations (°) per packet."""
+
+    model: FilterModel
+    records: list[tuple[float, HeardRss, object]]
+    truth: dict[object, FilterEstimate]
+    position_m: FloatArray
+    orientation_deg: FloatArray
+
+
+def small_site(seed: int = 11) -> SmallSite:
+    """:class:`SmallSite` of :data:`SMALL` at ``seed``."""
+    sim = simulate(SMALL, seed)
+    tx = sim.site.devices[0].transmitter
+    space = candidate_space(sim.site, tx)
+    model = FilterModel.build(sim.site, space, MemoScorer(build_scorer(sim, "numba")))
+    obs = group_packets(sim.packets)
+    records = [(o.timestamp_s, space.heard(o), o.packet_id) for o in obs]
+    idx = np.searchsorted(sim.truth.timestamp_s, [o.timestamp_s for o in obs])
+    pos, ori = sim.truth.position_m[idx], sim.truth.orientation_deg[idx]
+    truth: dict[object, FilterEstimate] = {
+        o.packet_id: FilterEstimate(tuple(pos[i]), tuple(ori[i]), 0.1, 1.0)
+        for i, o in enumerate(obs)
+    }
+    return SmallSite(model, records, truth, pos, ori)
+
+
+def turned(truth: dict, records: list, lo: int, hi: int) -> dict:
+    """The truth with the packets ``lo:hi`` turned 90° in azimuth (a wrong lock)."""
+    out = dict(truth)
+    for _, _, key in records[lo:hi]:
+        e = truth[key]
+        az, p, r = e.orientation_deg
+        out[key] = replace(e, orientation_deg=((az + 90.0) % 360.0, p, r))
+    return out
+
+
+# tests/test_pose3d.py's noise-free scene (a 1 s walk), with 8 receivers: each
+# packet alone fixes the pose (docs/pose3d.md, "Why a single packet does not fix
+# a 3-D pose"), so the truth is the refinement's optimum up to the map's error
+SCENE_3D = HandheldConfig(
+    size_m=10.0, step_m=0.5, n_receivers=8, duration_s=1.0, noise_db=0.0,
+    min_receiver_spacing_m=3.0, survey_step_m=1.0,
+)  # fmt: skip
+"""The 3-D tests' noise-free scene."""
+
+SEED_3D = 424242
+"""Its seed."""
+
+
+def scene_3d() -> tuple[
+    Simulation, CandidateSpace, Pose3dConfig, FilterModel3d, list[PacketObservation]
+]:
+    """:data:`SCENE_3D` simulated at :data:`SEED_3D`: the simulation, the
+    device's candidate space, the default 3-D settings, the 3-D filter model and
+    the packets in time order."""
+    sim = simulate_handheld(SCENE_3D, seed=SEED_3D)
+    site = sim.site
+    space = candidate_space(site, site.devices[0].transmitter)
+    p3 = Pose3dConfig()
+    return sim, space, p3, FilterModel3d.build3d(site, space, p3), group_packets(sim.packets)
