@@ -116,10 +116,11 @@ def test_locate_runs_the_reversed_pass_offline_only_when_on(monkeypatch):
     monkeypatch.setattr(r3, "refine_smoothed", rs_spy)
     monkeypatch.setattr(ParticleFilter3d, "__init__", init_spy)
     n_bank = len(Pose3dConfig().offset_bank_db)
-    base = TrackerConfig()
-    locate(sim.site, sim.packets, "filter", base)
-    assert runs == [] and starts == [n_bank]  # off by default
-    on = replace(base, pose3d=replace(base.pose3d, refine_reverse_pass=True))
+    on = TrackerConfig()
+    assert on.pose3d.refine_reverse_pass  # on by default
+    off = replace(on, pose3d=replace(on.pose3d, refine_reverse_pass=False))
+    locate(sim.site, sim.packets, "filter", off)
+    assert runs == [] and starts == [n_bank]
     locate(sim.site, sim.packets, "filter", on)
     assert runs == [(False, 0.0)] and starts[-1] == n_bank + 1
     both = replace(on, pose3d=replace(on.pose3d, refine_reverse_members=True))
@@ -139,7 +140,7 @@ def test_the_setting_is_a_boolean(tmp_path: Path):
     """``refine_reverse_pass`` and ``refine_reverse_members`` read from
     ``[filter.pose3d]`` as booleans and round-trip; a number is a one-line error
     naming the key."""
-    assert Pose3dConfig().refine_reverse_pass is False
+    assert Pose3dConfig().refine_reverse_pass is True
     p = tmp_path / "tracker.toml"
     p.write_text("[filter.pose3d]\nrefine_reverse_pass = true\nrefine_reverse_members = true\n")
     cfg = read_tracker_settings(p).pose3d()
