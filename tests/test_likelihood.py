@@ -217,3 +217,21 @@ def test_memo_scorer_passes_the_window_through(tiny_sim):
         inner.score_window(heard, 10, positions, 30.0, 40.0),
     )
     assert not hasattr(MemoScorer(TableScorer(space)), "score_window")
+
+
+def test_memo_scorer_hands_out_the_inner_one_thread_twin(tiny_sim):
+    """The filter asks its scorer for a one-thread twin (``with_parallel``): behind
+    a memo (the demo, ``evaluate``) it gets the inner scorer's, as in a plain
+    ``locate``, with the same top-k."""
+    from radiopose.filtering import FilterModel
+    from radiopose.likelihood.compiled import ShiftScorer
+    from radiopose.likelihood.memo import MemoScorer
+
+    space = _space(tiny_sim)
+    inner = ShiftScorer(space, parallel=True)
+    memo = MemoScorer(inner)
+    model = FilterModel.build(tiny_sim.site, space, memo)
+    assert isinstance(model.scorer, ShiftScorer) and not model.scorer.parallel
+    heard = space.heard(group_packets(tiny_sim.packets)[0])
+    _assert_same(model.scorer.score_heard(heard, 10), memo.score_heard(heard, 10))
+    assert not hasattr(MemoScorer(TableScorer(space)), "with_parallel")

@@ -37,6 +37,12 @@ class MemoScorer:
             self.score_window = inner.score_window  # type: ignore[attr-defined]
         if self.supports_position_mse:
             self.position_mse_db2 = inner.position_mse_db2  # type: ignore[attr-defined]
+        # The one-thread twin (``with_parallel``) is the inner scorer's own: a
+        # method that asks for it (the filter's re-entry, whose searches at
+        # its own offsets other methods never repeat) gets the same scorer as
+        # in a plain ``locate``, unremembered (results do not depend on it).
+        if hasattr(inner, "with_parallel"):
+            self.with_parallel = inner.with_parallel
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
         key = (tuple(heard.receiver_index.tolist()), heard.rss_dbm.tobytes(), k)
