@@ -182,9 +182,10 @@ class FilterConfig:
         tight pass runs there and its track competes
         (:func:`radiopose.filtering.offset_refit.arbitrate_offline`).
     offset_refit_tolerance_db
-        See ``offline_offset_refit``, dB.
+        See ``offline_offset_refit``, dB (default 1.5, as measured).
     offset_refit_passes
-        Which passes the refit runs at that offset: ``"forward"``,
+        Which passes the refit runs at that offset (default ``"reversed"``,
+        as measured): ``"forward"``,
         ``"reversed"`` (over the time-reversed packets, as
         ``offline_reverse_pass``) or ``"both"``.
     """
@@ -249,8 +250,8 @@ class FilterConfig:
     # evidence, and a tight pass at the arbiter's offset (both off by default)
     arbiter_offset_evidence: bool = False
     offline_offset_refit: bool = False
-    offset_refit_tolerance_db: float = 1.0
-    offset_refit_passes: str = "forward"
+    offset_refit_tolerance_db: float = 1.5
+    offset_refit_passes: str = "reversed"
 
     def __post_init__(self) -> None:
         positive = (
