@@ -235,6 +235,17 @@ class ForkedCall(Generic[R]):
         self._proc.close()
 
 
+def result_or_none(job: ForkedCall[R] | None) -> R | None:
+    """``job``'s result (:meth:`ForkedCall.result`), or ``None`` without a job
+    or when its child failed: the caller then runs the call itself."""
+    if job is None:
+        return None
+    try:
+        return job.result()
+    except ChildFailedError:
+        return None
+
+
 def _run_bin(fns: Sequence[Callable[[], R]], idx: Sequence[int]) -> list[R]:
     return [fns[i]() for i in idx]
 
@@ -277,12 +288,9 @@ def map_forked(
     for i, r in zip(bins[0], here, strict=True):
         out[i] = r
     for b, child in zip(away, children, strict=True):
-        try:
-            if child is None:
-                raise ChildFailedError("not started")
-            res = child.result()
-        except ChildFailedError:
-            res = _run_bin(fns, b)  # the same calls here: their error, if any, is raised here
+        res = result_or_none(child)
+        if res is None:  # not started or failed: the same calls here (their error, if any)
+            res = _run_bin(fns, b)
         for i, r in zip(b, res, strict=True):
             out[i] = r
     return out
@@ -297,5 +305,6 @@ __all__ = [
     "effective_workers",
     "fork_available",
     "map_forked",
+    "result_or_none",
     "try_fork",
 ]

@@ -35,7 +35,7 @@ from typing import cast
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
-from radiopose.filtering.forked import ChildFailedError, ForkedCall, effective_workers, try_fork
+from radiopose.filtering.forked import ForkedCall, effective_workers, result_or_none, try_fork
 from radiopose.filtering.offset import OffsetPass, select_offset
 from radiopose.filtering.reverse import ReversedRun, reverse_pass, reversed_tracks3d, run_reversed
 from radiopose.likelihood import HeardRss
@@ -238,7 +238,7 @@ class FilterMethod:
                 if job is not None:
                     job.cancel()
                 raise
-            pre = ahead.take(records) if ahead is not None else _result(job)
+            pre = ahead.take(records) if ahead is not None else result_or_none(job)
             rev: dict[object, FilterEstimate] = {}
             combined, _ = reverse_pass(
                 pf, records, forward, passes[best].centre_db, seed, sigma_db,
@@ -301,10 +301,7 @@ class _LookAhead:
         if self._done or self.job is None:
             return
         self._done = True
-        try:
-            self._result = self.job.result()
-        except ChildFailedError:
-            self._result = None
+        self._result = result_or_none(self.job)
 
     def take(self, records: list[tuple[float, HeardRss, object]]) -> ReversedRun | None:
         """The child's result if it ran over exactly ``records`` (the packets
@@ -328,17 +325,6 @@ def _core_free(device: Device) -> bool:
     (one per device) fewer than ``offline_workers − 1``."""
     running = sum(1 for v in device.shared.values() if isinstance(v, _LookAhead) and v.running())
     return running < effective_workers(device.config.filter.offline_workers) - 1
-
-
-def _result(job: ForkedCall[ReversedRun] | None) -> ReversedRun | None:
-    """``job``'s result, ``None`` without a job or if its child failed (the
-    caller then runs the pass here)."""
-    if job is None:
-        return None
-    try:
-        return job.result()
-    except ChildFailedError:
-        return None
 
 
 def _same_records(
