@@ -20,7 +20,9 @@ to its own optimum of one objective, and the lowest optimum wins:
   consecutive intervals of x, y over ``accel_noise_mps2·√((dt₁ + dt₂)/3)``,
   of the (wrapped) azimuth over ``angular_accel_noise_dps2·√(…)``.
 * Solved by :func:`radiopose.filtering.refine3d._levenberg_marquardt`
-  (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations);
+  (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations;
+  with ``FilterConfig.refine_banded`` the same iteration solves them in band
+  form, :func:`_banded_levenberg_marquardt`);
   the data Jacobian by central differences (6 model evaluations), the prior's
   constant; x, y bounded by the survey map.
 
@@ -37,6 +39,7 @@ from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
+import scipy.sparse as sp
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
@@ -46,6 +49,7 @@ from radiopose.filtering.model import FilterModel
 from radiopose.filtering.refine3d import (
     _FD_STEP,
     _MIN_DT_S,
+    _levenberg_marquardt,
     _wrap,
     checked_track,
     soft_l1_head,
@@ -174,20 +178,33 @@ def refine_track_2d(
             w_az = 1.0 / (q * np.sqrt((d1 + d2) / 3.0))  # the last: the azimuth's
             coef[comp] = np.column_stack([w_az / d2, -w_az / d2 - w_az / d1, w_az / d1])
 
+    n_vars = _POSE * n + 1
+    A = None
+    if not config.refine_banded:  # the sparse rows, as before the banded solve
+        i = np.arange(1, n - 1)
+        rows = [c * k + np.arange(k) for c in range(3) for _ in range(3)]
+        cols = [_POSE * j + c for c in range(3) for j in (i + 1, i, i - 1)]
+        vals = [coef[c, :, a] for c in range(3) for a in range(3)]
+        A = sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(3 * k, n_vars),
+        )
+
     def prior(x: FloatArray) -> FloatArray:
-        out = np.empty(3 * k)
-        if not k:
-            return out
-        X = x[: _POSE * n].reshape(n, _POSE)
-        for comp in range(2):  # as a CSR product would sum the row: i + 1, i, i − 1
-            c = coef[comp]
-            v = X[:, comp]
-            out[comp * k : (comp + 1) * k] = (c[:, 0] * v[2:] + c[:, 1] * v[1:-1]) + c[:, 2] * v[
-                :-2
-            ]
-        # azimuth first differences wrapped (the solver may cross ±π)
-        d = _wrap(np.diff(X[:, 2]))
-        out[2 * k :] = (d[1:] / dt[1:] - d[:-1] / dt[:-1]) * w_az
+        if A is not None:
+            out = np.asarray(A @ x)
+        else:
+            out = np.empty(3 * k)
+            X = x[: _POSE * n].reshape(n, _POSE)
+            for comp in range(2):  # as the CSR product sums the row: i + 1, i, i − 1
+                c, v = coef[comp], X[:, comp]
+                out[comp * k : (comp + 1) * k] = (c[:, 0] * v[2:] + c[:, 1] * v[1:-1]) + c[
+                    :, 2
+                ] * v[:-2]
+        if k:
+            # azimuth first differences wrapped (the solver may cross ±π)
+            d = _wrap(np.diff(x[2 : _POSE * n : _POSE]))
+            out[2 * k :] = (d[1:] / dt[1:] - d[:-1] / dt[:-1]) * w_az
         return out
 
     sd_b = config.offset_prior_sd_db
@@ -212,7 +229,6 @@ def refine_track_2d(
             d[:, c] = -(expected(Xp) - expected(Xm)) / (2 * _FD_STEP * sig)
         return d
 
-    normal = _BandedNormal(n, pkt, coef, sig, sd_b)
     loss = soft_l1_head(m, c2)
 
     box = np.asarray(model.box_m, dtype=float)
@@ -223,9 +239,26 @@ def refine_track_2d(
     x0 = np.clip(x0, np.append(lo, -np.inf) + 1e-9, np.append(hi, np.inf) - 1e-9)
     f0 = fun(x0)
     initial_cost = 0.5 * float(loss(f0 * f0)[0].sum())
-    x_opt, cost, nfev = _banded_levenberg_marquardt(
-        fun, data_jac, normal, loss, x0, np.append(lo, -np.inf), np.append(hi, np.inf), max_nfev
-    )
+    lb, ub = np.append(lo, -np.inf), np.append(hi, np.inf)
+    if A is None:
+        normal = _BandedNormal(n, pkt, coef, sig, sd_b)
+        x_opt, cost, nfev = _banded_levenberg_marquardt(
+            fun, data_jac, normal, loss, x0, lb, ub, max_nfev
+        )
+    else:
+        data_rows = np.repeat(np.arange(m), _POSE)
+        data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
+        last = sp.csr_matrix(([1.0 / sd_b], ([0], [n_vars - 1])), shape=(1, n_vars))
+        bcol = sp.csr_matrix(
+            (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
+        )
+        prior_rows = A
+
+        def jac(x: FloatArray) -> sp.csr_matrix:
+            data = sp.csr_matrix((data_jac(x).ravel(), (data_rows, data_cols)), shape=(m, n_vars))
+            return sp.vstack([data + bcol, prior_rows, last], format="csr")
+
+        x_opt, cost, nfev = _levenberg_marquardt(fun, jac, loss, x0, lb, ub, max_nfev)
     X = x_opt[: _POSE * n].reshape(n, _POSE)
     out_pos = pos.copy()
     out_pos[:, :2] = X[:, :2]
@@ -243,10 +276,11 @@ class _BandedNormal:
     """The normal equations ``JᵀWJ δ = −JᵀWf`` of :func:`refine_track_2d` in
     LAPACK's banded form: the pose block (x, y, azimuth per packet, interleaved)
     is banded (bandwidth :data:`_BAND`), the offset adds one dense row and
-    column, solved by its Schur complement. The same system as the sparse LU
-    of :func:`radiopose.filtering.refine3d._levenberg_marquardt` (which the 3-D
-    refinement keeps), ≈ 4× cheaper; the solutions agree to ~1e-9 relative
-    (docs/performance.md, "Ninth pass")."""
+    column, solved by its Schur complement (``FilterConfig.refine_banded``).
+    The same system as the sparse LU of
+    :func:`radiopose.filtering.refine3d._levenberg_marquardt` (the default, and
+    the 3-D refinement's), ≈ 4× cheaper; the solutions agree to ~1e-9
+    relative (docs/performance.md, "Ninth pass")."""
 
     def __init__(
         self, n: int, pkt: np.ndarray, coef: FloatArray, sigma_db: float, sd_b: float
