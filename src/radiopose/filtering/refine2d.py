@@ -198,9 +198,8 @@ def refine_track_2d(
             X = x[: _POSE * n].reshape(n, _POSE)
             for comp in range(2):  # as the CSR product sums the row: i + 1, i, i − 1
                 c, v = coef[comp], X[:, comp]
-                out[comp * k : (comp + 1) * k] = (c[:, 0] * v[2:] + c[:, 1] * v[1:-1]) + c[
-                    :, 2
-                ] * v[:-2]
+                head = c[:, 0] * v[2:] + c[:, 1] * v[1:-1]
+                out[comp * k : (comp + 1) * k] = head + c[:, 2] * v[:-2]
         if k:
             # azimuth first differences wrapped (the solver may cross ±π)
             d = _wrap(np.diff(x[2 : _POSE * n : _POSE]))
