@@ -18,7 +18,8 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    scipy-computed arrays, :mod:`radiopose.diskcache`, are filled: a second
    ``locate`` on a site); and the row ``filter, offline_workers = 1`` (the
    offline passes all in the one process, as before the eighth pass: the
-   site's ``tracker.toml`` says so). CPU: the process's and its forked
+   site's ``tracker.toml`` says so), and the row ``filter, refine_banded =
+   true`` (the arbiter's banded solve, an option). CPU: the process's and its forked
    children's. Peak memory: the largest ``ru_maxrss`` of the process and its
    children (read in a small launcher, since Linux carries a parent's
    ``ru_maxrss`` into its children); a forked child shares the parent's pages,
@@ -150,6 +151,11 @@ SERIAL_FILTER = "filter, offline_workers = 1"
 site's ``tracker.toml`` says so; docs/performance.md, "Eighth pass")."""
 
 
+BANDED_FILTER = "filter, refine_banded = true"
+"""Section 2's row of ``filter`` with the arbiter's banded solve (an option, off
+by default; docs/performance.md, "Ninth pass")."""
+
+
 def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     sim = standard_trace(n_packets)
     site_dir = tmp / "site"
@@ -157,10 +163,16 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     serial_dir = tmp / "site_serial"
     write_site(sim.site, serial_dir)
     (serial_dir / "tracker.toml").write_text("[filter]\noffline_workers = 1\n", encoding="utf-8")
+    banded_dir = tmp / "site_banded"
+    write_site(sim.site, banded_dir)
+    (banded_dir / "tracker.toml").write_text("[filter]\nrefine_banded = true\n", encoding="utf-8")
     packets = tmp / "packets.csv"
     write_packets_csv(sim.packets, packets)
     n = len(group_packets(sim.packets))
-    rows = {m: (m, site_dir) for m in METHODS} | {SERIAL_FILTER: ("filter", serial_dir)}
+    rows = {m: (m, site_dir) for m in METHODS} | {
+        SERIAL_FILTER: ("filter", serial_dir),
+        BANDED_FILTER: ("filter", banded_dir),
+    }
 
     def args(label: str) -> list[str]:
         m, site = rows[label]

@@ -23,6 +23,7 @@ TIERS: dict[str, str] = {
     "test_filter_speed": "analytic",
     "test_likelihood": "analytic",
     "test_likelihood_compiled": "analytic",
+    "test_refine2d_banded": "analytic",
     "test_motion": "analytic",
     "test_patterns_enrol": "analytic",
     "test_scoring": "analytic",

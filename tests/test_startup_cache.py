@@ -123,7 +123,10 @@ _PROBE = """
 import sys
 from radiopose.cli import main
 rc = main(sys.argv[1:])
-heavy = sorted(m for m in ("scipy.interpolate", "scipy.spatial") if m in sys.modules)
+# scipy.ndimage: only the 3-D refinement's pre-smoothing needs it (≈ 0.07 s)
+heavy = sorted(
+    m for m in ("scipy.interpolate", "scipy.spatial", "scipy.ndimage") if m in sys.modules
+)
 print("HEAVY", ",".join(heavy) or "-")
 sys.exit(rc)
 """
@@ -148,3 +151,42 @@ def test_second_locate_imports_no_scipy_interpolate_or_spatial(site_files, tmp_p
     assert seen[0] != "-"  # the first run computed the survey map with scipy
     assert seen[1] == "-"  # the second read it back
     assert (tmp_path / "est0.csv").read_bytes() == (tmp_path / "est1.csv").read_bytes()
+
+
+def test_locate_keeps_its_start_up_objects_out_of_full_collections(
+    site_files, tmp_path, monkeypatch
+):
+    """``radiopose locate`` freezes the objects made by its imports for the run
+    (docs/performance.md, "Ninth pass") and unfreezes them when it ends; the
+    same estimates without it. A host process that froze its own objects is
+    left alone."""
+    import gc
+
+    from radiopose.cli import main
+
+    monkeypatch.setenv("RADIOPOSE_CACHE_DIR", str(tmp_path / "cache"))
+    args = [str(site_files / "site"), str(site_files / "packets.csv"), "--method", "filter"]
+    counts: list[int] = []
+    real_freeze = gc.freeze
+
+    def freeze() -> None:
+        real_freeze()
+        counts.append(gc.get_freeze_count())
+
+    monkeypatch.setattr(gc, "freeze", freeze)
+    assert gc.get_freeze_count() == 0
+    assert main(["locate", *args, "-o", str(tmp_path / "a.csv"), "--quiet"]) == 0
+    assert len(counts) == 1 and counts[0] > 10_000  # the imported modules' objects
+    assert gc.get_freeze_count() == 0  # unfrozen when the run ended
+    monkeypatch.setattr(gc, "freeze", lambda: counts.append(-1))  # without it
+    assert main(["locate", *args, "-o", str(tmp_path / "b.csv"), "--quiet"]) == 0
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    # a host's own freeze: locate neither freezes more nor unfreezes it
+    real_freeze()
+    try:
+        held = gc.get_freeze_count()
+        assert main(["locate", *args, "-o", str(tmp_path / "c.csv"), "--quiet"]) == 0
+        assert gc.get_freeze_count() > held // 2  # not unfrozen (a few freed meanwhile)
+        assert counts == [counts[0], -1]  # nor frozen again
+    finally:
+        gc.unfreeze()

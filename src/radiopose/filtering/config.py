@@ -159,6 +159,15 @@ class FilterConfig:
         candidates are the forward track and the offset selection's passes.
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
+    refine_banded
+        Offline only, with ``offline_refine`` (default off): solve each
+        refinement step's normal equations in band form (a banded Cholesky and
+        the offset's Schur complement) instead of a sparse LU: the arbiter's
+        linear algebra ≈ 4× cheaper (≈ 0.4 CPU s less on the benchmark's
+        2,000-packet trace), the same optimum to ~1e-9 relative, but a
+        borderline stop of the solver can end one iteration apart: on tuning
+        seeds 7200–7219 one run of 80 moved by 0.002 m (docs/performance.md,
+        "Ninth pass").
     offline_workers
         Offline only (batch ``locate``, 2-D): processes the passes after the
         forward one may use, this one included (at most the cores available):
@@ -244,6 +253,7 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
+    refine_banded: bool = False
     # issue 15 (whole-process speed): the offline passes on forked children
     offline_workers: int = 2
     # issue 15 (+6 dB tails, round 7): the arbiter's offset judged by the passes'

@@ -20,7 +20,9 @@ to its own optimum of one objective, and the lowest optimum wins:
   consecutive intervals of x, y over ``accel_noise_mps2·√((dt₁ + dt₂)/3)``,
   of the (wrapped) azimuth over ``angular_accel_noise_dps2·√(…)``.
 * Solved by :func:`radiopose.filtering.refine3d._levenberg_marquardt`
-  (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations);
+  (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations;
+  with ``FilterConfig.refine_banded`` the same iteration solves them in band
+  form, :func:`_banded_levenberg_marquardt`);
   the data Jacobian by central differences (6 model evaluations), the prior's
   constant; x, y bounded by the survey map.
 
@@ -151,7 +153,6 @@ def refine_track_2d(
     col[all_rx] = np.arange(all_rx.size)
     rcol = col[rx]
     m = rx.size
-    n_vars = _POSE * n + 1
     S = np.zeros((n, K.N_COLUMNS))
     S[:, K.Z_M] = pos[:, 2]
     S[:, K.PITCH_RAD] = np.deg2rad(ori[:, 1])
@@ -163,34 +164,42 @@ def refine_track_2d(
         S[:, K.AZIMUTH_RAD] = X[:, 2] % (2 * np.pi)
         return model.expected(S, all_rx)[pkt, rcol]
 
-    # the motion prior's rows: ((x_{i+1} − x_i)/d2 − (x_i − x_{i−1})/d1) · w
+    # the motion prior's rows: ((x_{i+1} − x_i)/d2 − (x_i − x_{i−1})/d1) · w,
+    # interior packets i = 1 … n − 2, one block of k rows per component
     dt = np.maximum(np.diff(t), _MIN_DT_S)
-    blocks = ((0, config.accel_noise_mps2), (1, config.accel_noise_mps2),
-              (2, math.radians(config.angular_accel_noise_dps2)))  # fmt: skip
-    if n >= 3:
+    qs = (config.accel_noise_mps2, config.accel_noise_mps2,
+          math.radians(config.angular_accel_noise_dps2))  # fmt: skip
+    k = max(n - 2, 0)
+    coef = np.zeros((3, k, 3))  # [component, row, (packet i + 1, i, i − 1)]
+    w_az = np.zeros(0)
+    if k:
         d1, d2 = dt[:-1], dt[1:]
+        for comp, q in enumerate(qs):
+            w_az = 1.0 / (q * np.sqrt((d1 + d2) / 3.0))  # the last: the azimuth's
+            coef[comp] = np.column_stack([w_az / d2, -w_az / d2 - w_az / d1, w_az / d1])
+
+    n_vars = _POSE * n + 1
+    A = None
+    if not config.refine_banded:  # the sparse rows, as before the banded solve
         i = np.arange(1, n - 1)
-        k = i.size
-        rows, cols, vals, ws = [], [], [], []
-        for b_i, (comp, q) in enumerate(blocks):
-            w = 1.0 / (q * np.sqrt((d1 + d2) / 3.0))
-            rr = b_i * k + np.arange(k)
-            rows += [rr, rr, rr]
-            cols += [_POSE * (i + 1) + comp, _POSE * i + comp, _POSE * (i - 1) + comp]
-            vals += [w / d2, -w / d2 - w / d1, w / d1]
-            ws.append(w)
+        rows = [c * k + np.arange(k) for c in range(3) for _ in range(3)]
+        cols = [_POSE * j + c for c in range(3) for j in (i + 1, i, i - 1)]
+        vals = [coef[c, :, a] for c in range(3) for a in range(3)]
         A = sp.csr_matrix(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
             shape=(3 * k, n_vars),
         )
-        w_az = ws[2]
-    else:
-        k = 0
-        A = sp.csr_matrix((0, n_vars))
-        w_az = np.zeros(0)
 
     def prior(x: FloatArray) -> FloatArray:
-        out = np.asarray(A @ x)
+        if A is not None:
+            out = np.asarray(A @ x)
+        else:
+            out = np.empty(3 * k)
+            X = x[: _POSE * n].reshape(n, _POSE)
+            for comp in range(2):  # as the CSR product sums the row: i + 1, i, i − 1
+                c, v = coef[comp], X[:, comp]
+                head = c[:, 0] * v[2:] + c[:, 1] * v[1:-1]
+                out[comp * k : (comp + 1) * k] = head + c[:, 2] * v[:-2]
         if k:
             # azimuth first differences wrapped (the solver may cross ±π)
             d = _wrap(np.diff(x[2 : _POSE * n : _POSE]))
@@ -207,14 +216,9 @@ def refine_track_2d(
         data = (rss - expected(X) - b) / sig
         return np.concatenate([data, prior(x), [b / sd_b]])
 
-    data_rows = np.repeat(np.arange(m), _POSE)
-    data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
-    last = sp.csr_matrix(([1.0 / sd_b], ([0], [n_vars - 1])), shape=(1, n_vars))
-    bcol = sp.csr_matrix(
-        (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
-    )
-
-    def jac(x: FloatArray) -> sp.csr_matrix:
+    def data_jac(x: FloatArray) -> FloatArray:
+        """``(m, 3)``: each reading's derivative by its packet's x, y, azimuth
+        (central differences); its derivative by the offset is −1/σ."""
         X = x[: _POSE * n].reshape(n, _POSE)
         d = np.empty((m, _POSE))
         for c in range(_POSE):
@@ -222,8 +226,7 @@ def refine_track_2d(
             Xp[:, c] += _FD_STEP
             Xm[:, c] -= _FD_STEP
             d[:, c] = -(expected(Xp) - expected(Xm)) / (2 * _FD_STEP * sig)
-        data = sp.csr_matrix((d.ravel(), (data_rows, data_cols)), shape=(m, n_vars))
-        return sp.vstack([data + bcol, A, last], format="csr")
+        return d
 
     loss = soft_l1_head(m, c2)
 
@@ -235,15 +238,195 @@ def refine_track_2d(
     x0 = np.clip(x0, np.append(lo, -np.inf) + 1e-9, np.append(hi, np.inf) - 1e-9)
     f0 = fun(x0)
     initial_cost = 0.5 * float(loss(f0 * f0)[0].sum())
-    x_opt, cost, nfev = _levenberg_marquardt(
-        fun, jac, loss, x0, np.append(lo, -np.inf), np.append(hi, np.inf), max_nfev
-    )
+    lb, ub = np.append(lo, -np.inf), np.append(hi, np.inf)
+    if A is None:
+        normal = _BandedNormal(n, pkt, coef, sig, sd_b)
+        x_opt, cost, nfev = _banded_levenberg_marquardt(
+            fun, data_jac, normal, loss, x0, lb, ub, max_nfev
+        )
+    else:
+        data_rows = np.repeat(np.arange(m), _POSE)
+        data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
+        last = sp.csr_matrix(([1.0 / sd_b], ([0], [n_vars - 1])), shape=(1, n_vars))
+        bcol = sp.csr_matrix(
+            (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
+        )
+        prior_rows = A
+
+        def jac(x: FloatArray) -> sp.csr_matrix:
+            data = sp.csr_matrix((data_jac(x).ravel(), (data_rows, data_cols)), shape=(m, n_vars))
+            return sp.vstack([data + bcol, prior_rows, last], format="csr")
+
+        x_opt, cost, nfev = _levenberg_marquardt(fun, jac, loss, x0, lb, ub, max_nfev)
     X = x_opt[: _POSE * n].reshape(n, _POSE)
     out_pos = pos.copy()
     out_pos[:, :2] = X[:, :2]
     out_ori = ori.copy()
     out_ori[:, 0] = np.rad2deg(X[:, 2]) % 360.0
     return Refined2d(out_pos, out_ori, float(x_opt[-1]), cost, initial_cost, nfev)
+
+
+_BAND = 2 * _POSE
+"""Upper bandwidth of the pose block of the normal equations: the motion prior
+couples a packet's variables with those of the packets two either side."""
+
+
+class _BandedNormal:
+    """The normal equations ``JᵀWJ δ = −JᵀWf`` of :func:`refine_track_2d` in
+    LAPACK's banded form: the pose block (x, y, azimuth per packet, interleaved)
+    is banded (bandwidth :data:`_BAND`), the offset adds one dense row and
+    column, solved by its Schur complement (``FilterConfig.refine_banded``).
+    The same system as the sparse LU of
+    :func:`radiopose.filtering.refine3d._levenberg_marquardt` (the default, and
+    the 3-D refinement's), ≈ 4× cheaper; the solutions agree to ~1e-9
+    relative (docs/performance.md, "Ninth pass")."""
+
+    def __init__(
+        self, n: int, pkt: np.ndarray, coef: FloatArray, sigma_db: float, sd_b: float
+    ) -> None:
+        self.n, self.pkt, self.sig, self.sd_b = n, pkt, sigma_db, sd_b
+        self.coef = coef
+        k = coef.shape[1]
+        nv = _POSE * n
+        # the prior's constant part AᵀA, upper band: ab[_BAND + i − j, j] = (AᵀA)[i, j]
+        ab = np.zeros((_BAND + 1, nv))
+        if k:
+            i = np.arange(1, n - 1)
+            for comp in range(_POSE):
+                cols = [_POSE * (i + 1) + comp, _POSE * i + comp, _POSE * (i - 1) + comp]
+                for a in range(3):
+                    for b in range(3):
+                        ra, rb = cols[a], cols[b]
+                        if ra[0] <= rb[0]:  # upper triangle (the same order for every row)
+                            np.add.at(
+                                ab, (_BAND + ra - rb, rb), coef[comp, :, a] * coef[comp, :, b]
+                            )
+        self.prior_band = ab
+
+    def prior_t(self, r: FloatArray) -> FloatArray:
+        """``Aᵀ r`` for the prior's residuals ``r`` (``(3k,)``)."""
+        n, coef = self.n, self.coef
+        k = coef.shape[1]
+        out = np.zeros((n, _POSE))
+        if k:
+            for comp in range(_POSE):
+                rc = r[comp * k : (comp + 1) * k]
+                out[2:, comp] += coef[comp, :, 0] * rc
+                out[1:-1, comp] += coef[comp, :, 1] * rc
+                out[:-2, comp] += coef[comp, :, 2] * rc
+        return out.ravel()
+
+    def build(
+        self, d: FloatArray, w: FloatArray, f: FloatArray
+    ) -> tuple[FloatArray, FloatArray, float, FloatArray, float]:
+        """``(band, c, d_bb, g_pose, g_b)`` of ``JᵀWJ`` and ``g = JᵀWf`` for the
+        data Jacobian ``d`` (``(m, 3)``, :func:`refine_track_2d`'s), the IRLS
+        weights ``w`` and residuals ``f`` (data, prior, offset)."""
+        n, pkt, m = self.n, self.pkt, d.shape[0]
+        nv = _POSE * n
+        wd, fd = w[:m], f[:m]
+        ab = self.prior_band.copy()
+        for a in range(_POSE):
+            for b in range(a, _POSE):
+                s = np.bincount(pkt, weights=wd * d[:, a] * d[:, b], minlength=n)
+                ab[_BAND + a - b, b::_POSE] += s
+        inv = -1.0 / self.sig
+        c = np.empty(nv)
+        g = np.empty(nv)
+        for a in range(_POSE):
+            c[a::_POSE] = np.bincount(pkt, weights=wd * d[:, a] * inv, minlength=n)
+            g[a::_POSE] = np.bincount(pkt, weights=wd * d[:, a] * fd, minlength=n)
+        k = self.coef.shape[1]
+        g += self.prior_t(f[m : m + 3 * k])
+        d_bb = float(wd.sum()) * inv * inv + 1.0 / self.sd_b**2
+        g_b = float((wd * fd).sum()) * inv + f[-1] / self.sd_b
+        return ab, c, d_bb, g, g_b
+
+
+def _banded_step(
+    ab: FloatArray, c: FloatArray, d_bb: float, g: FloatArray, g_b: float
+) -> FloatArray:
+    """``−M⁻¹ [g, g_b]`` for ``M = [[P, c], [cᵀ, d_bb]]`` with ``P`` in upper
+    band form ``ab`` (symmetric positive definite): a banded Cholesky of ``P``
+    and the offset's Schur complement. A ``P`` that is not numerically positive
+    definite falls back to a sparse LU of ``M``."""
+    from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+
+    try:
+        cb = cholesky_banded(ab, lower=False, check_finite=False)
+    except LinAlgError:
+        return _sparse_step(ab, c, d_bb, g, g_b)
+    y = cho_solve_banded((cb, False), np.column_stack([g, c]), check_finite=False)
+    yg, yc = y[:, 0], y[:, 1]
+    db = (g_b - float(c @ yg)) / (d_bb - float(c @ yc))
+    return -np.append(yg - yc * db, db)
+
+
+def _sparse_step(
+    ab: FloatArray, c: FloatArray, d_bb: float, g: FloatArray, g_b: float
+) -> FloatArray:
+    """:func:`_banded_step` by a sparse LU of the whole matrix."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    u, nv = ab.shape[0] - 1, ab.shape[1]
+    offs = list(range(u + 1))
+    P = sp.diags([ab[u - o, o:] for o in offs], offs, shape=(nv, nv))
+    P = P + sp.triu(P, 1).T
+    M = sp.bmat([[P, c[:, None]], [c[None, :], np.array([[d_bb]])]], format="csc")
+    return -np.asarray(spla.spsolve(M, np.append(g, g_b)))
+
+
+def _banded_levenberg_marquardt(
+    fun: Callable[[FloatArray], FloatArray],
+    data_jac: Callable[[FloatArray], FloatArray],
+    normal: _BandedNormal,
+    loss: Callable[[FloatArray], FloatArray],
+    x0: FloatArray,
+    lb: FloatArray,
+    ub: FloatArray,
+    max_nfev: int,
+) -> tuple[FloatArray, float, int]:
+    """:func:`radiopose.filtering.refine3d._levenberg_marquardt` (the same
+    damping, accept test and stop) with the normal equations solved in band
+    form (:class:`_BandedNormal`). Returns ``(x, cost, residual evaluations)``."""
+
+    def cost_of(f: FloatArray) -> float:
+        return 0.5 * float(loss(f * f)[0].sum())
+
+    x = x0.copy()
+    f = fun(x)
+    cost = cost_of(f)
+    nfev = 1
+    lam = 1e-3
+    nv = x.size - 1
+    while nfev < max_nfev:
+        d = data_jac(x)
+        w = loss(f * f)[1]
+        ab, c, d_bb, g, g_b = normal.build(d, w, f)
+        dA = np.append(ab[_BAND], d_bb)
+        dA = np.where(dA > 0, dA, 1.0)
+        improved = False
+        while nfev < max_nfev:
+            mb = ab.copy()
+            mb[_BAND] += lam * dA[:nv]
+            step = _banded_step(mb, c, d_bb + lam * dA[nv], g, g_b)
+            xn = np.clip(x + step, lb, ub)
+            fn = fun(xn)
+            nfev += 1
+            cn = cost_of(fn)
+            if cn < cost:
+                rel = (cost - cn) / max(cost, 1e-12)
+                x, f, cost = xn, fn, cn
+                lam = max(lam / 3.0, 1e-9)
+                improved = True
+                break
+            lam *= 4.0
+            if lam > 1e8:
+                break
+        if not improved or rel < 1e-7:
+            break
+    return x, cost, nfev
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,8 @@ Record = tuple[float, HeardRss, object]
 
 OFFSET_GRID_DB = np.arange(-15.0, 15.0 + 1e-9, 0.1)
 """Offsets over which a device offset is profiled, dB."""
+_PROFILE_ROWS = 8
+"""Offsets of :data:`OFFSET_GRID_DB` scored together by :func:`profile_offset`."""
 
 
 def reversed_records(records: list[Record]) -> list[Record]:
@@ -66,20 +68,27 @@ def pose_residuals_db(
 ) -> tuple[FloatArray, np.ndarray]:
     """Residuals ``rss − expected`` (dB, offset not included) of each packet's
     readings under one pose per packet, concatenated, with each reading's packet
-    index. ``position_m`` and ``orientation_deg`` are ``(n, 3)``."""
-    res: list[FloatArray] = []
-    idx: list[np.ndarray] = []
-    S = np.zeros((1, K.N_COLUMNS))
-    ori = np.deg2rad(np.asarray(orientation_deg, dtype=float))
-    for i, heard in enumerate(heards):
-        S[0, K.X_M : K.Z_M + 1] = position_m[i]
-        S[0, K.AZIMUTH_RAD], S[0, K.PITCH_RAD], S[0, K.ROLL_RAD] = ori[i]
-        e = heard.rss_dbm - model.expected(S, heard.receiver_index)[0]
-        res.append(e)
-        idx.append(np.full(e.size, i, dtype=np.int64))
-    if not res:
+    index. ``position_m`` and ``orientation_deg`` are ``(n, 3)``.
+
+    One call of the model for every packet at once (each packet's expected RSS
+    at every receiver heard in the file, then each packet's own picked): the
+    same numbers as one call per packet, each pose's lookup being its own."""
+    n = len(heards)
+    if n == 0:
         return np.empty(0), np.empty(0, dtype=np.int64)
-    return np.concatenate(res), np.concatenate(idx)
+    rx = np.concatenate([np.asarray(h.receiver_index, dtype=np.int64) for h in heards])
+    if rx.size == 0:
+        return np.empty(0), np.empty(0, dtype=np.int64)
+    rss = np.concatenate([np.asarray(h.rss_dbm, dtype=float) for h in heards])
+    idx = np.repeat(np.arange(n, dtype=np.int64), [h.n_heard for h in heards])
+    S = np.zeros((n, K.N_COLUMNS))
+    S[:, K.X_M : K.Z_M + 1] = np.asarray(position_m, dtype=float)[:n]
+    ori = np.deg2rad(np.asarray(orientation_deg, dtype=float))[:n]
+    S[:, K.AZIMUTH_RAD], S[:, K.PITCH_RAD], S[:, K.ROLL_RAD] = ori[:, 0], ori[:, 1], ori[:, 2]
+    all_rx = np.unique(rx)
+    col = np.zeros(int(all_rx.max()) + 1, dtype=np.int64)
+    col[all_rx] = np.arange(all_rx.size)
+    return rss - model.expected(S, all_rx)[idx, col[rx]], idx
 
 
 def mixture_loglik(
@@ -101,10 +110,15 @@ def profile_offset(
     log-likelihood of the residuals (0 if there are none)."""
     if residual_db.size == 0:
         return 0.0
-    ll = mixture_loglik(
-        residual_db[None, :], OFFSET_GRID_DB[:, None], sigma_db, outlier_probability,
-        outlier_range_db,
-    ).sum(axis=1)  # fmt: skip
+    # a few offsets at a time: the same per-reading values and per-offset sums
+    # as the whole grid at once, with the temporaries in cache (≈ 3× faster;
+    # docs/performance.md, "Ninth pass")
+    ll = np.empty(OFFSET_GRID_DB.size)
+    for a in range(0, OFFSET_GRID_DB.size, _PROFILE_ROWS):
+        ll[a : a + _PROFILE_ROWS] = mixture_loglik(
+            residual_db[None, :], OFFSET_GRID_DB[a : a + _PROFILE_ROWS, None], sigma_db,
+            outlier_probability, outlier_range_db,
+        ).sum(axis=1)  # fmt: skip
     return float(OFFSET_GRID_DB[int(np.argmax(ll))])
 
 
