@@ -1,8 +1,9 @@
 """The filter's compiled per-packet mechanics against plain numpy definitions:
 the σ median, the posterior moments, in-place resampling and the smoother's
-genealogy ring (growth, resampling, re-entered hypotheses, pickling).
+genealogy ring (growth, resampling, re-entered hypotheses, pickling), and the
+motion noise's counter-based draws.
 
-Seeds 4301-4309 are used here only.
+Seeds 4301-4310 are used here only.
 """
 
 from __future__ import annotations
@@ -242,3 +243,47 @@ def test_filter_model_scores_on_one_thread_with_the_same_answers():
         a, b = scorer.score_heard(heard, 50), model.scorer.score_heard(heard, 50)
         np.testing.assert_array_equal(a.candidate_idx, b.candidate_idx)
         np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
+
+
+# ----------------------------------------------------------------------------- motion noise
+def _noise(seed: int, n: int, tilt: np.ndarray, row0: int = 0) -> np.ndarray:
+    out = np.full((n, K.N_NOISE), 7.0)
+    K.motion_noise_into(out, seed, row0, tilt)
+    return out
+
+
+FROZEN = np.zeros(4)
+FREE = np.array([-1.0, 1.0, -1.0, 1.0])
+
+
+def test_motion_noise_is_standard_normal_and_independent():
+    """Counter-based draws: mean 0, variance 1, normal tails, no correlation
+    between columns, between neighbouring particles or between packets."""
+    from scipy import stats
+
+    a = _noise(4307, 100_000, FREE)
+    b = _noise(4308, 100_000, FREE)
+    assert np.all(np.abs(a.mean(axis=0)) < 0.02)  # sd of the mean 0.003
+    assert np.all(np.abs(a.std(axis=0) - 1.0) < 0.015)
+    for c in range(K.N_NOISE):
+        assert stats.kstest(a[:, c], "norm").pvalue > 1e-4
+    corr = np.corrcoef(np.hstack([a, b, a[1:].tolist() + [a[0].tolist()]]).T)
+    off = corr[~np.eye(corr.shape[0], dtype=bool)]
+    assert np.max(np.abs(off)) < 0.02
+    # the tails: P(|z| > 3) = 0.0027
+    assert abs(np.mean(np.abs(a) > 3.0) - 0.0027) < 0.0008
+
+
+def test_motion_noise_depends_on_the_particle_index_only():
+    """Two blocks (the two threads of ParticleFilter's split update) give the
+    rows of one call; another seed gives other numbers; a frozen roll column is
+    not written (predict never reads it) and the other columns do not change."""
+    whole = _noise(4309, 1000, FREE)
+    first = _noise(4309, 400, FREE, row0=0)
+    rest = _noise(4309, 600, FREE, row0=400)
+    np.testing.assert_array_equal(np.vstack([first, rest]), whole)
+    assert not np.any(_noise(4310, 1000, FREE) == whole)
+    frozen = _noise(4309, 1000, FROZEN)
+    np.testing.assert_array_equal(frozen[:, 4], 7.0)
+    # the other draws are the particle's own whether roll is free or not
+    np.testing.assert_array_equal(frozen[:, :4], whole[:, :4])
