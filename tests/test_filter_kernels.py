@@ -267,7 +267,7 @@ def test_motion_noise_is_standard_normal_and_independent():
     assert np.all(np.abs(a.std(axis=0) - 1.0) < 0.015)
     for c in range(K.N_NOISE):
         assert stats.kstest(a[:, c], "norm").pvalue > 1e-4
-    corr = np.corrcoef(np.hstack([a, b, a[1:].tolist() + [a[0].tolist()]]).T)
+    corr = np.corrcoef(np.hstack([a, b, np.roll(a, 1, axis=0)]).T)
     off = corr[~np.eye(corr.shape[0], dtype=bool)]
     assert np.max(np.abs(off)) < 0.02
     # the tails: P(|z| > 3) = 0.0027
@@ -287,3 +287,35 @@ def test_motion_noise_depends_on_the_particle_index_only():
     np.testing.assert_array_equal(frozen[:, 4], 7.0)
     # the other draws are the particle's own whether roll is free or not
     np.testing.assert_array_equal(frozen[:, :4], whole[:, :4])
+
+
+def test_split_packet_update_gives_the_numbers_of_one_call(monkeypatch):
+    """ParticleFilter's update on two threads (each half's noise drawn from its
+    own rows' particle indices) gives exactly what one call gives."""
+    from radiopose.filtering import particle
+
+    rng = np.random.default_rng(4310)
+    n = 2000
+    S = _particles(rng, n)
+    logw = rng.normal(0, 1, n)
+    rx = np.array([[0.0, 0.0, 2.0], [20.0, 0.0, 2.0], [10.0, 20.0, 2.0]])
+    chan = rng.normal(-60, 5, (3, 21, 21))
+    grid = np.array([0.0, 1.0, 21, 0.0, 1.0, 21])
+    d = rng.normal(0, 3, (36, 1))
+    args = (
+        0.005, np.array([0.5, 0.5, 0.1, 10.0, 10.0]), np.array([0.0, 20.0, 0.0, 20.0]),
+        np.array([0.0, 0.4, -0.3, 0.0]), np.array([0, 2], np.int64), rx, chan, grid, 0.0, d,
+        np.array([0.0, 10.0, 1.0]), np.array([-61.0, -58.0]), 3.0, -4.0,
+    )  # fmt: skip
+    out = []
+    for spare in (False, True):
+        monkeypatch.setattr(particle, "spare_core", lambda s=spare: s)
+        S1, lw1 = S.copy(), logw.copy()
+        pred, w = np.empty((n, 2)), np.empty(n)
+        lse = particle._packet_update(
+            K.packet_update, S1, lw1, np.empty((n, K.N_NOISE)), 99, *args, pred, w
+        )
+        out.append((S1, lw1, pred, w, lse))
+    for a, b in zip(*out, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(out[0][0], S)  # the particles moved

@@ -570,7 +570,8 @@ def motion_noise_into(noise, seed, row0, tilt_box):  # pragma: no cover - compil
     is never read by :func:`predict`; its column is left as it was). Two
     branch-free loops over the draws (integer hashing, then :mod:`vmath`'s
     ``log`` and ``sincos``) that vectorise: ≈ 5× faster than numpy's ziggurat
-    for the same number of draws (docs/performance.md, "Ninth pass")."""
+    for the same number of draws (docs/performance.md, "Counter-based motion
+    noise")."""
     n = noise.shape[0]
     pairs = 3 if tilt_box[3] > tilt_box[2] else 2
     total = n * pairs

@@ -78,6 +78,10 @@ __all__ = [
     "ParticleFilter",
 ]
 
+_SEED_LIMIT = 2**63
+"""The motion noise's per-packet seed (:func:`kernels.motion_noise_into`) is
+drawn from ``[0, 2⁶³)`` by the track's generator."""
+
 _HINT_BIN_DB = 1.5
 """Width of the power-offset bins whose grid searches share a threshold hint, dB
 (the scanned offsets are 1.5 dB apart; speed only)."""
@@ -598,9 +602,6 @@ class ParticleFilter:
         out, self._smoothed = self._smoothed, []
         return out
 
-
-_SEED_LIMIT = 2**63
-"""The motion noise's per-packet seed is drawn from ``[0, 2⁶³)``."""
 
 _SPLIT_MIN_PARTICLES = 1000
 """From this many particles a packet's particles are updated on two threads."""
