@@ -1,8 +1,9 @@
 """The filter's compiled per-packet mechanics against plain numpy definitions:
 the σ median, the posterior moments, in-place resampling and the smoother's
-genealogy ring (growth, resampling, re-entered hypotheses, pickling).
+genealogy ring (growth, resampling, re-entered hypotheses, pickling), and the
+motion noise's counter-based draws.
 
-Seeds 4301-4309 are used here only.
+Seeds 4301-4310 are used here only.
 """
 
 from __future__ import annotations
@@ -242,3 +243,79 @@ def test_filter_model_scores_on_one_thread_with_the_same_answers():
         a, b = scorer.score_heard(heard, 50), model.scorer.score_heard(heard, 50)
         np.testing.assert_array_equal(a.candidate_idx, b.candidate_idx)
         np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
+
+
+# ----------------------------------------------------------------------------- motion noise
+def _noise(seed: int, n: int, tilt: np.ndarray, row0: int = 0) -> np.ndarray:
+    out = np.full((n, K.N_NOISE), 7.0)
+    K.motion_noise_into(out, seed, row0, tilt)
+    return out
+
+
+FROZEN = np.zeros(4)
+FREE = np.array([-1.0, 1.0, -1.0, 1.0])
+
+
+def test_motion_noise_is_standard_normal_and_independent():
+    """Counter-based draws: mean 0, variance 1, normal tails, no correlation
+    between columns, between neighbouring particles or between packets."""
+    from scipy import stats
+
+    a = _noise(4307, 100_000, FREE)
+    b = _noise(4308, 100_000, FREE)
+    assert np.all(np.abs(a.mean(axis=0)) < 0.02)  # sd of the mean 0.003
+    assert np.all(np.abs(a.std(axis=0) - 1.0) < 0.015)
+    for c in range(K.N_NOISE):
+        assert stats.kstest(a[:, c], "norm").pvalue > 1e-4
+    corr = np.corrcoef(np.hstack([a, b, np.roll(a, 1, axis=0)]).T)
+    off = corr[~np.eye(corr.shape[0], dtype=bool)]
+    assert np.max(np.abs(off)) < 0.02
+    # the tails: P(|z| > 3) = 0.0027
+    assert abs(np.mean(np.abs(a) > 3.0) - 0.0027) < 0.0008
+
+
+def test_motion_noise_depends_on_the_particle_index_only():
+    """Two blocks (the two threads of ParticleFilter's split update) give the
+    rows of one call; another seed gives other numbers; a frozen roll column is
+    not written (predict never reads it) and the other columns do not change."""
+    whole = _noise(4309, 1000, FREE)
+    first = _noise(4309, 400, FREE, row0=0)
+    rest = _noise(4309, 600, FREE, row0=400)
+    np.testing.assert_array_equal(np.vstack([first, rest]), whole)
+    assert not np.any(_noise(4310, 1000, FREE) == whole)
+    frozen = _noise(4309, 1000, FROZEN)
+    np.testing.assert_array_equal(frozen[:, 4], 7.0)
+    # the other draws are the particle's own whether roll is free or not
+    np.testing.assert_array_equal(frozen[:, :4], whole[:, :4])
+
+
+def test_split_packet_update_gives_the_numbers_of_one_call(monkeypatch):
+    """ParticleFilter's update on two threads (each half's noise drawn from its
+    own rows' particle indices) gives exactly what one call gives."""
+    from radiopose.filtering import particle
+
+    rng = np.random.default_rng(4310)
+    n = 2000
+    S = _particles(rng, n)
+    logw = rng.normal(0, 1, n)
+    rx = np.array([[0.0, 0.0, 2.0], [20.0, 0.0, 2.0], [10.0, 20.0, 2.0]])
+    chan = rng.normal(-60, 5, (3, 21, 21))
+    grid = np.array([0.0, 1.0, 21, 0.0, 1.0, 21])
+    d = rng.normal(0, 3, (36, 1))
+    args = (
+        0.005, np.array([0.5, 0.5, 0.1, 10.0, 10.0]), np.array([0.0, 20.0, 0.0, 20.0]),
+        np.array([0.0, 0.4, -0.3, 0.0]), np.array([0, 2], np.int64), rx, chan, grid, 0.0, d,
+        np.array([0.0, 10.0, 1.0]), np.array([-61.0, -58.0]), 3.0, -4.0,
+    )  # fmt: skip
+    out = []
+    for spare in (False, True):
+        monkeypatch.setattr(particle, "spare_core", lambda s=spare: s)
+        S1, lw1 = S.copy(), logw.copy()
+        pred, w = np.empty((n, 2)), np.empty(n)
+        lse = particle._packet_update(
+            K.packet_update, S1, lw1, np.empty((n, K.N_NOISE)), 99, *args, pred, w
+        )
+        out.append((S1, lw1, pred, w, lse))
+    for a, b in zip(*out, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(out[0][0], S)  # the particles moved

@@ -106,7 +106,7 @@ def test_huber_packet_update_is_predict_expected_and_update():
     pat = np.array([0.0, 10.0, 1.0])
     heard = np.array([0, 2], np.int64)
     rss = np.array([-61.0, -58.0])
-    noise = rng.standard_normal((n, K.N_NOISE))
+    noise = np.empty((n, K.N_NOISE))
     motion = np.array([0.5, 0.5, 0.0, 10.0, 10.0])
     box = np.array([0.0, 20.0, 0.0, 20.0])
     tilt = np.zeros(4)
@@ -114,11 +114,13 @@ def test_huber_packet_update_is_predict_expected_and_update():
     S1, lw1 = S.copy(), logw.copy()
     pred, w = np.empty((n, 2)), np.empty(n)
     lse0, lse1 = K.packet_update_huber(
-        S1, lw1, noise, 0.3, motion, box, tilt, heard, rx, chan, grid, 0.0, d, pat,
+        S1, lw1, noise, 4405, 0, 0.3, motion, box, tilt, heard, rx, chan, grid, 0.0, d, pat,
         rss, 5.0, 1.0, pred, w,
     )  # fmt: skip
     S2, lw2 = S.copy(), logw.copy()
-    K.predict(S2, noise, 0.3, *motion, box, tilt)
+    noise2 = np.empty((n, K.N_NOISE))
+    K.motion_noise_into(noise2, 4405, 0, tilt)
+    K.predict(S2, noise2, 0.3, *motion, box, tilt)
     pred2 = K.expected_rss_dbm(S2, heard, rx, chan, grid, 0.0, d, pat)
     K.measurement_update_huber(S2, pred2, rss, 5.0, 1.0, lw2)
     np.testing.assert_allclose(S1, S2, rtol=0, atol=1e-12)

@@ -87,7 +87,7 @@ def test_arbiter_adds_the_offset_penalty_to_the_objective() -> None:
     assert log[0].costs[1] < log[0].costs[0]  # the objective itself is unchanged
 
 
-# ------------------------------------------------- end to end: tuning seeds 7060, 7063
+# ------------------------------------------------- end to end: tuning seed 7063
 ROUND7 = {
     "arbiter_offset_evidence": True,
     "offline_offset_refit": True,
@@ -109,23 +109,22 @@ def _loud_run(seed: int, sigma_db: float, over: dict) -> tuple[float, float]:
     return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
 
 
-@pytest.mark.parametrize(
-    ("seed", "part", "default_above_deg"),
-    [
-        # no tight pass near +6 dB; the reversed pass at the arbiter's +5.25 dB finds the
-        # truth's basin. Measured: default 78.1° / 3.55 m, round 7 0.90° / 0.200 m
-        (7060, "offline_offset_refit", 40.0),
-        # the mirror track at +1 dB (objective 723.8) against the truth's basin at +6.3 dB
-        # (724.4), whose tight pass won the evidence by 8 nats. Default 134.9° / 12.7 m,
-        # round 7 2.58° / 0.343 m
-        (7063, "arbiter_offset_evidence", 100.0),
-    ],
-)
-def test_round7_leaves_the_wrong_lock_of_a_tuning_seed(
-    seed: int, part: str, default_above_deg: float
-) -> None:
-    assert _loud_run(seed, 3.0, {})[1] > default_above_deg
-    pos_m, ori_deg = _loud_run(seed, 3.0, ROUND7)
-    assert ori_deg < 5.0 and pos_m < 0.6
-    # the part removed: the wrong lock stays
-    assert _loud_run(seed, 3.0, {**ROUND7, part: False})[1] > default_above_deg
+def test_round7_evidence_penalty_moves_the_arbiters_choice_on_a_tuning_seed() -> None:
+    """Tuning seed 7063, σ = 3 dB, +6 dB: the default keeps a mirror track at the
+    wrong offset (134.9° / 12.7 m); round 7's evidence penalty moves the
+    arbiter to another candidate (83.9° / 1.81 m: still wrong), and without the
+    penalty (the refit alone) the default's choice stays.
+
+    Until the motion noise became counter-based (docs/performance.md,
+    "Counter-based motion noise") round 7 fixed this run (2.58°) and seed 7060
+    (the refit pass: 78.1° → 0.90°); with the new draws 7060's default is right
+    (0.9°) and no +6 dB, σ = 3 dB run of tuning seeds 7060–7099 and 7240–7287
+    is fixed by the options (docs/filter.md, round 7): they stay off, and this
+    test checks only that the penalty acts."""
+    default_deg = _loud_run(7063, 3.0, {})[1]
+    assert default_deg > 100.0
+    _, penalised_deg = _loud_run(7063, 3.0, ROUND7)
+    assert abs(penalised_deg - default_deg) > 20.0
+    # the part removed: the default's choice stays
+    refit_only = {**ROUND7, "arbiter_offset_evidence": False}
+    assert abs(_loud_run(7063, 3.0, refit_only)[1] - default_deg) < 1.0

@@ -1,12 +1,16 @@
 """The backward smoother (``FilterConfig.smoother = "backward"``) against the
 genealogy on a seeded run with a jump, end to end through ``locate``.
 
-Seed 4105 (σ = 3 dB, the standard scenario) is used here only: the causal
-filter holds wrong poses for most of its first second and its particles jump
-to the right one from re-entered hypotheses; the genealogy gives those a past
-of their pose moved back along a guessed turn rate (its first 0.2 s 37–66°
-off), the backward smoother finds their past among the earlier re-entries'
-hypotheses in the same mode (docs/filter.md, "Smoother").
+Seed 4107 (σ = 3 dB, the standard scenario) is used here only: the causal
+filter holds wrong poses at first and its particles jump to the right one
+from re-entered hypotheses; the genealogy gives those a past of their pose
+moved back along a guessed turn rate (its first 0.2 s 51.5° off), the
+backward smoother finds their past among the earlier re-entries' hypotheses
+in the same mode (1.1°; docs/filter.md, "Smoother"). Until the motion noise
+became counter-based (docs/performance.md, "Counter-based motion noise") the seed was 4105,
+whose run then showed the same (51° against 1.5°); with the new draws 4105's
+jump is a later one (88.6° against 22.9°), and 4107 is the seed of 4101–4124
+that shows the first-0.2 s case. Seeds 4101–4124 are used here only.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
-SEED = 4105
+SEED = 4107
 
 
 @pytest.fixture(scope="module")
@@ -53,8 +57,8 @@ def test_backward_smoother_keeps_the_past_of_a_jump(runs) -> None:
         return float(run.orientation_error_deg[t < t0 + 0.2].mean())
 
     lineage, backward = first_fifth_s(out["lineage"]), first_fifth_s(out["backward"])
-    assert lineage > 25.0  # the genealogy's made-up past (measured 51°)
-    assert backward < 8.0  # measured 1.5°
+    assert lineage > 25.0  # the genealogy's made-up past (measured 51.5°)
+    assert backward < 8.0  # measured 1.1°
     # and over the whole run no worse than the genealogy
     whole = {k: float(r.orientation_error_deg.mean()) for k, r in out.items()}
     assert whole["backward"] < whole["lineage"]

@@ -78,6 +78,10 @@ __all__ = [
     "ParticleFilter",
 ]
 
+_SEED_LIMIT = 2**63
+"""The motion noise's per-packet seed (:func:`kernels.motion_noise_into`) is
+drawn from ``[0, 2⁶³)`` by the track's generator."""
+
 _HINT_BIN_DB = 1.5
 """Width of the power-offset bins whose grid searches share a threshold hint, dB
 (the scanned offsets are 1.5 dB apart; speed only)."""
@@ -397,14 +401,14 @@ class ParticleFilter:
         assert S is not None and logw is not None
         n, h = S.shape[0], heard.n_heard
         work = self._buffers(n)
-        if dt > 0:
-            st.rng.standard_normal(out=work.noise)
+        # the motion noise's seed (kernels.motion_noise_into): one draw per packet
+        seed = int(st.rng.integers(_SEED_LIMIT)) if dt > 0 else 0
         pred = work.pred[: n * h].reshape(n, h)
         sigma = math.sqrt(st.sigma2_db2)
         update = K.packet_update_huber if cfg.likelihood == "huber" else K.packet_update
         lse0, lse1 = _packet_update(
             update,
-            S, logw, work.noise, dt, self._motion, mod.box_m, mod.tilt_box_rad,
+            S, logw, work.noise, seed, dt, self._motion, mod.box_m, mod.tilt_box_rad,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.lookup_arrays(),
             np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
             self._likelihood_parameter(sigma), pred, work.w,
@@ -604,24 +608,26 @@ _SPLIT_MIN_PARTICLES = 1000
 
 
 def _packet_update(
-    update: Any, S: FloatArray, logw: FloatArray, noise: FloatArray, *args: Any
+    update: Any, S: FloatArray, logw: FloatArray, noise: FloatArray, seed: int, *args: Any
 ) -> tuple[float, float]:
     """``update`` (:func:`kernels.packet_update` or its Huber twin
-    :func:`kernels.packet_update_huber`: same arguments, same numbers), its particles
-    split in two halves run on two threads when there are at least
-    :data:`_SPLIT_MIN_PARTICLES` and a core is spare
-    (:func:`~radiopose.likelihood.compiled.spare_core`): the kernel releases the
-    GIL and touches only its own rows; the weights and ``lse`` are then taken
+    :func:`kernels.packet_update_huber`: same arguments, same numbers) with the
+    motion noise's ``seed``, its particles split in two halves run on two
+    threads when there are at least :data:`_SPLIT_MIN_PARTICLES` and a core is
+    spare (:func:`~radiopose.likelihood.compiled.spare_core`): the kernel
+    releases the GIL and touches only its own rows, whose noise depends only on
+    ``seed`` and the row's index in the packet (``row0``,
+    :func:`kernels.motion_noise_into`); the weights and ``lse`` are then taken
     over all of them."""
     n = S.shape[0]
     if n < _SPLIT_MIN_PARTICLES or not spare_core():
-        return update(S, logw, noise, *args)
+        return update(S, logw, noise, seed, 0, *args)
     *common, pred, w = args
     lse0 = float(K.log_sum_exp(logw))
     h = n // 2
     submit: Any = thread_pool(2).submit  # mypy miscounts numba's untyped dispatcher
-    first = submit(update, S[:h], logw[:h], noise[:h], *common, pred[:h], w[:h])
-    update(S[h:], logw[h:], noise[h:], *common, pred[h:], w[h:])
+    first = submit(update, S[:h], logw[:h], noise[:h], seed, 0, *common, pred[:h], w[:h])
+    update(S[h:], logw[h:], noise[h:], seed, h, *common, pred[h:], w[h:])
     first.result()
     lse1 = float(K.log_sum_exp(logw))
     if math.isfinite(lse1):
@@ -658,7 +664,7 @@ class _Work:
     """Work arrays of one packet's compiled calls, reused from packet to packet
     (their contents never outlive a :meth:`ParticleFilter.step`)."""
 
-    noise: FloatArray  # (n, N_NOISE) standard normal draws of the motion model
+    noise: FloatArray  # (n, N_NOISE) the motion model's draws (kernels.motion_noise_into)
     pred: FloatArray  # (n · n_receivers,) expected RSS, viewed as (n, h)
     w: FloatArray  # (n,) normalised weights
     scratch: FloatArray  # (n, N_COLUMNS) resampling copy
