@@ -19,11 +19,11 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    ``locate`` on a site); and the row ``filter, offline_workers = 1`` (the
    offline passes all in the one process, as before the eighth pass: the
    site's ``tracker.toml`` says so), and the row ``filter, refine_banded =
-   true`` (the arbiter's banded solve, an option). CPU: the process's and its forked
-   children's. Peak memory: the largest ``ru_maxrss`` of the process and its
-   children (read in a small launcher, since Linux carries a parent's
-   ``ru_maxrss`` into its children); a forked child shares the parent's pages,
-   so the two together use less than the sum.
+   false`` (the arbiter's sparse LU, round 6's solve; banded is the default).
+   CPU: the process's and its forked children's. Peak memory: the largest
+   ``ru_maxrss`` of the process and its children (read in a small launcher,
+   since Linux carries a parent's ``ru_maxrss`` into its children); a forked
+   child shares the parent's pages, so the two together use less than the sum.
 3. **Where a fresh process spends its time**: imports of the command line,
    site load, packets CSV parsing, scorer tables, the filter's model, the
    first packet (the kernels' cache loads, the track's acquisition) and the
@@ -151,9 +151,9 @@ SERIAL_FILTER = "filter, offline_workers = 1"
 site's ``tracker.toml`` says so; docs/performance.md, "Eighth pass")."""
 
 
-BANDED_FILTER = "filter, refine_banded = true"
-"""Section 2's row of ``filter`` with the arbiter's banded solve (an option, off
-by default; docs/performance.md, "Ninth pass")."""
+SPARSE_FILTER = "filter, refine_banded = false"
+"""Section 2's row of ``filter`` with the arbiter's sparse LU (round 6's solve; the
+banded one is the default since 2026-11-27; docs/performance.md, "Ninth pass")."""
 
 
 def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
@@ -163,15 +163,15 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     serial_dir = tmp / "site_serial"
     write_site(sim.site, serial_dir)
     (serial_dir / "tracker.toml").write_text("[filter]\noffline_workers = 1\n", encoding="utf-8")
-    banded_dir = tmp / "site_banded"
-    write_site(sim.site, banded_dir)
-    (banded_dir / "tracker.toml").write_text("[filter]\nrefine_banded = true\n", encoding="utf-8")
+    sparse_dir = tmp / "site_sparse"
+    write_site(sim.site, sparse_dir)
+    (sparse_dir / "tracker.toml").write_text("[filter]\nrefine_banded = false\n", encoding="utf-8")
     packets = tmp / "packets.csv"
     write_packets_csv(sim.packets, packets)
     n = len(group_packets(sim.packets))
     rows = {m: (m, site_dir) for m in METHODS} | {
         SERIAL_FILTER: ("filter", serial_dir),
-        BANDED_FILTER: ("filter", banded_dir),
+        SPARSE_FILTER: ("filter", sparse_dir),
     }
 
     def args(label: str) -> list[str]:

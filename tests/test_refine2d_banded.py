@@ -153,7 +153,7 @@ def test_track_residuals_in_one_call_equal_one_call_per_packet() -> None:
 def test_banded_refinement_reaches_the_sparse_ones_optimum() -> None:
     """``FilterConfig.refine_banded`` solves the same iteration's equations: on
     the small site's jittered track the two refinements agree far below the
-    estimates' precision (the sparse LU stays the default)."""
+    estimates' precision (the banded solve is the default since 2026-11-27)."""
     site = small_site()
     rng = np.random.default_rng(8103)
     n = len(site.records)
@@ -163,7 +163,7 @@ def test_banded_refinement_reaches_the_sparse_ones_optimum() -> None:
     ori[:, 0] = (ori[:, 0] + rng.normal(0.0, 10.0, n)) % 360.0
     t = np.array([r[0] for r in site.records])
     h = [r[1] for r in site.records]
-    assert FilterConfig().refine_banded is False
+    assert FilterConfig().refine_banded is True
     runs = [
         refine_track_2d(site.model, t, h, pos, ori, 0.5, FilterConfig(refine_banded=b))
         for b in (False, True)

@@ -160,14 +160,15 @@ class FilterConfig:
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
     refine_banded
-        Offline only, with ``offline_refine`` (default off): solve each
+        Offline only, with ``offline_refine`` (default on since 2026-11-27;
+        ``false`` gives the sparse LU of round 6): solve each
         refinement step's normal equations in band form (a banded Cholesky and
         the offset's Schur complement) instead of a sparse LU: the arbiter's
         linear algebra ≈ 4× cheaper (≈ 0.4 CPU s less on the benchmark's
         2,000-packet trace), the same optimum to ~1e-9 relative, but a
         borderline stop of the solver can end one iteration apart: on tuning
         seeds 7200–7219 one run of 80 moved by 0.002 m (docs/performance.md,
-        "Ninth pass").
+        "Ninth pass"; docs/filter.md, "The arbiter's banded solve").
     offline_workers
         Offline only (batch ``locate``, 2-D): processes the passes after the
         forward one may use, this one included (at most the cores available):
@@ -253,7 +254,7 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
-    refine_banded: bool = False
+    refine_banded: bool = True
     # issue 15 (whole-process speed): the offline passes on forked children
     offline_workers: int = 2
     # issue 15 (+6 dB tails, round 7): the arbiter's offset judged by the passes'
