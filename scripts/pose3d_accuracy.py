@@ -27,6 +27,7 @@ Usage::
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
         [--oracle] [--polish-modes K MARGIN SWITCH] [--reverse-pass] [--reverse-members]
+        [--restarts N ...] [--only-variants]
         [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
@@ -211,6 +212,15 @@ def main(argv: list[str] | None = None) -> int:
         "tracks as starts (refine_reverse_pass and refine_reverse_members)",
     )
     ap.add_argument(
+        "--restarts",
+        type=int,
+        nargs="+",
+        default=[],
+        metavar="N",
+        help="also run each condition with N offline mid-track restarts of the filter as more "
+        "refinement starts, one row per N (refine_restarts; docs/pose3d.md, 'Mid-track restarts')",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -257,6 +267,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.reverse_members:
         rm = {"refine_reverse_pass": True, "refine_reverse_members": True}
         variants.append(("+ reversed pass and its members", rm, 0.0))
+    for n_restarts in args.restarts:
+        label = f"+ {n_restarts} mid-track restart{'s' if n_restarts != 1 else ''}"
+        variants.append((label, {"refine_restarts": n_restarts}, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:

@@ -74,6 +74,8 @@ from radiopose.survey_height import HeightModel, build_height_model
 from radiopose.units import FloatArray
 
 ESTIMATES = ("mode", "mean")
+MAX_RESTARTS = 100
+"""Most offline mid-track restarts (``Pose3dConfig.refine_restarts``)."""
 """The values of :attr:`Pose3dConfig.estimate`."""
 
 
@@ -214,6 +216,20 @@ class Pose3dConfig:
     refine_reverse_members
         With ``refine_reverse_pass`` and the offset bank: also refine from
         each of the reversed pass's bank members' own smoothed tracks.
+    refine_restarts
+        Offline only (with ``refine``): restart the filter this many times
+        inside the track (0: off). A restart at a point runs a fresh filter
+        forward from it to the end and one over the time-reversed packets
+        from it back to the start, each acquiring afresh there; their smoothed
+        tracks, spliced at the point, are one more refinement start
+        (:func:`radiopose.filtering.restart3d.midtrack_tracks3d`;
+        docs/pose3d.md, "Mid-track restarts, 2026-11-27"). The points are at
+        ``1/(n+1), …, n/(n+1)`` of the file's time span.
+    refine_restart_members
+        With ``refine_restarts`` and the offset bank: also refine from each
+        bank member's spliced track (member ``k`` of the reversed half with
+        member ``k`` of the forward half). Off: on tuning seed 7124 these
+        starts led the mode choice to a 155° mode (docs/pose3d.md).
     """
 
     n_particles: int = 2000
@@ -250,6 +266,8 @@ class Pose3dConfig:
     refine_polish_switch: float = 5.0
     refine_reverse_pass: bool = True
     refine_reverse_members: bool = False
+    refine_restarts: int = 0
+    refine_restart_members: bool = False
 
     def __post_init__(self) -> None:
         for name in (
@@ -277,6 +295,11 @@ class Pose3dConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be >= 0")
+        if not (0 <= self.refine_restarts <= MAX_RESTARTS):
+            n = self.refine_restarts
+            raise InputError(
+                f"3-D filter setting refine_restarts = {n!r} must be in [0, {MAX_RESTARTS}]"
+            )
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts
             raise InputError(f"3-D filter setting refine_polish_starts = {n!r} must be >= 0")

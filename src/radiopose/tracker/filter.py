@@ -37,6 +37,7 @@ import numpy as np
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
 from radiopose.filtering.forked import ForkedCall, effective_workers, result_or_none, try_fork
 from radiopose.filtering.offset import OffsetPass, select_offset
+from radiopose.filtering.restart3d import midtrack_tracks3d
 from radiopose.filtering.reverse import ReversedRun, reverse_pass, reversed_tracks3d, run_reversed
 from radiopose.likelihood import HeardRss
 from radiopose.site import Site, site_is_3d
@@ -442,6 +443,13 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         # members') as more starts (docs/pose3d.md, "Reversed pass, 2026-11-27")
         seed = (filter_seed(device.config.seed, device.key) + 1) % 2**63
         members = members + reversed_tracks3d(pf, records, seed, p3.refine_reverse_members)
+    if p3.refine_restarts and records:
+        # the filter restarted inside the track, forward and reversed from each
+        # point (docs/pose3d.md, "Mid-track restarts, 2026-11-27")
+        seed = (filter_seed(device.config.seed, device.key) + 2) % 2**63
+        members = members + midtrack_tracks3d(
+            pf, records, seed, p3.refine_restarts, p3.refine_restart_members
+        )
     return refine_smoothed(
         pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
         p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
