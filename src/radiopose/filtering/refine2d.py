@@ -52,6 +52,7 @@ from radiopose.filtering.refine3d import (
     _levenberg_marquardt,
     _wrap,
     checked_track,
+    damped_least_squares,
     soft_l1_head,
 )
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
@@ -388,45 +389,24 @@ def _banded_levenberg_marquardt(
     max_nfev: int,
 ) -> tuple[FloatArray, float, int]:
     """:func:`radiopose.filtering.refine3d._levenberg_marquardt` (the same
-    damping, accept test and stop) with the normal equations solved in band
-    form (:class:`_BandedNormal`). Returns ``(x, cost, residual evaluations)``."""
+    damping, accept test and stop: :func:`~radiopose.filtering.refine3d.damped_least_squares`)
+    with the normal equations solved in band form (:class:`_BandedNormal`).
+    Returns ``(x, cost, residual evaluations)``."""
+    nv = x0.size - 1
 
-    def cost_of(f: FloatArray) -> float:
-        return 0.5 * float(loss(f * f)[0].sum())
-
-    x = x0.copy()
-    f = fun(x)
-    cost = cost_of(f)
-    nfev = 1
-    lam = 1e-3
-    nv = x.size - 1
-    while nfev < max_nfev:
-        d = data_jac(x)
-        w = loss(f * f)[1]
-        ab, c, d_bb, g, g_b = normal.build(d, w, f)
+    def linearise(x: FloatArray, f: FloatArray, w: FloatArray) -> Callable[[float], FloatArray]:
+        ab, c, d_bb, g, g_b = normal.build(data_jac(x), w, f)
         dA = np.append(ab[_BAND], d_bb)
         dA = np.where(dA > 0, dA, 1.0)
-        improved = False
-        while nfev < max_nfev:
+
+        def step(lam: float) -> FloatArray:
             mb = ab.copy()
             mb[_BAND] += lam * dA[:nv]
-            step = _banded_step(mb, c, d_bb + lam * dA[nv], g, g_b)
-            xn = np.clip(x + step, lb, ub)
-            fn = fun(xn)
-            nfev += 1
-            cn = cost_of(fn)
-            if cn < cost:
-                rel = (cost - cn) / max(cost, 1e-12)
-                x, f, cost = xn, fn, cn
-                lam = max(lam / 3.0, 1e-9)
-                improved = True
-                break
-            lam *= 4.0
-            if lam > 1e8:
-                break
-        if not improved or rel < 1e-7:
-            break
-    return x, cost, nfev
+            return _banded_step(mb, c, d_bb + lam * dA[nv], g, g_b)
+
+        return step
+
+    return damped_least_squares(fun, linearise, loss, x0, lb, ub, max_nfev)
 
 
 @dataclass(frozen=True)

@@ -531,9 +531,45 @@ def _levenberg_marquardt(
     """Projected Levenberg–Marquardt with the robust loss by reweighting (IRLS):
     each step solves the sparse normal equations ``(JᵀWJ + λ diag(JᵀWJ)) δ = −JᵀWf``
     (banded plus the offset's row and column: a sparse LU), clipped into the
-    bounds; ``λ`` shrinks after an accepted step and grows after a rejected one.
-    Returns ``(x, cost, residual evaluations)``."""
+    bounds; ``λ`` shrinks after an accepted step and grows after a rejected one
+    (:func:`damped_least_squares`). Returns ``(x, cost, residual evaluations)``."""
     import scipy.sparse.linalg as spla
+
+    def linearise(x: FloatArray, f: FloatArray, w: FloatArray) -> Callable[[float], FloatArray]:
+        J = jac(x)
+        JW = J.T.multiply(w).tocsr()
+        A = (JW @ J).tocsc()
+        g = JW @ f
+        dA = A.diagonal()
+        dA = np.where(dA > 0, dA, 1.0)
+
+        def step(lam: float) -> FloatArray:
+            M = (A + sp.diags(lam * dA)).tocsc()
+            return -np.asarray(spla.spsolve(M, g))
+
+        return step
+
+    return damped_least_squares(fun, linearise, loss, x0, lb, ub, max_nfev)
+
+
+def damped_least_squares(
+    fun: Callable[[FloatArray], FloatArray],
+    linearise: Callable[[FloatArray, FloatArray, FloatArray], Callable[[float], FloatArray]],
+    loss: Callable[[FloatArray], FloatArray],
+    x0: FloatArray,
+    lb: FloatArray,
+    ub: FloatArray,
+    max_nfev: int,
+) -> tuple[FloatArray, float, int]:
+    """The Levenberg–Marquardt iteration of the batch refinements (3-D here, 2-D
+    in :mod:`radiopose.filtering.refine2d`, sparse or banded): at ``x`` with
+    residuals ``f`` and the robust loss's weights ``w``, ``linearise(x, f, w)``
+    gives the damped step ``δ(λ)`` of the normal equations; a step clipped into
+    ``[lb, ub]`` is accepted if it lowers the cost (``λ`` then ÷ 3, at least
+    1e-9), else ``λ`` × 4 and retried (given up above 1e8); the iteration ends
+    after ``max_nfev`` residual evaluations, a rejected linearisation or a
+    relative cost decrease below 1e-7. Returns ``(x, cost, residual
+    evaluations)``."""
 
     def cost_of(f: FloatArray) -> float:
         return 0.5 * float(loss(f * f)[0].sum())
@@ -544,18 +580,10 @@ def _levenberg_marquardt(
     nfev = 1
     lam = 1e-3
     while nfev < max_nfev:
-        J = jac(x)
-        w = loss(f * f)[1]
-        JW = J.T.multiply(w).tocsr()
-        A = (JW @ J).tocsc()
-        g = JW @ f
-        dA = A.diagonal()
-        dA = np.where(dA > 0, dA, 1.0)
+        step_of = linearise(x, f, loss(f * f)[1])
         improved = False
         while nfev < max_nfev:
-            M = (A + sp.diags(lam * dA)).tocsc()
-            step = -spla.spsolve(M, g)
-            xn = np.clip(x + step, lb, ub)
+            xn = np.clip(x + step_of(lam), lb, ub)
             fn = fun(xn)
             nfev += 1
             cn = cost_of(fn)
