@@ -93,3 +93,23 @@ def scene_3d() -> tuple[
     space = candidate_space(site, site.devices[0].transmitter)
     p3 = Pose3dConfig()
     return sim, space, p3, FilterModel3d.build3d(site, space, p3), group_packets(sim.packets)
+
+
+def scene_3d_records() -> tuple[Simulation, FilterModel3d, Pose3dConfig, list]:
+    """:func:`scene_3d` as the offline passes take it: the simulation, the 3-D
+    model, the settings and the records ``(t_s, heard, (packet_id, t_s))``."""
+    sim, space, p3, model, obs = scene_3d()
+    records = [(o.timestamp_s, space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
+    return sim, model, p3, records
+
+
+def track_axis_errors(track: list, sim: Simulation):  # -> evaluate.pose3d.AxisErrors
+    """Per-packet errors of a smoothed track ``[((packet_id, t_s), estimate), …]``
+    against the simulation's truth at the packets' own times."""
+    from radiopose.evaluate.pose3d import axis_errors_of
+
+    t = np.array([k[1] for k, _ in track])
+    idx = np.searchsorted(sim.truth.timestamp_s, t)
+    pos = np.array([e.position_m for _, e in track])
+    ori = np.array([e.orientation_deg for _, e in track])
+    return axis_errors_of(pos, ori, sim.truth.position_m[idx], sim.truth.orientation_deg[idx])

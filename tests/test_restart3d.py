@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filter_support import scene_3d
+from filter_support import scene_3d_records, track_axis_errors
 from radiopose.errors import InputError
-from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
+from radiopose.evaluate.pose3d import axis_errors
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.particle3d import ParticleFilter3d, Pose3dConfig
 from radiopose.filtering.restart3d import midtrack_tracks3d, restart_indices
@@ -34,17 +34,7 @@ fix (docs/pose3d.md, "Mid-track restarts")."""
 
 @pytest.fixture(scope="module")
 def scene():
-    sim, space, p3, model, obs = scene_3d()
-    records = [(o.timestamp_s, space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
-    return sim, model, p3, records
-
-
-def _track_errors(track, sim):
-    t = np.array([k[1] for k, _ in track])
-    idx = np.searchsorted(sim.truth.timestamp_s, t)
-    pos = np.array([e.position_m for _, e in track])
-    ori = np.array([e.orientation_deg for _, e in track])
-    return axis_errors_of(pos, ori, sim.truth.position_m[idx], sim.truth.orientation_deg[idx])
+    return scene_3d_records()
 
 
 def test_restart_points_split_the_time_span():
@@ -80,12 +70,12 @@ def test_a_restart_covers_every_packet_and_follows_the_truth(scene):
     chosen = dict(tracks[0])
     first = [(k, chosen[k]) for k in keys[:i]]
     second = [(k, chosen[k]) for k in keys[i:]]
-    e1, e2 = _track_errors(first, sim), _track_errors(second, sim)
+    e1, e2 = track_axis_errors(first, sim), track_axis_errors(second, sim)
     assert e1.position_m.mean() < 0.5 and e1.rotation_deg.mean() < 15.0
     assert e2.position_m.mean() < 0.5 and e2.rotation_deg.mean() < 15.0
     # the first half's estimates filed under the mirrored packets are far off
     mirrored = [(k, est) for (k, _), (_, est) in zip(first, reversed(first), strict=True)]
-    assert _track_errors(mirrored, sim).rotation_deg.mean() > e1.rotation_deg.mean() + 5.0
+    assert track_axis_errors(mirrored, sim).rotation_deg.mean() > e1.rotation_deg.mean() + 5.0
     two = midtrack_tracks3d(pf, records, seed=5, n_restarts=2, members=False)
     assert len(two) == 2
     again = midtrack_tracks3d(pf, records, seed=5, n_restarts=1, members=False)

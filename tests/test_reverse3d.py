@@ -16,9 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filter_support import SCENE_3D, SEED_3D, scene_3d
+from filter_support import SCENE_3D, SEED_3D, scene_3d_records, track_axis_errors
 from radiopose.errors import InputError
-from radiopose.evaluate.pose3d import axis_errors_of
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.particle3d import ParticleFilter3d, Pose3dConfig
 from radiopose.filtering.reverse import reversed_records, reversed_tracks3d
@@ -31,17 +30,7 @@ SCENE, SEED = SCENE_3D, SEED_3D  # filter_support's noise-free 3-D scene
 
 @pytest.fixture(scope="module")
 def scene():
-    sim, space, p3, model, obs = scene_3d()
-    records = [(o.timestamp_s, space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
-    return sim, model, p3, records
-
-
-def _track_errors(track, sim):
-    t = np.array([k[1] for k, _ in track])
-    idx = np.searchsorted(sim.truth.timestamp_s, t)
-    pos = np.array([e.position_m for _, e in track])
-    ori = np.array([e.orientation_deg for _, e in track])
-    return axis_errors_of(pos, ori, sim.truth.position_m[idx], sim.truth.orientation_deg[idx])
+    return scene_3d_records()
 
 
 def test_the_reversed_pass_tracks_the_packets_backwards(scene):
@@ -56,11 +45,11 @@ def test_the_reversed_pass_tracks_the_packets_backwards(scene):
     keys = sorted(k for _, _, k in records)
     for tr in tracks:
         assert sorted(k for k, _ in tr) == keys
-    e = _track_errors(tracks[0], sim)
+    e = track_axis_errors(tracks[0], sim)
     assert e.position_m.mean() < 0.35 and e.rotation_deg.mean() < 12.0
     # the same estimates filed under the mirrored packet: the walk moves ~1 m in 1 s
     mirrored = [(k, est) for (k, _), (_, est) in zip(tracks[0], reversed(tracks[0]), strict=True)]
-    bad = _track_errors(mirrored, sim)
+    bad = track_axis_errors(mirrored, sim)
     # measured: 0.22 m / 4.5° against 0.50 m / 17.2° mirrored
     assert bad.rotation_deg.mean() > e.rotation_deg.mean() + 8.0
     assert len(reversed_tracks3d(pf, records, seed=11, members=False)) == 1
