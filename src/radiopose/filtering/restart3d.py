@@ -33,7 +33,7 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering.config import FilterEstimate
-from radiopose.filtering.reverse import Record, reversed_records
+from radiopose.filtering.reverse import Record, pass_tracks3d, reversed_records
 
 if TYPE_CHECKING:
     from radiopose.filtering.particle3d import ParticleFilter3d
@@ -58,32 +58,6 @@ def restart_indices(times_s: list[float] | np.ndarray, n_restarts: int) -> list[
         i = int(np.searchsorted(t, t0 + (t1 - t0) * j / (n_restarts + 1), side="left"))
         if 0 < i < t.size and i not in out:
             out.append(i)
-    return out
-
-
-def pass_tracks3d(
-    pf: ParticleFilter3d, records: list[Record], seed: int, members: bool
-) -> list[Track]:
-    """A fresh filter with ``pf``'s model, settings and lag over ``records`` (in
-    the given order and times) from a new state seeded ``seed``: its smoothed
-    track (the offset bank's chosen member by evidence) and, with ``members``
-    and the offset bank on, each member's own smoothed track."""
-    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
-
-    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, pf.pose3d)
-    st = rpf.new_state(seed)
-    if members and isinstance(st, FilterState3d) and st.bank:
-        st.bank_smoothed = [[] for _ in st.bank]
-    chosen: Track = []
-    for t_s, heard, key in records:
-        rpf.step(st, t_s, heard, key)
-        chosen += rpf.take_smoothed()
-    rpf.flush(st)
-    chosen += rpf.take_smoothed()
-    out = [chosen]
-    if isinstance(st, FilterState3d) and st.bank_smoothed is not None:
-        out += st.bank_smoothed
-        st.bank_smoothed = None
     return out
 
 

@@ -404,15 +404,28 @@ def reversed_tracks3d(
     offset bank's chosen member by its whole-track evidence) and, with
     ``members`` and the offset bank on, each bank member's own smoothed track.
     """
-    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+    from radiopose.filtering.particle3d import ParticleFilter3d
 
     p3 = replace(pf.pose3d, heading_prior_deg=0.0)  # not time-reversible: off
     rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, p3)
+    return pass_tracks3d(rpf, reversed_records(records), seed, members)
+
+
+def pass_tracks3d(
+    pf: ParticleFilter3d, records: list[Record], seed: int, members: bool
+) -> list[list[tuple[object, FilterEstimate]]]:
+    """A fresh filter with ``pf``'s model, settings and lag over ``records`` (in
+    the given order and times) from a new state seeded ``seed``: its smoothed
+    track (the offset bank's chosen member by evidence) and, with ``members``
+    and the offset bank on, each member's own smoothed track."""
+    from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
+
+    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, pf.pose3d)
     st = rpf.new_state(seed)
     if members and isinstance(st, FilterState3d) and st.bank:
         st.bank_smoothed = [[] for _ in st.bank]
     chosen: list[tuple[object, FilterEstimate]] = []
-    for t_s, heard, key in reversed_records(records):
+    for t_s, heard, key in records:
         rpf.step(st, t_s, heard, key)
         chosen += rpf.take_smoothed()
     rpf.flush(st)
@@ -432,6 +445,7 @@ __all__ = [
     "combine_tracks",
     "disagreement_segments",
     "mixture_loglik",
+    "pass_tracks3d",
     "pose_residuals_db",
     "profile_offset",
     "reverse_pass",
