@@ -367,7 +367,6 @@ def _sparse_step(
     ab: FloatArray, c: FloatArray, d_bb: float, g: FloatArray, g_b: float
 ) -> FloatArray:
     """:func:`_banded_step` by a sparse LU of the whole matrix."""
-    import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
     u, nv = ab.shape[0] - 1, ab.shape[1]
