@@ -6,10 +6,16 @@ receivers, a packet every 5 ms, 2 s traces), held-out seeds (default
 
 * ``causal`` — lag 0 (each packet's estimate at once);
 * ``live, lag 0.1 s`` and ``live, lag 0.25 s`` — the live server's fixed-lag
-  smoother (``LiveConfig.live_lag_s``; the streaming tracker with that lag gives
-  exactly batch ``locate`` with ``smoothing_lag_s`` equal to it,
-  ``tests/test_server_live_lag.py``);
-* ``offline, lag 1 s`` — batch ``locate``'s default.
+  smoother (``LiveConfig.live_lag_s``): batch ``locate`` with ``smoothing_lag_s``
+  equal to the lag and the offline-only passes off (``offline_offset_selection``,
+  ``offline_reverse_pass``, ``offline_refine``), which is exactly what the
+  streaming tracker with that lag gives (``tests/test_server_live_lag.py``); the
+  live server never runs those passes;
+* ``offline, lag 1 s`` — batch ``locate``'s default (with the offline passes).
+
+Before 2026-11-27 (session 10) the live rows left the offline passes on, so
+since they became the default (docs/filter.md, "Round 6 as the default") those
+rows measured batch ``locate`` with a short lag, not the live server.
 
 Errors are pooled over runs (mean / median / p95), with the mean of the
 per-run mean orientation errors and the worst run.
@@ -30,16 +36,26 @@ from dataclasses import replace
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
+from radiopose.filtering import FilterConfig
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
-VARIANTS: dict[str, float | None] = {
-    "causal": None,
-    "live, lag 0.1 s": 0.1,
-    "live, lag 0.25 s": 0.25,
-    "offline, lag 1 s": 1.0,
+VARIANTS: dict[str, tuple[float | None, bool]] = {
+    "causal": (None, False),
+    "live, lag 0.1 s": (0.1, False),
+    "live, lag 0.25 s": (0.25, False),
+    "offline, lag 1 s": (1.0, True),
 }
-"""Variant → the smoother's lag, seconds (``None``: causal)."""
+"""Variant → (the smoother's lag, seconds (``None``: causal); whether batch
+``locate``'s offline-only passes run)."""
+
+LIVE_FILTER = replace(
+    FilterConfig(),
+    offline_offset_selection=False,
+    offline_reverse_pass=False,
+    offline_refine=False,
+)
+"""The filter as the live server runs it: no pass that needs the whole file."""
 
 QUICK: dict[str, float] = {
     "size_m": 10.0,
@@ -70,8 +86,10 @@ def main(argv: list[str] | None = None) -> int:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             sim = simulate(replace(base, noise_db=sigma), seed)
             scorer = build_scorer(sim, "numba")
-            for name, lag_s in VARIANTS.items():
+            for name, (lag_s, offline) in VARIANTS.items():
                 cfg = TrackerConfig(smoothing_lag_s=lag_s)
+                if not offline:
+                    cfg = replace(cfg, filter=LIVE_FILTER)
                 run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
                 per[name].append(run)
                 print(
