@@ -71,7 +71,8 @@ from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import config_overrides
 from radiopose.packets import Packets
-from radiopose.simulate import ScenarioConfig, Simulation, simulate
+from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, simulate
+from radiopose.simulate.trajectories import RotationKind
 from radiopose.tracker import TrackerConfig
 
 OFFLINE = TrackerConfig()  # since round 6: the reversed pass and the MAP arbiter on
@@ -153,8 +154,10 @@ def _one(
     seed: int,
     variants: tuple[str, ...] = tuple(VARIANTS),
     overrides: dict[str, object] | None = None,
+    rotation: RotationKind = "linear",
 ) -> tuple[float, int, dict[str, RunResult]]:
-    sim = simulate(ScenarioConfig(noise_db=sigma), seed)
+    motion = MotionConfig(rotation=rotation)
+    sim = simulate(ScenarioConfig(noise_db=sigma, motion=motion), seed)
     scorer = build_scorer(sim, "numba")
     out: dict[str, RunResult] = {}
     for name in variants:
@@ -231,6 +234,11 @@ def main(argv: list[str] | None = None) -> int:
         "--set", nargs="*", default=[], metavar="FIELD=VALUE",
         help="FilterConfig overrides for the filter rows (tuning: on seeds 7000-7059 only)",
     )  # fmt: skip
+    ap.add_argument(
+        "--rotation", default="linear", choices=["linear", "periodic", "fast"],
+        help="the device's rotation (MotionConfig.rotation; default the standard scenario's "
+        "linear; periodic: the motion experiment's human-like sway)",
+    )  # fmt: skip
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (runs in parallel)")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -240,7 +248,11 @@ def main(argv: list[str] | None = None) -> int:
     overrides = _overrides(ap, args.set)
     variants = [v for v in VARIANTS if v in args.variants]
     seeds = sorted({s for r in args.seed_sets for s in r})
-    tasks = [(sigma, seed, tuple(variants), overrides) for sigma in args.sigmas for seed in seeds]
+    tasks = [
+        (sigma, seed, tuple(variants), overrides, args.rotation)
+        for sigma in args.sigmas
+        for seed in seeds
+    ]
     t_start = time.perf_counter()
     if args.jobs > 1:
         with ProcessPoolExecutor(args.jobs) as pool:
@@ -257,6 +269,7 @@ def main(argv: list[str] | None = None) -> int:
     lines.append(
         f"{len(seeds)} seeds, {elapsed_s:.0f} s with {args.jobs} process(es) "
         "(`python scripts/filter_accuracy.py`)"
+        + (f", rotation {args.rotation}" if args.rotation != "linear" else "")
         + (f", filter settings {overrides}." if overrides else ".")
     )
     text = "\n".join(lines) + "\n"

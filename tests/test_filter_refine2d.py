@@ -101,6 +101,32 @@ def test_refinement_inputs_and_settings_are_checked(small) -> None:
     assert FilterConfig().offline_refine is True  # on by default since round 6
 
 
+def test_the_arbiters_azimuth_prior_is_its_own_setting(small) -> None:
+    """``refine_angular_accel_noise_dps2`` sets the arbiter's azimuth prior; 0 takes
+    the filter's ``angular_accel_noise_dps2`` (docs/filter.md, "Angular noise")."""
+    model, records, _, pos, ori = small
+    rng = np.random.default_rng(5)
+    start_ori = ori.copy()
+    start_ori[:, 0] = (ori[:, 0] + rng.normal(0.0, 10.0, pos.shape[0])) % 360.0
+    t = np.array([r[0] for r in records])
+    h = [r[1] for r in records]
+
+    def refined(cfg: FilterConfig) -> np.ndarray:
+        res = refine_track_2d(model, t, h, pos, start_ori, 0.5, cfg, max_nfev=30)
+        return np.asarray(res.orientation_deg[:, 0])
+
+    own = refined(FilterConfig(angular_accel_noise_dps2=90.0))
+    split = refined(
+        FilterConfig(angular_accel_noise_dps2=270.0, refine_angular_accel_noise_dps2=90.0)
+    )
+    loose = refined(FilterConfig(angular_accel_noise_dps2=270.0))
+    np.testing.assert_array_equal(split, own)  # the filter's own value is not read
+    assert np.abs(angle_diff_deg(loose, own)).max() > 1e-6  # the prior acts
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="refine_angular_accel_noise_dps2"):
+            FilterConfig(refine_angular_accel_noise_dps2=bad)
+
+
 # ------------------------------------------- end to end: tuning seeds 7030, 7099, 7011
 def _runs(seed: int, sigma_db: float, loud: bool) -> dict:
     sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)

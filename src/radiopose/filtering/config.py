@@ -159,6 +159,10 @@ class FilterConfig:
         candidates are the forward track and the offset selection's passes.
     refine_max_nfev
         Residual evaluations of each candidate's refinement.
+    refine_angular_accel_noise_dps2
+        The arbiter's motion prior on the azimuth, °/s²/√Hz (white angular
+        acceleration, as ``angular_accel_noise_dps2`` in the filter); 0
+        (default) takes the filter's own ``angular_accel_noise_dps2``.
     refine_banded
         Offline only, with ``offline_refine`` (default on since 2026-11-27;
         ``false`` gives the sparse LU of round 6): solve each
@@ -254,6 +258,7 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
+    refine_angular_accel_noise_dps2: float = 0.0
     refine_banded: bool = True
     # issue 15 (whole-process speed): the offline passes on forked children
     offline_workers: int = 2
@@ -277,7 +282,10 @@ class FilterConfig:
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise InputError(f"filter setting {name} = {v!r} must be a positive number")
-        for name in ("tilt_noise_dps", "initial_speed_mps", "initial_rate_dps"):
+        for name in (
+            "tilt_noise_dps", "initial_speed_mps", "initial_rate_dps",
+            "refine_angular_accel_noise_dps2",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")

@@ -18,7 +18,8 @@ to its own optimum of one objective, and the lowest optimum wins:
   site has one of each).
 * The motion prior is the filter's process model: a velocity change between
   consecutive intervals of x, y over ``accel_noise_mps2·√((dt₁ + dt₂)/3)``,
-  of the (wrapped) azimuth over ``angular_accel_noise_dps2·√(…)``.
+  of the (wrapped) azimuth over ``angular_accel_noise_dps2·√(…)`` (or
+  ``refine_angular_accel_noise_dps2`` when set).
 * Solved by :func:`radiopose.filtering.refine3d._levenberg_marquardt`
   (projected Levenberg–Marquardt, IRLS for ``ρ``, sparse normal equations;
   with ``FilterConfig.refine_banded`` the same iteration solves them in band
@@ -168,8 +169,8 @@ def refine_track_2d(
     # the motion prior's rows: ((x_{i+1} − x_i)/d2 − (x_i − x_{i−1})/d1) · w,
     # interior packets i = 1 … n − 2, one block of k rows per component
     dt = np.maximum(np.diff(t), _MIN_DT_S)
-    qs = (config.accel_noise_mps2, config.accel_noise_mps2,
-          math.radians(config.angular_accel_noise_dps2))  # fmt: skip
+    q_az_dps2 = config.refine_angular_accel_noise_dps2 or config.angular_accel_noise_dps2
+    qs = (config.accel_noise_mps2, config.accel_noise_mps2, math.radians(q_az_dps2))
     k = max(n - 2, 0)
     coef = np.zeros((3, k, 3))  # [component, row, (packet i + 1, i, i − 1)]
     w_az = np.zeros(0)
