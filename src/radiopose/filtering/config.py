@@ -198,6 +198,17 @@ class FilterConfig:
         as measured): ``"forward"``,
         ``"reversed"`` (over the time-reversed packets, as
         ``offline_reverse_pass``) or ``"both"``.
+    offline_offset_profile
+        Offline only, 2-D (round 8, docs/filter.md "Accuracy round 8"; default
+        off): when the offset selection runs (a candidate of pass 1 lies
+        ``offset_selection_trigger_db`` or more from the enrolled power), one
+        more tight pass runs at the device's offset by the data alone: the
+        argmax of the whole file's offset profile over a coarse pose grid
+        (:mod:`radiopose.filtering.offset_profile`), unless a candidate lies
+        within ``offset_profile_tolerance_db`` of it. Its track is one more
+        candidate of the evidence test and the arbiter.
+    offset_profile_tolerance_db
+        See ``offline_offset_profile``, dB.
     """
 
     n_particles: int = 2000
@@ -263,6 +274,9 @@ class FilterConfig:
     offline_offset_refit: bool = False
     offset_refit_tolerance_db: float = 1.5
     offset_refit_passes: str = "reversed"
+    # issue 15 (+6 dB tails, round 8): a tight pass at the offset profile's argmax (off)
+    offline_offset_profile: bool = False
+    offset_profile_tolerance_db: float = 1.5
 
     def __post_init__(self) -> None:
         positive = (
@@ -272,6 +286,7 @@ class FilterConfig:
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
             "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
+            "offset_profile_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)

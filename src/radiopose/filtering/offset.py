@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from collections.abc import Callable
 from functools import partial
 
 import numpy as np
@@ -135,6 +136,7 @@ def select_offset(
     evidence_out: dict[object, float] | None = None,
     tracks_out: list[dict[object, FilterEstimate]] | None = None,
     workers: int = 1,
+    profile_db: Callable[[], float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[OffsetPass]]:
     """The offline selection (module docstring) after pass 1.
 
@@ -163,6 +165,12 @@ def select_offset(
         Processes the further passes may use, this one included
         (:func:`radiopose.filtering.forked.map_forked`); the result does not
         depend on it.
+    profile_db
+        If given (round 8, ``FilterConfig.offline_offset_profile``), called once
+        when the selection runs: the device's offset by the data alone, dB
+        (:func:`radiopose.filtering.offset_profile.data_offset_db`); a tight
+        pass runs there too, last, unless a candidate lies within
+        ``offset_profile_tolerance_db`` of it.
 
     Returns
     -------
@@ -180,6 +188,12 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
+    if profile_db is not None:
+        b = profile_db()
+        if math.isfinite(b) and all(
+            abs(b - c) > cfg.offset_profile_tolerance_db for c in candidates
+        ):
+            candidates.append(b)
 
     def tight_pass(
         c: float,

@@ -199,6 +199,7 @@ class FilterMethod:
                 tight_evidence if _reverses(device) else None,
                 other_passes if _arbitrates(device) else None,
                 workers,
+                _profile_db(device, records, state) if pf.config.offline_offset_profile else None,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
@@ -257,6 +258,18 @@ class FilterMethod:
             pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache
         )
         return _as_delayed(out)
+
+
+def _profile_db(
+    device: Device, records: list[tuple[float, HeardRss, object]], state: FilterState
+) -> Callable[[], float]:
+    """Round 8: the device's offset by the data alone, computed when the offset
+    selection asks (:func:`radiopose.filtering.offset_profile.data_offset_db`
+    at the forward filter's σ)."""
+    from radiopose.filtering.offset_profile import data_offset_db
+
+    pf: ParticleFilter = device.engine
+    return partial(data_offset_db, pf.model, records, math.sqrt(state.sigma2_db2))
 
 
 def _ahead_key(device: Device) -> str:
