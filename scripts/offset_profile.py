@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--loud", action="store_true", help="also the device 6 dB above its power")
     ap.add_argument("--grids", type=_grid, nargs="+", default=[(1.0, 15.0)], help="STEP_M:STEP_DEG")
     ap.add_argument("--windows", type=float, nargs="+", default=[0.1], help="window lengths, s")
-    ap.add_argument("--grid-sigmas", type=float, nargs="+", default=[1.0], help="σ_g, dB")
+    ap.add_argument("--grid-sigmas", type=float, nargs="+", default=[0.5], help="σ_g, dB")
     ap.add_argument("--stride", type=int, default=1, help="every n-th window only")
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)

@@ -31,8 +31,8 @@ the choice is sharp at σ = 0.5 dB and still clear at σ = 3 dB.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 from functools import partial
 
 import numpy as np
@@ -95,6 +95,17 @@ def candidate_offsets_db(
         if math.isfinite(c) and all(abs(c - o) > merge_db for o in out):
             out.append(c)
     return out
+
+
+def with_profile_offset(
+    candidates: list[float], profile_db: float, tolerance_db: float
+) -> list[float]:
+    """``candidates`` with the offset profile's argmax ``profile_db`` appended
+    (round 8), unless it is not finite or a candidate lies within
+    ``tolerance_db`` of it, dB."""
+    if math.isfinite(profile_db) and all(abs(profile_db - c) > tolerance_db for c in candidates):
+        return [*candidates, profile_db]
+    return list(candidates)
 
 
 def run_pass(
@@ -188,12 +199,8 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
-    if profile_db is not None:
-        b = profile_db()
-        if math.isfinite(b) and all(
-            abs(b - c) > cfg.offset_profile_tolerance_db for c in candidates
-        ):
-            candidates.append(b)
+    if profile_db is not None:  # round 8: the offset by the data alone
+        candidates = with_profile_offset(candidates, profile_db(), cfg.offset_profile_tolerance_db)
 
     def tight_pass(
         c: float,
@@ -224,4 +231,5 @@ __all__ = [
     "run_pass",
     "select_offset",
     "tight_config",
+    "with_profile_offset",
 ]

@@ -81,11 +81,11 @@ class CoarseTable:
                 f"CoarseTable: steps {position_step_m!r} m, {azimuth_step_deg!r}° must be positive"
             )
         x_lo, x_hi, y_lo, y_hi = (float(v) for v in model.box_m)
-        nx = max(int(math.ceil((x_hi - x_lo) / position_step_m - 1e-9)) + 1, 1)
-        ny = max(int(math.ceil((y_hi - y_lo) / position_step_m - 1e-9)) + 1, 1)
+        nx = max(math.ceil((x_hi - x_lo) / position_step_m - 1e-9) + 1, 1)
+        ny = max(math.ceil((y_hi - y_lo) / position_step_m - 1e-9) + 1, 1)
         xs = np.linspace(x_lo, x_hi, nx)
         ys = np.linspace(y_lo, y_hi, ny)
-        n_az = max(int(round(360.0 / azimuth_step_deg)), 1)
+        n_az = max(round(360.0 / azimuth_step_deg), 1)
         az = np.arange(n_az) * (360.0 / n_az)
         gx, gy, ga = np.meshgrid(xs, ys, az, indexing="ij")
         poses = np.column_stack([gx.ravel(), gy.ravel(), ga.ravel()])
@@ -203,7 +203,7 @@ def window_medians(records: Sequence[Record], window_s: float) -> list[tuple[Hea
             out.append((HeardRss(rx, med), n))
 
     for t_s, heard, _ in records:
-        w = int(math.floor((t_s - t0) / window_s))
+        w = math.floor((t_s - t0) / window_s)
         if w != current:
             close()
             per = {}
