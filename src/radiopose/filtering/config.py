@@ -23,6 +23,8 @@ SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
 
 REFIT_PASSES = ("forward", "reversed", "both")
+PROFILE_TRACKS = ("winner", "always")
+"""The values of ``FilterConfig.offset_profile_track``."""
 """The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
 
 
@@ -209,6 +211,11 @@ class FilterConfig:
         candidate of the evidence test and the arbiter.
     offset_profile_tolerance_db
         See ``offline_offset_profile``, dB.
+    offset_profile_track
+        Whether the profile's pass is an arbiter candidate: ``"winner"``
+        (default) only when it wins the evidence test (then it is the chosen
+        pass, as any winner); ``"always"`` as the selection's other passes (the
+        first version, docs/filter.md "Accuracy round 8").
     """
 
     n_particles: int = 2000
@@ -277,6 +284,7 @@ class FilterConfig:
     # issue 15 (+6 dB tails, round 8): a tight pass at the offset profile's argmax (off)
     offline_offset_profile: bool = False
     offset_profile_tolerance_db: float = 1.5
+    offset_profile_track: str = "winner"
 
     def __post_init__(self) -> None:
         positive = (
@@ -334,6 +342,11 @@ class FilterConfig:
             raise InputError(
                 f"filter setting offset_refit_passes = {self.offset_refit_passes!r} is not one "
                 f"of {REFIT_PASSES}"
+            )
+        if self.offset_profile_track not in PROFILE_TRACKS:
+            raise InputError(
+                f"filter setting offset_profile_track = {self.offset_profile_track!r} is not "
+                f"one of {PROFILE_TRACKS}"
             )
         if self.smoother not in SMOOTHERS:
             raise InputError(

@@ -59,10 +59,13 @@ class OffsetPass:
     log_evidence
         ``log p(y_1:T)`` of the whole file under that pass's filter, nats
         (up to a constant shared by every pass).
+    from_profile
+        Whether the pass runs at the offset profile's argmax (round 8).
     """
 
     centre_db: float
     log_evidence: float
+    from_profile: bool = False
 
 
 def tight_config(config: FilterConfig) -> FilterConfig:
@@ -199,6 +202,7 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
+    n_own = len(candidates)
     if profile_db is not None:  # round 8: the offset by the data alone
         candidates = with_profile_offset(candidates, profile_db(), cfg.offset_profile_tolerance_db)
 
@@ -212,8 +216,8 @@ def select_offset(
     # the passes are independent (each a fresh filter from the same seed): on
     # ``workers`` processes they give what they give one after another
     runs = map_forked([partial(tight_pass, c) for c in candidates], workers)
-    for c, (est, ll, per_packet) in zip(candidates, runs, strict=True):
-        passes.append(OffsetPass(c, ll))
+    for i, (c, (est, ll, per_packet)) in enumerate(zip(candidates, runs, strict=True)):
+        passes.append(OffsetPass(c, ll, from_profile=i >= n_own))
         if tracks_out is not None:
             tracks_out.append(dict(est))
         if ll > best_ll:

@@ -24,9 +24,13 @@ module gives an offset that does not depend on what the filter searched:
    alone (:class:`OffsetProfile`).
 
 One window of four receivers fits a wrong (pose, offset) pair nearly as well
-as the truth (three constraints for three pose unknowns and the offset); the
-profile rests on the windows together: at a wrong offset the readings leave
-the set of RSS vectors that the map can produce, a little, in most windows.
+as the truth (three constraints for three pose unknowns and the offset), and
+the windows are scored independently (no motion between them): measured on
+tuning seeds 7300–7349 the argmax lies within 1.5 dB of the device's offset
+in 4 runs of 5 at σ = 0.5 and 3 dB, and misses by a bias of the run (up to
+7 dB) in the others. So it is used as one more *candidate* of the offset
+selection (``FilterConfig.offline_offset_profile``), never as the decider:
+the tight passes' evidence, which has the motion's continuity, decides.
 """
 
 from __future__ import annotations

@@ -217,7 +217,13 @@ class FilterMethod:
         candidates = [forward]
         # the offset selection's other passes (pass 1 when a further one won)
         others = [dict(kept + first)] if best > 0 else []
-        others += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        # (round 8: the offset profile's pass only if it won, unless "always")
+        keep_profile = pf.config.offset_profile_track == "always"
+        others += [
+            t
+            for i, t in enumerate(other_passes, start=1)
+            if i != best and (keep_profile or not passes[i].from_profile)
+        ]
         cache: dict[tuple[object, ...], Refined2d] = {}
         if _reverses(device):
             # round 5: a pass over the reversed packets, combined per segment
