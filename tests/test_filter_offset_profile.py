@@ -31,6 +31,7 @@ from filter_support import small_site
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
+from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names
 from radiopose.filtering.offset import with_profile_offset
 from radiopose.filtering.offset_profile import (
     CoarseTable,
@@ -112,6 +113,13 @@ def test_coarse_grid_covers_the_map_and_is_the_models_expected_rss() -> None:
     assert table.poses[:, 0].min() == x_lo and table.poses[:, 0].max() == x_hi
     assert sorted(set(table.poses[:, 2].tolist()))[:3] == [0.0, 15.0, 30.0]
     assert table.table_dbm.shape == (table.poses.shape[0], site.model.receivers_m.shape[0])
+    i = 1234  # one pose's row is the model's expected RSS at that pose
+    S = np.zeros((1, K.N_COLUMNS))
+    S[0, K.X_M], S[0, K.Y_M] = table.poses[i, :2]
+    S[0, K.Z_M] = site.model.space.positions_m[0, 2]
+    S[0, K.AZIMUTH_RAD] = np.deg2rad(table.poses[i, 2])
+    n_rx = site.model.receivers_m.shape[0]
+    np.testing.assert_allclose(table.table_dbm[i], site.model.expected(S, np.arange(n_rx))[0])
     with pytest.raises(ValueError, match="positive"):
         CoarseTable.build(site.model, 0.0, 15.0)
 
