@@ -34,6 +34,10 @@ Rows per σ:
   default with round 7's options (``arbiter_offset_evidence``,
   ``offline_offset_refit`` with the reversed pass, tolerance 1.5 dB; off by
   default, docs/filter.md "Accuracy round 7");
+* ``filter, offset profile`` / ``filter, +6 dB, offset profile`` — the offline
+  default with round 8's option (``offline_offset_profile``: a tight pass at
+  the offset profile's argmax when the offset selection runs; off by default,
+  docs/filter.md "Accuracy round 8");
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -94,6 +98,7 @@ ROUND7 = TrackerConfig(
         offset_refit_tolerance_db=1.5,
     )
 )
+PROFILE = TrackerConfig(filter=FilterConfig(offline_offset_profile=True))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, forward only": (FORWARD, "", "filter"),
@@ -110,6 +115,8 @@ VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter, +6 dB, reversed, refined": (ARBITER, "loud", "filter"),
     "filter, offset refit": (ROUND7, "", "filter"),
     "filter, +6 dB, offset refit": (ROUND7, "loud", "filter"),
+    "filter, offset profile": (PROFILE, "", "filter"),
+    "filter, +6 dB, offset profile": (PROFILE, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),
 }

@@ -166,10 +166,13 @@ def _errors(
     )
 
 
-def _candidate_labels(passes: list[Any], n_candidates: int, reverses: bool) -> list[str]:
+def _candidate_labels(
+    passes: list[Any], n_candidates: int, reverses: bool, keep_profile: bool = False
+) -> list[str]:
     """The arbiter's candidates in :meth:`FilterMethod.flush`'s order (pass 1 is
     the filter's own pass, wide offset prior; passes 2… the offset selection's
-    tight ones, as in docs/filter.md "Accuracy round 4")."""
+    tight ones, as in docs/filter.md "Accuracy round 4"; round 8's profile pass,
+    marked ``(profile)``, only if it won unless ``keep_profile``)."""
     best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
     centre = ["wide"] + [f"{p.centre_db:+.1f}" for p in passes[1:]]
     labels = [f"forward (pass {best + 1} @ {centre[best]})"]
@@ -177,7 +180,11 @@ def _candidate_labels(passes: list[Any], n_candidates: int, reverses: bool) -> l
         labels += ["combined", "reversed"]
     if best > 0:
         labels.append("pass 1 @ wide")
-    labels += [f"pass {i + 1} @ {centre[i]}" for i in range(1, len(passes)) if i != best]
+    labels += [
+        f"pass {i + 1} @ {centre[i]}{' (profile)' if passes[i].from_profile else ''}"
+        for i in range(1, len(passes))
+        if i != best and (keep_profile or not passes[i].from_profile)
+    ]
     labels += [f"candidate {i}" for i in range(len(labels), n_candidates)]
     return labels[:n_candidates]
 
@@ -257,7 +264,12 @@ def diagnose_candidates(
                 for k, (p, o) in truth.items()
                 if k in ref
             }
-            labels = _candidate_labels(passes, len(candidates), tcfg.filter.offline_reverse_pass)
+            labels = _candidate_labels(
+                passes,
+                len(candidates),
+                tcfg.filter.offline_reverse_pass,
+                tcfg.filter.offset_profile_track == "always",
+            )
             if n_arb:  # round 7's refit: the first arbitration's output against the new pass
                 kinds = {"forward": ["forward"], "reversed": ["reversed"]}
                 kinds["both"] = ["forward", "reversed"]

@@ -95,6 +95,13 @@ def test_lock_diagnosis_candidates(capsys: pytest.CaptureFixture[str]) -> None:
     assert "  forward (pass " in printed and "  truth " in printed and " *" in printed
 
 
+def test_offset_profile(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "offset_profile.py", ["--quick", "--loud"], capsys)
+    assert "σ 3 seed 5 device +6 grid 1 m/15° window 0.1 s σg 0.5: marginal argmax" in printed
+    rows = _table_rows(printed)
+    assert [row.split("|")[2].strip() for row in rows if row.startswith("| 3 |")] == ["+0", "+6"]
+
+
 def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--grid", "test", "--windows", "0.1"]
     printed = _run(SCRIPTS / "orientation_outliers.py", argv, capsys)
@@ -240,6 +247,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "live_lag_accuracy": test_live_lag_accuracy,
     "lock_diagnosis": test_lock_diagnosis,
     "mirror_diagnosis": test_mirror_diagnosis,
+    "offset_profile": test_offset_profile,
     "orientation_outliers": test_orientation_outliers,
     "live_pose3d": test_live_pose3d,
     "pose3d_accuracy": test_pose3d_accuracy,

@@ -23,6 +23,8 @@ SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
 
 REFIT_PASSES = ("forward", "reversed", "both")
+PROFILE_TRACKS = ("winner", "always")
+"""The values of ``FilterConfig.offset_profile_track``."""
 """The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
 
 
@@ -202,6 +204,22 @@ class FilterConfig:
         as measured): ``"forward"``,
         ``"reversed"`` (over the time-reversed packets, as
         ``offline_reverse_pass``) or ``"both"``.
+    offline_offset_profile
+        Offline only, 2-D (round 8, docs/filter.md "Accuracy round 8"; default
+        off): when the offset selection runs (a candidate of pass 1 lies
+        ``offset_selection_trigger_db`` or more from the enrolled power), one
+        more tight pass runs at the device's offset by the data alone: the
+        argmax of the whole file's offset profile over a coarse pose grid
+        (:mod:`radiopose.filtering.offset_profile`), unless a candidate lies
+        within ``offset_profile_tolerance_db`` of it. Its track is one more
+        candidate of the evidence test and the arbiter.
+    offset_profile_tolerance_db
+        See ``offline_offset_profile``, dB.
+    offset_profile_track
+        Whether the profile's pass is an arbiter candidate: ``"winner"``
+        (default) only when it wins the evidence test (then it is the chosen
+        pass, as any winner); ``"always"`` as the selection's other passes (the
+        first version, docs/filter.md "Accuracy round 8").
     """
 
     n_particles: int = 2000
@@ -268,6 +286,10 @@ class FilterConfig:
     offline_offset_refit: bool = False
     offset_refit_tolerance_db: float = 1.5
     offset_refit_passes: str = "reversed"
+    # issue 15 (+6 dB tails, round 8): a tight pass at the offset profile's argmax (off)
+    offline_offset_profile: bool = False
+    offset_profile_tolerance_db: float = 1.5
+    offset_profile_track: str = "winner"
 
     def __post_init__(self) -> None:
         positive = (
@@ -277,6 +299,7 @@ class FilterConfig:
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
             "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
+            "offset_profile_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -327,6 +350,11 @@ class FilterConfig:
             raise InputError(
                 f"filter setting offset_refit_passes = {self.offset_refit_passes!r} is not one "
                 f"of {REFIT_PASSES}"
+            )
+        if self.offset_profile_track not in PROFILE_TRACKS:
+            raise InputError(
+                f"filter setting offset_profile_track = {self.offset_profile_track!r} is not "
+                f"one of {PROFILE_TRACKS}"
             )
         if self.smoother not in SMOOTHERS:
             raise InputError(

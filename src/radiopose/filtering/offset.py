@@ -31,6 +31,7 @@ the choice is sharp at σ = 0.5 dB and still clear at σ = 3 dB.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -58,10 +59,13 @@ class OffsetPass:
     log_evidence
         ``log p(y_1:T)`` of the whole file under that pass's filter, nats
         (up to a constant shared by every pass).
+    from_profile
+        Whether the pass runs at the offset profile's argmax (round 8).
     """
 
     centre_db: float
     log_evidence: float
+    from_profile: bool = False
 
 
 def tight_config(config: FilterConfig) -> FilterConfig:
@@ -94,6 +98,17 @@ def candidate_offsets_db(
         if math.isfinite(c) and all(abs(c - o) > merge_db for o in out):
             out.append(c)
     return out
+
+
+def with_profile_offset(
+    candidates: list[float], profile_db: float, tolerance_db: float
+) -> list[float]:
+    """``candidates`` with the offset profile's argmax ``profile_db`` appended
+    (round 8), unless it is not finite or a candidate lies within
+    ``tolerance_db`` of it, dB."""
+    if math.isfinite(profile_db) and all(abs(profile_db - c) > tolerance_db for c in candidates):
+        return [*candidates, profile_db]
+    return list(candidates)
 
 
 def run_pass(
@@ -135,6 +150,7 @@ def select_offset(
     evidence_out: dict[object, float] | None = None,
     tracks_out: list[dict[object, FilterEstimate]] | None = None,
     workers: int = 1,
+    profile_db: Callable[[], float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[OffsetPass]]:
     """The offline selection (module docstring) after pass 1.
 
@@ -163,6 +179,12 @@ def select_offset(
         Processes the further passes may use, this one included
         (:func:`radiopose.filtering.forked.map_forked`); the result does not
         depend on it.
+    profile_db
+        If given (round 8, ``FilterConfig.offline_offset_profile``), called once
+        when the selection runs: the device's offset by the data alone, dB
+        (:func:`radiopose.filtering.offset_profile.data_offset_db`); a tight
+        pass runs there too, last, unless a candidate lies within
+        ``offset_profile_tolerance_db`` of it.
 
     Returns
     -------
@@ -180,6 +202,9 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
+    n_own = len(candidates)
+    if profile_db is not None:  # round 8: the offset by the data alone
+        candidates = with_profile_offset(candidates, profile_db(), cfg.offset_profile_tolerance_db)
 
     def tight_pass(
         c: float,
@@ -191,8 +216,8 @@ def select_offset(
     # the passes are independent (each a fresh filter from the same seed): on
     # ``workers`` processes they give what they give one after another
     runs = map_forked([partial(tight_pass, c) for c in candidates], workers)
-    for c, (est, ll, per_packet) in zip(candidates, runs, strict=True):
-        passes.append(OffsetPass(c, ll))
+    for i, (c, (est, ll, per_packet)) in enumerate(zip(candidates, runs, strict=True)):
+        passes.append(OffsetPass(c, ll, from_profile=i >= n_own))
         if tracks_out is not None:
             tracks_out.append(dict(est))
         if ll > best_ll:
@@ -210,4 +235,5 @@ __all__ = [
     "run_pass",
     "select_offset",
     "tight_config",
+    "with_profile_offset",
 ]

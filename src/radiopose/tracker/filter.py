@@ -199,6 +199,7 @@ class FilterMethod:
                 tight_evidence if _reverses(device) else None,
                 other_passes if _arbitrates(device) else None,
                 workers,
+                _profile_db(device, records, state) if pf.config.offline_offset_profile else None,
             )
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
@@ -216,7 +217,13 @@ class FilterMethod:
         candidates = [forward]
         # the offset selection's other passes (pass 1 when a further one won)
         others = [dict(kept + first)] if best > 0 else []
-        others += [t for i, t in enumerate(other_passes, start=1) if i != best]
+        # (round 8: the offset profile's pass only if it won, unless "always")
+        keep_profile = pf.config.offset_profile_track == "always"
+        others += [
+            t
+            for i, t in enumerate(other_passes, start=1)
+            if i != best and (keep_profile or not passes[i].from_profile)
+        ]
         cache: dict[tuple[object, ...], Refined2d] = {}
         if _reverses(device):
             # round 5: a pass over the reversed packets, combined per segment
@@ -257,6 +264,18 @@ class FilterMethod:
             pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache
         )
         return _as_delayed(out)
+
+
+def _profile_db(
+    device: Device, records: list[tuple[float, HeardRss, object]], state: FilterState
+) -> Callable[[], float]:
+    """Round 8: the device's offset by the data alone, computed when the offset
+    selection asks (:func:`radiopose.filtering.offset_profile.data_offset_db`
+    at the forward filter's σ)."""
+    from radiopose.filtering.offset_profile import data_offset_db
+
+    pf: ParticleFilter = device.engine
+    return partial(data_offset_db, pf.model, records, math.sqrt(state.sigma2_db2))
 
 
 def _ahead_key(device: Device) -> str:
