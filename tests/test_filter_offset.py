@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from filter_support import tracker_before_angular_noise
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
@@ -81,7 +82,7 @@ def _run(sim, scorer, **filter_settings: object):
     # round 4's selection on its own: without round 6's reversed pass and arbiter,
     # which leave this run's wrong lock even without the selection
     settings = {"offline_reverse_pass": False, "offline_refine": False, **filter_settings}
-    cfg = TrackerConfig(filter=FilterConfig(**settings))  # type: ignore[arg-type]
+    cfg = tracker_before_angular_noise(**settings)  # the case's wrong lock (filter_support)
     return run_methods(sim, ("filter",), cfg, scorer)["filter"]
 
 

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filter_support import small_site
+from filter_support import small_site, tracker_before_angular_noise
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
@@ -43,7 +43,6 @@ from radiopose.filtering.offset_profile import (
 from radiopose.likelihood import HeardRss
 from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
-from radiopose.tracker import TrackerConfig
 from radiopose.tracker_settings import read_tracker_settings
 
 
@@ -155,7 +154,7 @@ def _loud_run(
     p = sim.packets
     up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
     sim = replace(sim, packets=up6)
-    base = TrackerConfig()
+    base = tracker_before_angular_noise()  # the case's wrong lock (filter_support)
     over = {"offline_offset_profile": profile, "offset_profile_track": track}
     cfg = replace(base, filter=replace(base.filter, **over))
     run = run_methods(sim, ("filter",), cfg, scorer)["filter"]

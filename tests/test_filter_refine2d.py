@@ -19,14 +19,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from filter_support import small_site, turned
+from filter_support import small_site, tracker_before_angular_noise, turned
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.refine2d import arbitrate, refine_track_2d
 from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
-from radiopose.tracker import TrackerConfig
 from radiopose.units import angle_diff_deg
 
 
@@ -103,7 +102,8 @@ def test_refinement_inputs_and_settings_are_checked(small) -> None:
 
 def test_the_arbiters_azimuth_prior_is_its_own_setting(small) -> None:
     """``refine_angular_accel_noise_dps2`` sets the arbiter's azimuth prior; 0 takes
-    the filter's ``angular_accel_noise_dps2`` (docs/filter.md, "Angular noise")."""
+    the filter's ``angular_accel_noise_dps2`` (docs/filter.md, "Angular noise"); the
+    default (90) is not the filter's default (270)."""
     model, records, _, pos, ori = small
     rng = np.random.default_rng(5)
     start_ori = ori.copy()
@@ -115,13 +115,17 @@ def test_the_arbiters_azimuth_prior_is_its_own_setting(small) -> None:
         res = refine_track_2d(model, t, h, pos, start_ori, 0.5, cfg, max_nfev=30)
         return np.asarray(res.orientation_deg[:, 0])
 
-    own = refined(FilterConfig(angular_accel_noise_dps2=90.0))
+    own = refined(FilterConfig(angular_accel_noise_dps2=90.0, refine_angular_accel_noise_dps2=0.0))
     split = refined(
         FilterConfig(angular_accel_noise_dps2=270.0, refine_angular_accel_noise_dps2=90.0)
     )
-    loose = refined(FilterConfig(angular_accel_noise_dps2=270.0))
+    loose = refined(
+        FilterConfig(angular_accel_noise_dps2=270.0, refine_angular_accel_noise_dps2=0.0)
+    )
     np.testing.assert_array_equal(split, own)  # the filter's own value is not read
     assert np.abs(angle_diff_deg(loose, own)).max() > 1e-6  # the prior acts
+    assert FilterConfig().refine_angular_accel_noise_dps2 == 90.0
+    assert FilterConfig().angular_accel_noise_dps2 == 270.0
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="refine_angular_accel_noise_dps2"):
             FilterConfig(refine_angular_accel_noise_dps2=bad)
@@ -135,7 +139,7 @@ def _runs(seed: int, sigma_db: float, loud: bool) -> dict:
         p = sim.packets
         up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
         sim = replace(sim, packets=up6)
-    base = TrackerConfig()
+    base = tracker_before_angular_noise()  # the cases' wrong locks (filter_support)
     out = {}
     for name, over in (
         ("forward", {"offline_reverse_pass": False, "offline_refine": False}),

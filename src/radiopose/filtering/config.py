@@ -40,7 +40,11 @@ class FilterConfig:
     accel_noise_mps2
         White-acceleration density of the motion model, m/s² per √Hz.
     angular_accel_noise_dps2
-        White angular-acceleration density, °/s² per √Hz.
+        White angular-acceleration density of the filter's motion model, °/s²
+        per √Hz (270 since 2026-11-27, 90 before: the hypotheses then follow a
+        hand's sway; the arbiter keeps 90 through
+        ``refine_angular_accel_noise_dps2``; docs/filter.md, "Angular noise";
+        the 3-D filter keeps 90 through ``Pose3dConfig``).
     tilt_noise_dps
         Random-walk density of pitch and roll, °/√s (only where the site's
         candidate orientations have several pitch or roll values).
@@ -163,8 +167,9 @@ class FilterConfig:
         Residual evaluations of each candidate's refinement.
     refine_angular_accel_noise_dps2
         The arbiter's motion prior on the azimuth, °/s²/√Hz (white angular
-        acceleration, as ``angular_accel_noise_dps2`` in the filter); 0
-        (default) takes the filter's own ``angular_accel_noise_dps2``.
+        acceleration, as ``angular_accel_noise_dps2`` in the filter); default
+        90 (the filter's value before 2026-11-27); 0 takes the filter's own
+        ``angular_accel_noise_dps2``.
     refine_banded
         Offline only, with ``offline_refine`` (default on since 2026-11-27;
         ``false`` gives the sparse LU of round 6): solve each
@@ -224,7 +229,7 @@ class FilterConfig:
 
     n_particles: int = 2000
     accel_noise_mps2: float = 1.0
-    angular_accel_noise_dps2: float = 90.0
+    angular_accel_noise_dps2: float = 270.0
     tilt_noise_dps: float = 10.0
     max_speed_mps: float = 10.0
     max_rate_dps: float = 720.0
@@ -276,7 +281,7 @@ class FilterConfig:
     # default: docs/filter.md, "Round 6 as the default")
     offline_refine: bool = True
     refine_max_nfev: int = 30
-    refine_angular_accel_noise_dps2: float = 0.0
+    refine_angular_accel_noise_dps2: float = 90.0
     refine_banded: bool = True
     # issue 15 (whole-process speed): the offline passes on forked children
     offline_workers: int = 2

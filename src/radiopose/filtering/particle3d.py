@@ -87,6 +87,11 @@ class Pose3dConfig:
     ----------
     n_particles
         Particles per device (replaces the 2-D default).
+    angular_accel_noise_dps2
+        White angular-acceleration density of the azimuth, °/s² per √Hz, for
+        the 3-D filter and its batch refinement (replaces the 2-D filter's,
+        which is 270 since 2026-11-27; the 3-D filter was measured with 90 and
+        keeps it: docs/filter.md, "Angular noise").
     height_noise_mps
         Random-walk density of height, m/√s.
     tilt_noise_dps
@@ -233,6 +238,7 @@ class Pose3dConfig:
     """
 
     n_particles: int = 2000
+    angular_accel_noise_dps2: float = 90.0
     height_noise_mps: float = 0.2
     tilt_noise_dps: float = 20.0
     acquisition_step_m: float = 1.0
@@ -271,7 +277,7 @@ class Pose3dConfig:
 
     def __post_init__(self) -> None:
         for name in (
-            "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
+            "angular_accel_noise_dps2", "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
             "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
             "heading_prior_time_s", "heading_prior_speed_mps", "offset_bank_sd_db",
         ):  # fmt: skip
@@ -522,6 +528,7 @@ class ParticleFilter3d(ParticleFilter):
         cfg = replace(
             config,
             n_particles=self.pose3d.n_particles,
+            angular_accel_noise_dps2=self.pose3d.angular_accel_noise_dps2,
             reentry_interval_s=self.pose3d.reentry_interval_s,
             proposal_window_s=self.pose3d.proposal_window_s,
             sigma_floor_db=self.pose3d.sigma_floor_db,
