@@ -64,6 +64,7 @@ POSE3D_TABLE = "pose3d"
 
 POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "n_particles": (10, 1_000_000),
+    "offline_n_particles": (0, 1_000_000),
     "height_noise_mps": (0.0, 10.0),
     "tilt_noise_dps": (0.0, 3600.0),
     "acquisition_step_m": (0.0, 100.0),
