@@ -24,12 +24,13 @@ from radiopose.tracker import Tracker, TrackerConfig, locate
 from radiopose.tracker.batch import _check_packets as check_packets
 from radiopose.tracker_settings import read_tracker_settings, write_tracker_toml
 
-SEED_FIXED = 0
+SEED_FIXED = 7407
 """A tuning seed (6 receivers, σ 1 dB, 4 s) whose default track ends in a wrong
-mode that more offline particles fix (docs/pose3d.md, "Offline particles")."""
+mode (1.44 m / 46.4°) that four times the offline particles fix (0.17 m / 3.3°;
+docs/pose3d.md, "Offline particles, 2026-11-27")."""
 
-OFFLINE_PARTICLES_FIXED = 0
-"""The offline particle count of the end-to-end check."""
+OFFLINE_PARTICLES_FIXED = 8000
+"""The offline particle count of the end-to-end check (4 × ``n_particles``)."""
 
 
 @pytest.fixture()
@@ -121,16 +122,17 @@ def test_the_setting_is_validated(tmp_path: Path):
 
 
 def test_more_offline_particles_leave_a_wrong_mode():
-    """Tuning seed SEED_FIXED (6 receivers, σ 1 dB, 4 s, offline): with the
-    default particles every start ends in a wrong mode; with
-    OFFLINE_PARTICLES_FIXED offline particles the track refines into the right
-    one. Removing the offline count breaks the second bound."""
+    """Tuning seed SEED_FIXED (6 receivers, σ 1 dB, 4 s, offline): with 2,000
+    particles (``offline_n_particles = 0``) the track ends in a wrong mode; with
+    OFFLINE_PARTICLES_FIXED offline particles it refines into the right one.
+    Removing the offline count breaks the second bound."""
     cfg = replace(HandheldConfig(), n_receivers=6, noise_db=1.0, duration_s=4.0)
     sim = simulate_handheld(cfg, seed=SEED_FIXED)
     base = TrackerConfig()
+    off = replace(base, pose3d=replace(base.pose3d, offline_n_particles=0))
     on = replace(base, pose3d=replace(base.pose3d, offline_n_particles=OFFLINE_PARTICLES_FIXED))
-    e_off = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", base).estimates)
+    e_off = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", off).estimates)
     e_on = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", on).estimates)
-    assert e_off.rotation_deg.mean() > 10.0
+    assert e_off.rotation_deg.mean() > 20.0 and e_off.position_m.mean() > 0.8
     assert e_on.rotation_deg.mean() < 6.0 and e_on.position_m.mean() < 0.3
     assert e_on.coverage == 1.0
