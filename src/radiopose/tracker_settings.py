@@ -64,7 +64,6 @@ POSE3D_TABLE = "pose3d"
 
 POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "n_particles": (10, 1_000_000),
-    "offline_n_particles": (0, 1_000_000),
     "height_noise_mps": (0.0, 10.0),
     "tilt_noise_dps": (0.0, 3600.0),
     "acquisition_step_m": (0.0, 100.0),
@@ -89,6 +88,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_polish_margin": (0.0, 1e9),
     "refine_polish_switch": (0.0, 1e9),
     "refine_restarts": (0, 100),
+    "offline_n_particles": (0, 1_000_000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive
