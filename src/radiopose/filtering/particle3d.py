@@ -89,13 +89,6 @@ class Pose3dConfig:
     ----------
     n_particles
         Particles per device (replaces the 2-D default).
-    offline_n_particles
-        Offline only (batch ``locate`` with a smoothing lag): particles per
-        device of every offline pass — the forward pass, the reversed pass and
-        the mid-track restarts (0: ``n_particles``). Offline has no streaming
-        speed goal, so its passes can afford more particles; the causal
-        filter, the streaming ``Tracker`` and the live server never read it
-        (docs/pose3d.md, "Offline particles, 2026-11-27").
     height_noise_mps
         Random-walk density of height, m/√s.
     tilt_noise_dps
@@ -239,10 +232,16 @@ class Pose3dConfig:
         bank member's spliced track (member ``k`` of the reversed half with
         member ``k`` of the forward half). Off: on tuning seed 7124 these
         starts led the mode choice to a 155° mode (docs/pose3d.md).
+    offline_n_particles
+        Offline only (batch ``locate`` with a smoothing lag): particles per
+        device of every offline pass — the forward pass, the reversed pass and
+        the mid-track restarts (0: ``n_particles``). Offline has no streaming
+        speed goal, so its passes can afford more particles; the causal
+        filter, the streaming ``Tracker`` and the live server never read it
+        (docs/pose3d.md, "Offline particles, 2026-11-27").
     """
 
     n_particles: int = 2000
-    offline_n_particles: int = 0
     height_noise_mps: float = 0.2
     tilt_noise_dps: float = 20.0
     acquisition_step_m: float = 1.0
@@ -278,6 +277,7 @@ class Pose3dConfig:
     refine_reverse_members: bool = False
     refine_restarts: int = 0
     refine_restart_members: bool = False
+    offline_n_particles: int = 0
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
