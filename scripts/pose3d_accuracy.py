@@ -27,7 +27,7 @@ Usage::
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
         [--oracle] [--polish-modes K MARGIN SWITCH] [--reverse-pass] [--reverse-members]
-        [--restarts N ...] [--only-variants]
+        [--restarts N ...] [--offline-particles N ...] [--only-variants]
         [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
@@ -221,6 +221,16 @@ def main(argv: list[str] | None = None) -> int:
         "refinement starts, one row per N (refine_restarts; docs/pose3d.md, 'Mid-track restarts')",
     )
     ap.add_argument(
+        "--offline-particles",
+        type=int,
+        nargs="+",
+        default=[],
+        metavar="N",
+        help="also run each condition with N particles per device in the offline passes "
+        "(forward, reversed, restarts), one row per N (offline_n_particles; docs/pose3d.md, "
+        "'Offline particles')",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -267,6 +277,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.reverse_members:
         rm = {"refine_reverse_pass": True, "refine_reverse_members": True}
         variants.append(("+ reversed pass and its members", rm, 0.0))
+    for n in args.offline_particles:
+        variants.append((f"offline particles {n}", {"offline_n_particles": n}, 0.0))
     for n_restarts in args.restarts:
         label = f"+ {n_restarts} mid-track restart{'s' if n_restarts != 1 else ''}"
         variants.append((label, {"refine_restarts": n_restarts}, 0.0))
@@ -283,19 +295,22 @@ def main(argv: list[str] | None = None) -> int:
         for sigma in args.sigmas:
             for label, p3, err in variants:
                 args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err)
-                c0 = time.process_time()
-                if math.isnan(err):
-                    runs = [oracle_one(n_rx, sigma, s, args.duration_s, p3) for s in seeds]
-                else:
-                    runs = [run_one(n_rx, sigma, s, *args_one) for s in seeds]
-                cpu_s = (time.process_time() - c0) / len(seeds)
-                print(f"  {label}: {cpu_s:.1f} CPU s per run (simulation included)", flush=True)
-                for s, r in zip(seeds, runs, strict=True):
+                runs, cpus = [], []
+                for s in seeds:
+                    c0 = time.process_time()
+                    if math.isnan(err):
+                        r = oracle_one(n_rx, sigma, s, args.duration_s, p3)
+                    else:
+                        r = run_one(n_rx, sigma, s, *args_one)
+                    cpus.append(time.process_time() - c0)
+                    runs.append(r)
                     print(
                         f"  seed {s} {label}: {r.position_m.mean():.3f} m "
-                        f"{r.rotation_deg.mean():.1f}°",
+                        f"{r.rotation_deg.mean():.1f}° ({cpus[-1]:.1f} CPU s)",
                         flush=True,
                     )
+                cpu_s = sum(cpus) / len(cpus)
+                print(f"  {label}: {cpu_s:.1f} CPU s per run (simulation included)", flush=True)
                 p = pooled(runs)
                 lines.append(
                     f"| {n_rx} | {sigma:g} | {label} | {p['position_m']:.2f} | "

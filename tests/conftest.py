@@ -76,6 +76,7 @@ TIERS: dict[str, str] = {
     "test_refine3d": "e2e",
     "test_reverse3d": "e2e",
     "test_restart3d": "e2e",
+    "test_offline_particles3d": "e2e",
     "test_realdata": "e2e",
     "test_scripts_smoke": "e2e",
     "test_security_experiments": "e2e",
@@ -115,6 +116,7 @@ ACCURACY_RUNS: tuple[str, ...] = (
     "test_pose3d::test_known_pose_recovered_noise_free",
     "test_reverse3d::test_the_reversed_pass_leaves_a_wrong_mode",
     "test_restart3d::test_a_restart_leaves_a_wrong_mode",
+    "test_offline_particles3d::test_more_offline_particles_leave_a_wrong_mode",
 )
 """``module::test-name prefixes`` of the end-to-end accuracy runs (an error bound measured
 on seeded scenarios or the real tracks: the suite's slowest e2e tests). Marked

@@ -192,7 +192,7 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     variants = ["--heading-prior-deg", "30", "--power-error-db", "4", "--no-refine", "--oracle"]
     variants += ["--refine-accel", "1", "400", "--refine-polish", "1"]
     variants += ["--polish-modes", "3", "10", "5", "--reverse-pass", "--reverse-members"]
-    variants += ["--restarts", "1"]
+    variants += ["--restarts", "1", "--offline-particles", "500"]
     printed = _run(
         SCRIPTS / "pose3d_accuracy.py", [*argv, "--duration-s", "0.3", *variants], capsys
     )
@@ -210,6 +210,7 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
         "+ reversed pass",
         "+ reversed pass and its members",
         "+ 1 mid-track restart",
+        "offline particles 500",
     ):
         assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 

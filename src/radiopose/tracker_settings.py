@@ -89,6 +89,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_polish_margin": (0.0, 1e9),
     "refine_polish_switch": (0.0, 1e9),
     "refine_restarts": (0, 100),
+    "offline_n_particles": (0, 1_000_000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,
 ``(low, high]`` for a real one (every real setting of the 3-D filter is a positive

@@ -74,9 +74,11 @@ from radiopose.survey_height import HeightModel, build_height_model
 from radiopose.units import FloatArray
 
 ESTIMATES = ("mode", "mean")
+"""The values of :attr:`Pose3dConfig.estimate`."""
 MAX_RESTARTS = 100
 """Most offline mid-track restarts (``Pose3dConfig.refine_restarts``)."""
-"""The values of :attr:`Pose3dConfig.estimate`."""
+MAX_PARTICLES = 1_000_000
+"""Most particles per device (``Pose3dConfig.offline_n_particles``)."""
 
 
 @dataclass(frozen=True)
@@ -235,6 +237,13 @@ class Pose3dConfig:
         bank member's spliced track (member ``k`` of the reversed half with
         member ``k`` of the forward half). Off: on tuning seed 7124 these
         starts led the mode choice to a 155° mode (docs/pose3d.md).
+    offline_n_particles
+        Offline only (batch ``locate`` with a smoothing lag): particles per
+        device of every offline pass — the forward pass, the reversed pass and
+        the mid-track restarts (0: ``n_particles``). Offline has no streaming
+        speed goal, so its passes can afford more particles; the causal
+        filter, the streaming ``Tracker`` and the live server never read it
+        (docs/pose3d.md, "Offline particles, 2026-11-27").
     """
 
     n_particles: int = 2000
@@ -274,6 +283,14 @@ class Pose3dConfig:
     refine_reverse_members: bool = False
     refine_restarts: int = 0
     refine_restart_members: bool = False
+    offline_n_particles: int = 0
+
+    def offline(self) -> Pose3dConfig:
+        """These settings for an offline pass (batch ``locate`` with a smoothing
+        lag): ``n_particles`` replaced by ``offline_n_particles`` when that is set."""
+        if self.offline_n_particles == 0:
+            return self
+        return replace(self, n_particles=self.offline_n_particles)
 
     def __post_init__(self) -> None:
         for name in (
@@ -286,6 +303,12 @@ class Pose3dConfig:
                 raise InputError(f"3-D filter setting {name} = {v!r} must be a positive number")
         if min(self.n_particles - 9, self.acquisition_heights, self.acquisition_k) < 1:
             raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
+        if self.offline_n_particles != 0 and not (10 <= self.offline_n_particles <= MAX_PARTICLES):
+            n = self.offline_n_particles
+            raise InputError(
+                f"3-D filter setting offline_n_particles = {n!r} must be 0 (off) "
+                f"or in [10, {MAX_PARTICLES}]"
+            )
         if self.refine_max_nfev < 1:
             raise InputError("3-D filter setting refine_max_nfev must be >= 1")
         if not (0 <= self.refine_hybrid_segment_s < math.inf):
@@ -320,7 +343,10 @@ class Pose3dConfig:
                 f"3-D filter setting heading_prior_deg = {self.heading_prior_deg!r} must be >= 0"
             )
         if not all(math.isfinite(b) for b in self.offset_bank_db) or (
-            self.offset_bank_db and self.n_particles // len(self.offset_bank_db) < 10
+            self.offset_bank_db
+            and min(self.n_particles, self.offline_n_particles or self.n_particles)
+            // len(self.offset_bank_db)
+            < 10
         ):
             raise InputError(
                 f"3-D filter setting offset_bank_db = {self.offset_bank_db!r}: finite offsets, "

@@ -77,6 +77,10 @@ class FilterMethod:
             from radiopose.filtering.particle3d import FilterModel3d, ParticleFilter3d
 
             p3 = device.config.pose3d  # [filter.pose3d] of the site's tracker.toml
+            if device.offline and device.lag_s is not None:
+                # batch locate with the smoother: Pose3dConfig.offline_n_particles
+                # (its reversed pass and restarts reuse these settings)
+                p3 = p3.offline()
             model3d = FilterModel3d.build3d(device.site, device.space, p3)
             cfg = filter_config(device.config)
             device.engine = ParticleFilter3d(model3d, cfg, device.lag_s, p3)
