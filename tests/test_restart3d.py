@@ -100,9 +100,9 @@ def test_locate_restarts_offline_only_when_on(monkeypatch):
         starts.append(len(alternatives))
         return real_rs(*args, alternatives=alternatives, **kwargs)
 
-    def pass_spy(pf, records, seed, members):
-        priors.append(pf.pose3d.heading_prior_deg)
-        return real_pass(pf, records, seed, members)
+    def pass_spy(pf, records, seed, members, pose3d=None):
+        priors.append((pose3d or pf.pose3d).heading_prior_deg)
+        return real_pass(pf, records, seed, members, pose3d)
 
     monkeypatch.setattr(r3, "refine_smoothed", rs_spy)
     monkeypatch.setattr(rs, "pass_tracks3d", pass_spy)

@@ -23,9 +23,9 @@ SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
 
 REFIT_PASSES = ("forward", "reversed", "both")
-PROFILE_TRACKS = ("winner", "always")
-"""The values of ``FilterConfig.offset_profile_track``."""
 """The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
+PROFILE_TRACKS = ("winner", "always")
+"""The values of :attr:`FilterConfig.offset_profile_track` (issue 15, round 8)."""
 
 
 @dataclass(frozen=True)

@@ -79,21 +79,17 @@ def midtrack_tracks3d(
     reversed half spliced with member ``k`` of the forward half, per member.
     Each pass has its own seed drawn from ``seed``. Returns the spliced tracks,
     restart by restart."""
-    from radiopose.filtering.particle3d import ParticleFilter3d
-
     idx = restart_indices([r[0] for r in records], n_restarts)
     if not idx:
         return []
     seeds = np.random.SeedSequence(seed).spawn(2 * len(idx))
-    no_heading = ParticleFilter3d(
-        pf.model3d, pf.config, pf.lag_s, replace(pf.pose3d, heading_prior_deg=0.0)
-    )
+    no_heading = replace(pf.pose3d, heading_prior_deg=0.0)
     out: list[Track] = []
     for j, i in enumerate(idx):
         s_fwd, s_rev = (int(s.generate_state(1, np.uint64)[0] >> np.uint64(1))
                         for s in seeds[2 * j : 2 * j + 2])  # fmt: skip
         fwd = pass_tracks3d(pf, records[i:], s_fwd, members)
-        rev = pass_tracks3d(no_heading, reversed_records(records[:i]), s_rev, members)
+        rev = pass_tracks3d(pf, reversed_records(records[:i]), s_rev, members, no_heading)
         out += [_spliced(r, f) for r, f in zip(rev, fwd, strict=True)]
     return out
 

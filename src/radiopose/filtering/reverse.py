@@ -44,7 +44,7 @@ from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray, angle_diff_deg
 
 if TYPE_CHECKING:
-    from radiopose.filtering.particle3d import ParticleFilter3d
+    from radiopose.filtering.particle3d import ParticleFilter3d, Pose3dConfig
 
 Record = tuple[float, HeardRss, object]
 """One packet as the passes replay it: ``(t_s, heard, key)``."""
@@ -404,23 +404,25 @@ def reversed_tracks3d(
     offset bank's chosen member by its whole-track evidence) and, with
     ``members`` and the offset bank on, each bank member's own smoothed track.
     """
-    from radiopose.filtering.particle3d import ParticleFilter3d
-
     p3 = replace(pf.pose3d, heading_prior_deg=0.0)  # not time-reversible: off
-    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, p3)
-    return pass_tracks3d(rpf, reversed_records(records), seed, members)
+    return pass_tracks3d(pf, reversed_records(records), seed, members, p3)
 
 
 def pass_tracks3d(
-    pf: ParticleFilter3d, records: list[Record], seed: int, members: bool
+    pf: ParticleFilter3d,
+    records: list[Record],
+    seed: int,
+    members: bool,
+    pose3d: Pose3dConfig | None = None,
 ) -> list[list[tuple[object, FilterEstimate]]]:
-    """A fresh filter with ``pf``'s model, settings and lag over ``records`` (in
-    the given order and times) from a new state seeded ``seed``: its smoothed
-    track (the offset bank's chosen member by evidence) and, with ``members``
-    and the offset bank on, each member's own smoothed track."""
+    """A fresh filter with ``pf``'s model, settings and lag (its 3-D settings
+    replaced by ``pose3d`` if given) over ``records`` (in the given order and
+    times) from a new state seeded ``seed``: its smoothed track (the offset
+    bank's chosen member by evidence) and, with ``members`` and the offset bank
+    on, each member's own smoothed track."""
     from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
 
-    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, pf.pose3d)
+    rpf = ParticleFilter3d(pf.model3d, pf.config, pf.lag_s, pose3d or pf.pose3d)
     st = rpf.new_state(seed)
     if members and isinstance(st, FilterState3d) and st.bank:
         st.bank_smoothed = [[] for _ in st.bank]

@@ -139,10 +139,7 @@ def filter_residuals(
     """Run the causal filter (the tracker's settings) over ``stream``; return the
     residuals ``(n, n_rx)`` at its estimates, the innovations (at the previous
     packet's estimate) and where a track (re-)started."""
-    # the detectors' thresholds were calibrated on this filter's residuals with
-    # its motion noise before 2026-11-27 (angular 90 °/s²/√Hz; the tracking
-    # default is 270 since, docs/filter.md "Angular noise"): kept until the
-    # detection experiment is re-run
+    # the density the detectors were calibrated with (DETECTOR_ANGULAR_NOISE_DPS2)
     cfg = replace(
         filter_config(TrackerConfig()), angular_accel_noise_dps2=DETECTOR_ANGULAR_NOISE_DPS2
     )
