@@ -38,6 +38,12 @@ Rows per σ:
   default with round 8's option (``offline_offset_profile``: a tight pass at
   the offset profile's argmax when the offset selection runs; off by default,
   docs/filter.md "Accuracy round 8");
+* ``filter, offset grid`` / ``filter, +6 dB, offset grid`` — the offline
+  default with tight passes also at −6, −3, +3 and +6 dB when the offset
+  selection runs (``offset_selection_grid_db``; off by default, docs/filter.md
+  "Offset grid"); ``..., offset grid, 2 reversed``: the same with a reversed
+  pass at the runner-up pass's offset too (``offset_selection_reversed_passes
+  = 2``);
 * ``filter, outliers`` — offline, one receiver's reading 15 dB too high in every
   fifth packet;
 * ``full`` — the paper's pipeline, the anchor.
@@ -99,6 +105,8 @@ ROUND7 = TrackerConfig(
     )
 )
 PROFILE = TrackerConfig(filter=FilterConfig(offline_offset_profile=True))
+GRID = TrackerConfig(filter=FilterConfig(offset_selection_grid_db=(-6.0, -3.0, 3.0, 6.0)))
+GRID_REV2 = TrackerConfig(filter=replace(GRID.filter, offset_selection_reversed_passes=2))
 VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter": (OFFLINE, "", "filter"),
     "filter, forward only": (FORWARD, "", "filter"),
@@ -117,6 +125,10 @@ VARIANTS: dict[str, tuple[TrackerConfig, str, str]] = {
     "filter, +6 dB, offset refit": (ROUND7, "loud", "filter"),
     "filter, offset profile": (PROFILE, "", "filter"),
     "filter, +6 dB, offset profile": (PROFILE, "loud", "filter"),
+    "filter, offset grid": (GRID, "", "filter"),
+    "filter, +6 dB, offset grid": (GRID, "loud", "filter"),
+    "filter, offset grid, 2 reversed": (GRID_REV2, "", "filter"),
+    "filter, +6 dB, offset grid, 2 reversed": (GRID_REV2, "loud", "filter"),
     "filter, outliers": (OFFLINE, "outliers", "filter"),
     "full": (OFFLINE, "", "full"),
 }

@@ -27,7 +27,8 @@ Usage::
         [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
         [--oracle] [--polish-modes K MARGIN SWITCH] [--reverse-pass] [--reverse-members]
-        [--restarts N ...] [--offline-particles N ...] [--only-variants]
+        [--restarts N ...] [--offline-particles N ...] [--angular-noise Q ...]
+        [--tilt-noise Q ...] [--pose3d-set FIELD=VALUE ...] [--only-variants]
         [--quick] [--out FILE.md]
 
 The standard row is the filter with its defaults, offline the batch refinement
@@ -41,6 +42,8 @@ this likelihood and motion prior does near the right mode).
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import math
 import sys
 import time
@@ -50,6 +53,7 @@ from typing import Any
 
 import numpy as np
 
+from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import AxisErrors, axis_errors, axis_errors_of
 from radiopose.filtering import FilterConfig, particle3d
 from radiopose.filtering.refine3d import MotionPrior, refine_track
@@ -114,6 +118,26 @@ def oracle_one(
         offset_prior_sd_db=fc.offset_prior_sd_db, max_nfev=p3.refine_max_nfev,
     )  # fmt: skip
     return axis_errors_of(r.position_m, r.orientation_deg, pos, ori)
+
+
+def pose3d_overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, Any]:
+    """``FIELD=VALUE`` items as :class:`Pose3dConfig` overrides (checked by
+    building the config; argparse errors name the item)."""
+    fields = {f.name for f in dataclasses.fields(particle3d.Pose3dConfig)}
+    out: dict[str, Any] = {}
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in fields:
+            ap.error(f"--pose3d-set {item}: {key!r} is not a Pose3dConfig field")
+        try:
+            out[key] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            ap.error(f"--pose3d-set {item}: {value!r} is not a Python literal")
+    try:
+        replace(particle3d.Pose3dConfig(), **out)
+    except (TypeError, InputError) as exc:
+        ap.error(f"--pose3d-set: {exc}")
+    return out
 
 
 def pooled(runs: list[AxisErrors]) -> dict[str, float]:
@@ -231,6 +255,32 @@ def main(argv: list[str] | None = None) -> int:
         "'Offline particles')",
     )
     ap.add_argument(
+        "--angular-noise",
+        type=float,
+        nargs="+",
+        default=[],
+        metavar="DPS2",
+        help="also run each condition with the 3-D filter's azimuth acceleration density "
+        "(and its refinement's) at DPS2 °/s²/√Hz, one row per value (angular_accel_noise_dps2)",
+    )
+    ap.add_argument(
+        "--tilt-noise",
+        type=float,
+        nargs="+",
+        default=[],
+        metavar="DPS",
+        help="also run each condition with the 3-D filter's pitch/roll random-walk density at "
+        "DPS °/√s, one row per value (tilt_noise_dps)",
+    )
+    ap.add_argument(
+        "--pose3d-set",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="also run each condition with these Pose3dConfig overrides (VALUE a Python "
+        "literal), one row for all of them together",
+    )
+    ap.add_argument(
         "--only-variants",
         action="store_true",
         help="skip the standard row (and its oracle): only the extra rows asked for",
@@ -282,6 +332,13 @@ def main(argv: list[str] | None = None) -> int:
     for n_restarts in args.restarts:
         label = f"+ {n_restarts} mid-track restart{'s' if n_restarts != 1 else ''}"
         variants.append((label, {"refine_restarts": n_restarts}, 0.0))
+    for q in args.angular_noise:
+        variants.append((f"angular noise {q:g}", {"angular_accel_noise_dps2": q}, 0.0))
+    for q in args.tilt_noise:
+        variants.append((f"tilt noise {q:g}", {"tilt_noise_dps": q}, 0.0))
+    if args.pose3d_set:
+        over = pose3d_overrides(ap, args.pose3d_set)
+        variants.append((", ".join(args.pose3d_set), over, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]
     if args.heading_prior_deg > 0:

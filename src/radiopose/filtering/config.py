@@ -220,6 +220,21 @@ class FilterConfig:
         candidate of the evidence test and the arbiter.
     offset_profile_tolerance_db
         See ``offline_offset_profile``, dB.
+    offset_selection_grid_db
+        Offline only, 2-D (2026-11-27, session 11; default empty: off): when
+        the offset selection runs, tight passes also run at these offsets (dB
+        from the enrolled power) unless a candidate lies within
+        ``offset_selection_merge_db`` of one, so that a device's true offset
+        is searched even when pass 1's beliefs never came near it (the
+        "search failures" of docs/filter.md, "Accuracy round 7"). Each is one
+        more candidate of the evidence test and the arbiter.
+    offset_selection_reversed_passes
+        Offline only, 2-D, with the reversed pass and the arbiter (session 11;
+        default 1): when the offset selection ran further passes, this many of
+        its passes, largest whole-file evidence first, get a pass over the
+        time-reversed packets with their offset prior; the chosen pass's is
+        the reversed pass of round 5, the others' tracks are more candidates of
+        the arbiter (docs/filter.md, "Offset grid").
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -295,6 +310,9 @@ class FilterConfig:
     offline_offset_profile: bool = False
     offset_profile_tolerance_db: float = 1.5
     offset_profile_track: str = "winner"
+    # issue 15 (+6 dB tails, session 11): a fixed grid of tight passes (off)
+    offset_selection_grid_db: tuple[float, ...] = ()
+    offset_selection_reversed_passes: int = 1
 
     def __post_init__(self) -> None:
         positive = (
@@ -330,6 +348,17 @@ class FilterConfig:
         if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
             raise InputError(
                 "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
+            )
+        n_rev = self.offset_selection_reversed_passes
+        if isinstance(n_rev, bool) or not (isinstance(n_rev, int) and 1 <= n_rev <= 16):
+            raise InputError(
+                f"filter setting offset_selection_reversed_passes = {n_rev!r} must be an "
+                "integer in [1, 16]"
+            )
+        if not all(math.isfinite(v) and abs(v) <= 60.0 for v in self.offset_selection_grid_db):
+            raise InputError(
+                f"filter setting offset_selection_grid_db = {self.offset_selection_grid_db!r}: "
+                "each offset must be a finite number of dB within ±60"
             )
         if not all(math.isfinite(v) for v in self.offset_scan_db):
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")

@@ -100,6 +100,19 @@ def candidate_offsets_db(
     return out
 
 
+def with_grid_offsets(
+    candidates: list[float], grid_db: tuple[float, ...], merge_db: float
+) -> list[float]:
+    """``candidates`` with each offset of ``grid_db`` (dB from the enrolled
+    power) appended unless one already lies within ``merge_db`` of it
+    (``FilterConfig.offset_selection_grid_db``)."""
+    out = list(candidates)
+    for g in grid_db:
+        if all(abs(g - c) > merge_db for c in out):
+            out.append(float(g))
+    return out
+
+
 def with_profile_offset(
     candidates: list[float], profile_db: float, tolerance_db: float
 ) -> list[float]:
@@ -202,6 +215,9 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
+    candidates = with_grid_offsets(
+        candidates, cfg.offset_selection_grid_db, cfg.offset_selection_merge_db
+    )
     n_own = len(candidates)
     if profile_db is not None:  # round 8: the offset by the data alone
         candidates = with_profile_offset(candidates, profile_db(), cfg.offset_profile_tolerance_db)
@@ -235,5 +251,6 @@ __all__ = [
     "run_pass",
     "select_offset",
     "tight_config",
+    "with_grid_offsets",
     "with_profile_offset",
 ]

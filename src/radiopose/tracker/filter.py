@@ -35,7 +35,13 @@ from typing import cast
 import numpy as np
 
 from radiopose.filtering import FilterEstimate, FilterModel, FilterState, ParticleFilter
-from radiopose.filtering.forked import ForkedCall, effective_workers, result_or_none, try_fork
+from radiopose.filtering.forked import (
+    ForkedCall,
+    effective_workers,
+    map_forked,
+    result_or_none,
+    try_fork,
+)
 from radiopose.filtering.offset import OffsetPass, select_offset
 from radiopose.filtering.restart3d import midtrack_tracks3d
 from radiopose.filtering.reverse import ReversedRun, reverse_pass, reversed_tracks3d, run_reversed
@@ -259,6 +265,11 @@ class FilterMethod:
             if not _arbitrates(device):
                 return _as_delayed(combined)
             candidates += [dict(combined), rev]
+            # session 11 (off by default): reversed passes at the runner-up
+            # passes' offsets too, as more candidates of the arbiter
+            candidates += [
+                dict(r) for r in _more_reversed(pf, records, passes, best, seed, workers)
+            ]
         candidates += others
         # round 6: each candidate refined by batch MAP, the lowest objective kept;
         # round 7: with the offset's evidence and a refit pass (both off by default)
@@ -268,6 +279,28 @@ class FilterMethod:
             pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache
         )
         return _as_delayed(out)
+
+
+def _more_reversed(
+    pf: ParticleFilter,
+    records: list[tuple[float, HeardRss, object]],
+    passes: list[OffsetPass],
+    best: int,
+    seed: int,
+    workers: int,
+) -> list[list[tuple[object, FilterEstimate]]]:
+    """The reversed tracks of the offset selection's runner-up passes
+    (``FilterConfig.offset_selection_reversed_passes − 1`` of them, largest
+    evidence first after the chosen pass ``best``), each over the time-reversed
+    packets with that pass's offset prior (:func:`run_reversed`); none when the
+    setting is 1 (the default) or the selection ran no further pass."""
+    n = pf.config.offset_selection_reversed_passes - 1
+    if n <= 0 or len(passes) < 2:
+        return []
+    order = sorted(range(len(passes)), key=lambda i: (-passes[i].log_evidence, i))
+    calls = [partial(run_reversed, pf, records, passes[i].centre_db, seed)
+             for i in order if i != best][:n]  # fmt: skip
+    return [rev for rev, _ in map_forked(calls, workers)]
 
 
 def _profile_db(
