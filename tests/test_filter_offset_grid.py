@@ -34,7 +34,7 @@ import pytest
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig, offset
-from radiopose.filtering.offset import OffsetPass, with_grid_offsets
+from radiopose.filtering.offset import OffsetPass, with_offsets_apart
 from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
@@ -45,10 +45,10 @@ GRID_DB = (-6.0, -3.0, 3.0, 6.0)
 
 
 def test_grid_offsets_join_the_candidates_only_away_from_them() -> None:
-    assert with_grid_offsets([0.0, 4.2], GRID_DB, 0.75) == [0.0, 4.2, -6.0, -3.0, 3.0, 6.0]
-    assert with_grid_offsets([0.0, 5.5], (3.0, 6.0), 0.75) == [0.0, 5.5, 3.0]  # 6 is within 0.75
-    assert with_grid_offsets([0.0], (), 0.75) == [0.0]
-    assert with_grid_offsets([0.0], (0.5, 3.0, 3.0), 0.75) == [0.0, 3.0]  # repeats merge too
+    assert with_offsets_apart([0.0, 4.2], GRID_DB, 0.75) == [0.0, 4.2, -6.0, -3.0, 3.0, 6.0]
+    assert with_offsets_apart([0.0, 5.5], (3.0, 6.0), 0.75) == [0.0, 5.5, 3.0]  # 6 is within 0.75
+    assert with_offsets_apart([0.0], (), 0.75) == [0.0]
+    assert with_offsets_apart([0.0], (0.5, 3.0, 3.0), 0.75) == [0.0, 3.0]  # repeats merge too
 
 
 def test_settings_are_checked(tmp_path: Path) -> None:

@@ -32,7 +32,7 @@ from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names
-from radiopose.filtering.offset import with_profile_offset
+from radiopose.filtering.offset import with_offsets_apart
 from radiopose.filtering.offset_profile import (
     CoarseTable,
     data_offset_db,
@@ -124,10 +124,10 @@ def test_coarse_grid_covers_the_map_and_is_the_models_expected_rss() -> None:
 
 
 def test_profile_offset_joins_the_candidates_only_away_from_them() -> None:
-    assert with_profile_offset([0.0, 4.09], 6.0, 1.5) == [0.0, 4.09, 6.0]
-    assert with_profile_offset([0.0, 4.9], 6.0, 1.5) == [0.0, 4.9]  # within 1.5 dB of +4.9
-    assert with_profile_offset([0.0, 3.0], math.nan, 1.5) == [0.0, 3.0]
-    assert with_profile_offset([0.0], 1.0, 1.5) == [0.0]
+    assert with_offsets_apart([0.0, 4.09], [6.0], 1.5) == [0.0, 4.09, 6.0]
+    assert with_offsets_apart([0.0, 4.9], [6.0], 1.5) == [0.0, 4.9]  # within 1.5 dB of +4.9
+    assert with_offsets_apart([0.0, 3.0], [math.nan], 1.5) == [0.0, 3.0]
+    assert with_offsets_apart([0.0], [1.0], 1.5) == [0.0]
 
 
 def test_settings_are_checked(tmp_path: Path) -> None:

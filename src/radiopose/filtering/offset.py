@@ -31,7 +31,7 @@ the choice is sharp at σ = 0.5 dB and still clear at σ = 3 dB.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from functools import partial
 
@@ -93,35 +93,24 @@ def candidate_offsets_db(
     finite = beliefs_db[np.isfinite(beliefs_db)]
     if finite.size:
         raw.append(float(np.median(finite)))
-    out: list[float] = []
-    for c in raw:
-        if math.isfinite(c) and all(abs(c - o) > merge_db for o in out):
-            out.append(c)
-    return out
+    return with_offsets_apart([], raw, merge_db)
 
 
-def with_grid_offsets(
-    candidates: list[float], grid_db: tuple[float, ...], merge_db: float
+def with_offsets_apart(
+    candidates: list[float], offsets_db: Iterable[float], apart_db: float
 ) -> list[float]:
-    """``candidates`` with each offset of ``grid_db`` (dB from the enrolled
-    power) appended unless one already lies within ``merge_db`` of it
-    (``FilterConfig.offset_selection_grid_db``)."""
+    """``candidates`` with each finite offset of ``offsets_db`` appended, in
+    order, unless it lies within ``apart_db`` of a candidate (one appended
+    before it included), dB. It merges pass 1's candidates
+    (:func:`candidate_offsets_db`), adds the grid's
+    (``FilterConfig.offset_selection_grid_db``, apart by
+    ``offset_selection_merge_db``) and round 8's profile argmax (apart by
+    ``offset_profile_tolerance_db``)."""
     out = list(candidates)
-    for g in grid_db:
-        if all(abs(g - c) > merge_db for c in out):
-            out.append(float(g))
+    for v in offsets_db:
+        if math.isfinite(v) and all(abs(v - c) > apart_db for c in out):
+            out.append(float(v))
     return out
-
-
-def with_profile_offset(
-    candidates: list[float], profile_db: float, tolerance_db: float
-) -> list[float]:
-    """``candidates`` with the offset profile's argmax ``profile_db`` appended
-    (round 8), unless it is not finite or a candidate lies within
-    ``tolerance_db`` of it, dB."""
-    if math.isfinite(profile_db) and all(abs(profile_db - c) > tolerance_db for c in candidates):
-        return [*candidates, profile_db]
-    return list(candidates)
 
 
 def run_pass(
@@ -215,12 +204,12 @@ def select_offset(
     candidates = candidate_offsets_db(centre0, final_db, beliefs_db, cfg.offset_selection_merge_db)
     if all(abs(c - centre0) < cfg.offset_selection_trigger_db for c in candidates):
         return best, passes  # the device sends at its enrolled power: pass 1 stands
-    candidates = with_grid_offsets(
+    candidates = with_offsets_apart(
         candidates, cfg.offset_selection_grid_db, cfg.offset_selection_merge_db
     )
     n_own = len(candidates)
     if profile_db is not None:  # round 8: the offset by the data alone
-        candidates = with_profile_offset(candidates, profile_db(), cfg.offset_profile_tolerance_db)
+        candidates = with_offsets_apart(candidates, [profile_db()], cfg.offset_profile_tolerance_db)
 
     def tight_pass(
         c: float,
@@ -251,6 +240,5 @@ __all__ = [
     "run_pass",
     "select_offset",
     "tight_config",
-    "with_grid_offsets",
-    "with_profile_offset",
+    "with_offsets_apart",
 ]
