@@ -41,15 +41,6 @@ SIGMAS_DB = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 PAPER_ORIENTATION_MEAN_DEG = {0.5: 7.6, 3.0: 61.8}
 PAPER_POSITION_REDUCTION = {0.5: 0.82, 3.0: 0.36}
 
-QUICK: dict[str, float] = {
-    "size_m": 10.0,
-    "step_m": 0.25,
-    "duration_s": 0.2,
-    "min_receiver_spacing_m": 3.0,
-}
-"""``--quick``: a small site and a short trace, to check that the script runs (its numbers
-mean nothing)."""
-
 
 def bounds_report(rows) -> list[str]:
     """Lines checking the paper's bounds against the table."""
@@ -95,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path("docs/accuracy.md"))
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
-    base = replace(ScenarioConfig(), **QUICK) if args.quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
 
     t0 = time.perf_counter()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))

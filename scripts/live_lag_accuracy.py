@@ -57,15 +57,6 @@ LIVE_FILTER = replace(
 )
 """The filter as the live server runs it: no pass that needs the whole file."""
 
-QUICK: dict[str, float] = {
-    "size_m": 10.0,
-    "step_m": 0.25,
-    "duration_s": 0.2,
-    "min_receiver_spacing_m": 3.0,
-}
-"""``--quick``: a small site and a short trace, to check that the script runs (its numbers
-mean nothing)."""
-
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -74,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
-    base = ScenarioConfig(**QUICK) if args.quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
     lines = [
         "| σ (dB) | variant | coverage | pos mean (m) | pos median | pos p95 | ori mean (°) "
         "| ori median | ori p95 | ori mean of runs | worst run |",

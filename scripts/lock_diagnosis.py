@@ -58,15 +58,6 @@ from radiopose.packets import Packets, group_packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
 
-QUICK: dict[str, float] = {
-    "size_m": 10.0,
-    "step_m": 0.25,
-    "duration_s": 0.2,
-    "min_receiver_spacing_m": 3.0,
-}
-"""``--quick``: a small site and a short trace, to check that the script runs (its numbers
-mean nothing)."""
-
 
 def _loud(sim: Simulation) -> Simulation:
     """The device sending 6 dB above its enrolled power (every reading +6 dB)."""
@@ -97,7 +88,7 @@ def diagnose(
     arbiter: bool = False,
 ) -> list[str]:  # fmt: skip
     """One table row per seed (see the module docstring)."""
-    base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if quick else ScenarioConfig()
     # the forward pass alone (the offline default before round 6)
     cfg = TrackerConfig()
     cfg = replace(cfg, filter=replace(cfg.filter, offline_reverse_pass=False, offline_refine=False))
@@ -226,7 +217,7 @@ def diagnose_candidates(
     seeds: list[int], sigma_db: float, loud: bool, quick: bool, config: TrackerConfig | None = None
 ) -> list[str]:
     """Per run, the offset passes and the arbiter's candidates (module docstring)."""
-    base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if quick else ScenarioConfig()
     tcfg = config or TrackerConfig()
     lines: list[str] = []
     for seed in seeds:

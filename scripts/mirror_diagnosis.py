@@ -20,21 +20,12 @@ from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.units import angle_diff_deg
 
-QUICK: dict[str, float] = {
-    "size_m": 10.0,
-    "step_m": 0.25,
-    "duration_s": 0.2,
-    "min_receiver_spacing_m": 3.0,
-}
-"""``--quick``: a small site and a short trace, to check that the script runs (its numbers
-mean nothing)."""
-
 
 def diagnose(
     seed: int = 1006, sigma_db: float = 0.5, n_packets: int = 100, quick: bool = False
 ) -> None:
     """Print truth versus best candidate for every 20th of the first ``n_packets`` packets."""
-    base = replace(ScenarioConfig(), **QUICK) if quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if quick else ScenarioConfig()
     sim = simulate(replace(base, noise_db=sigma_db), seed=seed)
     space = candidate_space(sim.site, sim.site.devices[0].transmitter)
     scorer = ShiftScorer(space)

@@ -31,14 +31,6 @@ from radiopose.likelihood import Scorer, candidate_space
 from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 
-QUICK: dict[str, float] = {
-    "size_m": 10.0,
-    "step_m": 0.25,
-    "duration_s": 0.2,
-    "min_receiver_spacing_m": 3.0,
-}
-"""``--quick``: a small site and a short trace (its numbers mean nothing)."""
-
 
 class _NoScorer:
     """A stand-in for the site's scorer: the profile never searches the fine grid."""
@@ -65,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--stride", type=int, default=1, help="every n-th window only")
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
-    base = replace(ScenarioConfig(), **QUICK) if args.quick else ScenarioConfig()
+    base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
     seeds = [5] if args.quick else args.seeds
     offsets = np.arange(-12.0, 12.01, 0.5)
     devices = [0.0, 6.0] if args.loud else [0.0]

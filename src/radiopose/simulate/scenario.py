@@ -120,6 +120,13 @@ class ScenarioConfig:
     survey_range_db: tuple[float, float] = (4.0, 8.0)
     pose: Literal["2d", "3d"] = "2d"
 
+    @classmethod
+    def smoke(cls) -> ScenarioConfig:
+        """A small site (10 m, 0.25 m grid, receivers ≥ 3 m apart) and a 0.2 s
+        trace: the scripts' ``--quick`` runs, which check that a script runs
+        (their numbers mean nothing)."""
+        return cls(size_m=10.0, step_m=0.25, duration_s=0.2, min_receiver_spacing_m=3.0)
+
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
         checks = [
