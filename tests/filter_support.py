@@ -1,6 +1,10 @@
 """Shared inputs of the offline pass tests: 2-D (arbiter, reversed pass,
 round 7) and 3-D (refinement, reversed pass).
 
+``louder`` and ``loud_run``: the device sending above its enrolled power, and
+one offline ``filter`` run of it on the standard scenario (the +6 dB tests of
+rounds 4–8 and the offset grid).
+
 A small simulated site (10 m, 0.25 m grid, 0.5 s at σ = 0.5 dB, seed 11) with
 its filter model, the packets as the offline passes replay them and the
 truth as a candidate track; and a wrong lock made from the truth. A noise-free
@@ -13,12 +17,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from radiopose.evaluate.demo import build_scorer
+from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
 from radiopose.filtering.particle3d import FilterModel3d, Pose3dConfig
 from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
 from radiopose.likelihood.candidates import CandidateSpace
-from radiopose.packets import PacketObservation, group_packets
+from radiopose.packets import PacketObservation, Packets, group_packets
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig
@@ -37,6 +41,32 @@ def tracker_before_angular_noise(**filter_settings: object) -> TrackerConfig:
     (``ANGULAR_NOISE_BEFORE_DPS2``) and ``filter_settings``."""
     settings = {"angular_accel_noise_dps2": ANGULAR_NOISE_BEFORE_DPS2, **filter_settings}
     return TrackerConfig(filter=FilterConfig(**settings))  # type: ignore[arg-type]
+
+
+def louder(sim: Simulation, offset_db: float = 6.0) -> Simulation:
+    """``sim`` with the device sending ``offset_db`` dB above its enrolled power
+    (every reading that much higher; the site, its ``devices.csv`` power
+    included, unchanged)."""
+    p = sim.packets
+    rss_dbm = p.rss_dbm + offset_db
+    return replace(
+        sim, packets=Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, rss_dbm)
+    )
+
+
+def loud_run(
+    seed: int, sigma_db: float, base: TrackerConfig, **filter_settings: object
+) -> tuple[float, float]:
+    """Mean position (m) and orientation (°) errors of the offline ``filter``
+    (``base`` with ``filter_settings``) on the standard scenario at ``sigma_db``,
+    the device 6 dB above its enrolled power (:func:`louder`); every packet
+    must be answered."""
+    sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)
+    scorer = build_scorer(sim, "numba")
+    cfg = replace(base, filter=replace(base.filter, **filter_settings))  # type: ignore[arg-type]
+    run = run_methods(louder(sim), ("filter",), cfg, scorer)["filter"]
+    assert run.summary.coverage == 1.0
+    return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
 
 
 SMALL = ScenarioConfig(

@@ -13,17 +13,16 @@ Seeds SEED_LOUD only (the filter was tuned on 7000–7059 and is reported on
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from filter_support import tracker_before_angular_noise
+from filter_support import louder, tracker_before_angular_noise
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.offset import candidate_offsets_db, tight_config
-from radiopose.packets import Packets, group_packets
+from radiopose.packets import group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import Tracker, TrackerConfig
 
@@ -70,14 +69,6 @@ def scorer(sim_loud):
     return build_scorer(sim_loud, "numba")
 
 
-def _loud(sim, offset_db: float = 6.0):
-    p = sim.packets
-    rss_dbm = p.rss_dbm + offset_db
-    return replace(
-        sim, packets=Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, rss_dbm)
-    )
-
-
 def _run(sim, scorer, **filter_settings: object):
     # round 4's selection on its own: without round 6's reversed pass and arbiter,
     # which leave this run's wrong lock even without the selection
@@ -90,8 +81,8 @@ def test_plus_6_db_is_within_the_issue_bound_only_with_the_selection(sim_loud, s
     """The whole run (not only after the first second) within 1.3× (+0.1 m, +1°)
     of the matched run; without the selection the same run misses it."""
     matched = _run(sim_loud, scorer)
-    loud = _run(_loud(sim_loud), scorer)
-    without = _run(_loud(sim_loud), scorer, offline_offset_selection=False)
+    loud = _run(louder(sim_loud), scorer)
+    without = _run(louder(sim_loud), scorer, offline_offset_selection=False)
     assert loud.summary.coverage == matched.summary.coverage == 1.0
     pm, om = matched.position_error_m.mean(), matched.orientation_error_deg.mean()
     assert loud.position_error_m.mean() <= 1.3 * pm + 0.1
@@ -105,7 +96,7 @@ def test_plus_6_db_is_within_the_issue_bound_only_with_the_selection(sim_loud, s
 def test_the_streaming_tracker_never_selects(sim_loud, scorer) -> None:
     """The live server's ``Tracker`` (not offline) keeps no record of the packets and
     its smoothed estimates are those of the filter without the selection."""
-    sim = _loud(sim_loud)
+    sim = louder(sim_loud)
     packets = group_packets(sim.packets)[:60]
     tx = sim.site.devices[0].transmitter
     out = {}

@@ -23,7 +23,6 @@ to the runner-up's reversed pass).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from functools import partial
 from pathlib import Path
 from types import SimpleNamespace
@@ -31,12 +30,10 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from filter_support import loud_run
 from radiopose.errors import InputError
-from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig, offset
 from radiopose.filtering.offset import OffsetPass, with_offsets_apart
-from radiopose.packets import Packets
-from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 from radiopose.tracker import filter as filter_method
 from radiopose.tracker_settings import read_tracker_settings
@@ -130,18 +127,8 @@ def test_runner_up_reversed_passes_largest_evidence_first(
 
 # ------------------------------------------------- end to end: tuning seeds 7628, 7662
 def _loud_run(seed: int, **over: object) -> tuple[float, float]:
-    """Mean position (m) and orientation (°) errors of the offline ``filter`` on the
-    standard scenario at σ = 3 dB with the device 6 dB above its enrolled power."""
-    sim = simulate(ScenarioConfig(noise_db=3.0), seed)
-    scorer = build_scorer(sim, "numba")
-    p = sim.packets
-    up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
-    sim = replace(sim, packets=up6)
-    base = TrackerConfig()
-    cfg = replace(base, filter=replace(base.filter, **over))  # type: ignore[arg-type]
-    run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
-    assert run.summary.coverage == 1.0
-    return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
+    """Offline ``filter`` errors (m, °) at σ = 3 dB, device +6 dB (filter_support)."""
+    return loud_run(seed, 3.0, TrackerConfig(), **over)
 
 
 grid = partial(_loud_run, offset_selection_grid_db=GRID_DB)

@@ -21,15 +21,13 @@ Tuning seeds only (7300–7349 chose the option; 7350–7399 checked it).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from filter_support import small_site, tracker_before_angular_noise
+from filter_support import loud_run, small_site, tracker_before_angular_noise
 from radiopose.errors import InputError
-from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names
 from radiopose.filtering.offset import with_offsets_apart
@@ -41,8 +39,6 @@ from radiopose.filtering.offset_profile import (
     window_offset_costs,
 )
 from radiopose.likelihood import HeardRss
-from radiopose.packets import Packets
-from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker_settings import read_tracker_settings
 
 
@@ -149,17 +145,10 @@ def test_settings_are_checked(tmp_path: Path) -> None:
 def _loud_run(
     seed: int, sigma_db: float, profile: bool, track: str = "winner"
 ) -> tuple[float, float]:
-    sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)
-    scorer = build_scorer(sim, "numba")
-    p = sim.packets
-    up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
-    sim = replace(sim, packets=up6)
     base = tracker_before_angular_noise()  # the case's wrong lock (filter_support)
-    over = {"offline_offset_profile": profile, "offset_profile_track": track}
-    cfg = replace(base, filter=replace(base.filter, **over))
-    run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
-    assert run.summary.coverage == 1.0
-    return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
+    return loud_run(
+        seed, sigma_db, base, offline_offset_profile=profile, offset_profile_track=track
+    )
 
 
 def test_round8_profile_pass_leaves_the_wrong_lock() -> None:

@@ -15,19 +15,15 @@ default, 2.58° with the evidence penalty).
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 
 import pytest
 
-from filter_support import small_site, turned
+from filter_support import loud_run, small_site, turned
 from radiopose.errors import InputError
-from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.offset import OffsetPass
 from radiopose.filtering.offset_refit import evidence_penalty, needs_refit
 from radiopose.filtering.refine2d import arbitrate
-from radiopose.packets import Packets
-from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
 WIDE = OffsetPass(math.nan, -100.0)
@@ -97,16 +93,7 @@ ROUND7 = {
 
 
 def _loud_run(seed: int, sigma_db: float, over: dict) -> tuple[float, float]:
-    sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)
-    scorer = build_scorer(sim, "numba")
-    p = sim.packets
-    up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
-    sim = replace(sim, packets=up6)
-    base = TrackerConfig()
-    cfg = replace(base, filter=replace(base.filter, **over))
-    run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
-    assert run.summary.coverage == 1.0
-    return float(run.position_error_m.mean()), float(run.orientation_error_deg.mean())
+    return loud_run(seed, sigma_db, TrackerConfig(), **over)
 
 
 def test_round7_evidence_penalty_moves_the_arbiters_choice_on_a_tuning_seed() -> None:

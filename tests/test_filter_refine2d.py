@@ -19,12 +19,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from filter_support import small_site, tracker_before_angular_noise, turned
+from filter_support import louder, small_site, tracker_before_angular_noise, turned
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.refine2d import arbitrate, refine_track_2d
-from radiopose.packets import Packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.units import angle_diff_deg
 
@@ -136,9 +135,7 @@ def _runs(seed: int, sigma_db: float, loud: bool) -> dict:
     sim = simulate(ScenarioConfig(noise_db=sigma_db), seed)
     scorer = build_scorer(sim, "numba")
     if loud:
-        p = sim.packets
-        up6 = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, p.rss_dbm + 6)
-        sim = replace(sim, packets=up6)
+        sim = louder(sim)
     base = tracker_before_angular_noise()  # the cases' wrong locks (filter_support)
     out = {}
     for name, over in (
