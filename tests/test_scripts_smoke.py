@@ -102,6 +102,13 @@ def test_offset_profile(capsys: pytest.CaptureFixture[str]) -> None:
     assert [row.split("|")[2].strip() for row in rows if row.startswith("| 3 |")] == ["+0", "+6"]
 
 
+def test_handheld_dynamics(capsys: pytest.CaptureFixture[str]) -> None:
+    printed = _run(SCRIPTS / "handheld_dynamics.py", ["--seeds", "9000-9001"], capsys)
+    rows = _table_rows(printed)[2:]
+    assert [row.split("|")[1].strip() for row in rows] == ["9000", "9001"]
+    assert all(float(row.split("|")[2]) > 0 for row in rows)  # the walk turns
+
+
 def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--grid", "test", "--windows", "0.1"]
     printed = _run(SCRIPTS / "orientation_outliers.py", argv, capsys)

@@ -1,0 +1,58 @@
+"""How fast the simulated hand-held phone turns (issue 18; docs/pose3d.md, "Motion noise").
+
+For each seed, :func:`radiopose.simulate.handheld.handheld_path` is drawn at
+200 Hz over the scenario's area and duration (no filter runs): the RMS and
+peak of the azimuth's angular acceleration (°/s², from the unwrapped azimuth's
+second difference) and the RMS rates of pitch and roll (°/s), against which
+the 3-D filter's motion prior can be read (a white angular acceleration of
+density q lets the turn rate drift q·√Δt in Δt).
+
+Usage (simulation-only seeds)::
+
+    python scripts/handheld_dynamics.py [--seeds 9000-9009] [--duration-s 4]
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+
+import numpy as np
+
+from radiopose.simulate.handheld import HandheldConfig, handheld_path
+
+
+def _seeds(text: str) -> list[int]:
+    lo, _, hi = text.partition("-")
+    return list(range(int(lo), int(hi or lo) + 1))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=_seeds, default=_seeds("9000-9009"), help="FIRST-LAST")
+    ap.add_argument("--duration-s", type=float, default=4.0)
+    args = ap.parse_args(argv)
+    cfg = replace(HandheldConfig(), duration_s=args.duration_s)
+    t = np.arange(0.0, cfg.duration_s, 0.005)
+    print("| seed | azimuth acceleration RMS °/s² | peak °/s² | peak rate °/s | pitch rate RMS °/s "
+          "| roll rate RMS °/s |")  # fmt: skip
+    print("|---|---|---|---|---|---|")
+    for seed in args.seeds:
+        _, ori = handheld_path(
+            np.random.default_rng(seed), t, (0.0, cfg.size_m, 0.0, cfg.size_m), cfg
+        )
+        az = np.degrees(np.unwrap(np.radians(ori[:, 0])))
+        rate = np.gradient(az, t)
+        acc = np.gradient(rate, t)
+        pitch_rate = np.gradient(ori[:, 1], t)
+        roll_rate = np.gradient(np.degrees(np.unwrap(np.radians(ori[:, 2]))), t)
+        print(
+            f"| {seed} | {np.sqrt(np.mean(acc**2)):.0f} | {np.abs(acc).max():.0f} | "
+            f"{np.abs(rate).max():.0f} | {np.sqrt(np.mean(pitch_rate**2)):.0f} | "
+            f"{np.sqrt(np.mean(roll_rate**2)):.0f} |"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
