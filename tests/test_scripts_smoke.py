@@ -252,6 +252,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "enrol_mitll": test_enrol_mitll,
     "filter_accuracy": test_filter_accuracy,
     "filter_scenarios": test_filter_scenarios,
+    "handheld_dynamics": test_handheld_dynamics,
     "live_lag_accuracy": test_live_lag_accuracy,
     "lock_diagnosis": test_lock_diagnosis,
     "mirror_diagnosis": test_mirror_diagnosis,
