@@ -27,6 +27,8 @@ errors before and after the refinement, its refined offset and objective, σ²
 units) and the truth's poses refined the same way. A truth objective below the
 chosen candidate's is a search failure (no candidate in the truth's basin);
 above it, an objective failure (the arbiter's objective prefers a wrong pair).
+Each line also gives the candidate's Laplace width term (½ log det of the
+objective's Hessian at its optimum, nats; ``FilterConfig.arbiter_laplace``).
 
 Usage (tuning seeds 7000–7099 only)::
 
@@ -270,8 +272,9 @@ def diagnose_candidates(
             chosen = [a.chosen for a in log]
             for label, cand in [*zip(labels, candidates, strict=True), ("truth", truth_track)]:
                 refined, arb = offset_refit.arbitrate(
-                    model, records, [cand], sigma, cfg, max_nfev, offset_penalty=pen
-                )
+                    model, records, [cand], sigma, replace(cfg, arbiter_laplace=True), max_nfev,
+                    offset_penalty=pen,
+                )  # fmt: skip
                 pe0, oe0 = _errors(cand, truth)
                 pe1, oe1 = _errors(dict(refined), truth)
                 offs = {round(e.offset_db, 2) for _, e in refined}
@@ -281,7 +284,8 @@ def diagnose_candidates(
                     f"  {label:<24} {pe0:7.3f} m {oe0:7.2f}° → {pe1:7.3f} m {oe1:7.2f}°  "
                     f"offset {'/'.join(f'{o:+.2f}' for o in sorted(offs))} dB  "
                     f"objective {' / '.join(f'{a.costs[0]:.1f}' for a in arb)}"
-                    f" + {' / '.join(f'{a.penalties[0]:.1f}' for a in arb)}{mark}"
+                    f" + {' / '.join(f'{a.penalties[0]:.1f}' for a in arb)}"
+                    f"  Laplace {' / '.join(f'{a.log_volumes[0]:.1f}' for a in arb)}{mark}"
                 )
         if "refit" in seen:
             lines.append(f"  refit pass at {seen['refit']:+.2f} dB")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Callable
@@ -93,6 +94,7 @@ def test_lock_diagnosis_candidates(capsys: pytest.CaptureFixture[str]) -> None:
     assert printed.startswith("seed 5 σ 3 +6 dB: ")
     assert "passes (centre dB: evidence nats): wide: " in printed
     assert "  forward (pass " in printed and "  truth " in printed and " *" in printed
+    assert re.search(r"Laplace \d+\.\d", printed)  # every candidate's width term
 
 
 def test_offset_profile(capsys: pytest.CaptureFixture[str]) -> None:

@@ -235,6 +235,13 @@ class FilterConfig:
         time-reversed packets with their offset prior; the chosen pass's is
         the reversed pass of round 5, the others' tracks are more candidates of
         the arbiter (docs/filter.md, "Offset grid").
+    arbiter_laplace
+        Offline only, 2-D, with ``offline_refine`` (session 12; default off):
+        the arbiter keeps the candidate of the lowest refined objective plus
+        its Laplace width term, ½ log det of the objective's Gauss–Newton
+        Hessian at the optimum (−log of the mode's posterior mass instead of
+        its peak; :attr:`radiopose.filtering.refine2d.Refined2d.log_volume`;
+        docs/filter.md, "Laplace arbiter").
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -313,6 +320,9 @@ class FilterConfig:
     # issue 15 (+6 dB tails, session 11): a fixed grid of tight passes (off)
     offset_selection_grid_db: tuple[float, ...] = ()
     offset_selection_reversed_passes: int = 1
+    # issue 15 (σ = 3 dB ties, session 12): the arbiter compares the candidates'
+    # posterior mass (Laplace) instead of their peak (off)
+    arbiter_laplace: bool = False
 
     def __post_init__(self) -> None:
         positive = (

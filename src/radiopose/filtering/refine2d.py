@@ -81,6 +81,13 @@ class Refined2d:
         The objective at the candidate as given (its best single offset).
     nfev
         Residual evaluations.
+    log_volume
+        ½ log det of the objective's Gauss–Newton Hessian ``JᵀWJ`` at the
+        optimum (``W`` the robust loss's weights there), nats: the Laplace
+        approximation's width term, so that ``cost + log_volume`` is −log of
+        the candidate mode's posterior mass up to a constant shared by every
+        candidate of the same track (``FilterConfig.arbiter_laplace``); ``nan``
+        when not computed.
     """
 
     position_m: FloatArray
@@ -89,6 +96,7 @@ class Refined2d:
     cost: float
     initial_cost: float
     nfev: int
+    log_volume: float = math.nan
 
 
 def refine_track_2d(
@@ -241,11 +249,16 @@ def refine_track_2d(
     f0 = fun(x0)
     initial_cost = 0.5 * float(loss(f0 * f0)[0].sum())
     lb, ub = np.append(lo, -np.inf), np.append(hi, np.inf)
+    log_volume = math.nan
     if A is None:
         normal = _BandedNormal(n, pkt, coef, sig, sd_b)
         x_opt, cost, nfev = _banded_levenberg_marquardt(
             fun, data_jac, normal, loss, x0, lb, ub, max_nfev
         )
+        if config.arbiter_laplace:
+            f_opt = fun(x_opt)
+            ab, c, d_bb, _, _ = normal.build(data_jac(x_opt), loss(f_opt * f_opt)[1], f_opt)
+            log_volume = _half_log_det(ab, c, d_bb)
     else:
         data_rows = np.repeat(np.arange(m), _POSE)
         data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
@@ -265,7 +278,7 @@ def refine_track_2d(
     out_pos[:, :2] = X[:, :2]
     out_ori = ori.copy()
     out_ori[:, 0] = np.rad2deg(X[:, 2]) % 360.0
-    return Refined2d(out_pos, out_ori, float(x_opt[-1]), cost, initial_cost, nfev)
+    return Refined2d(out_pos, out_ori, float(x_opt[-1]), cost, initial_cost, nfev, log_volume)
 
 
 _BAND = 2 * _POSE
@@ -364,6 +377,23 @@ def _banded_step(
     return -np.append(yg - yc * db, db)
 
 
+def _half_log_det(ab: FloatArray, c: FloatArray, d_bb: float) -> float:
+    """½ log det ``M`` for ``M = [[P, c], [cᵀ, d_bb]]`` with ``P`` in upper band
+    form ``ab`` (:func:`_banded_step`'s matrix): the banded Cholesky's diagonal
+    and the offset's Schur complement; ``nan`` if ``M`` is not numerically
+    positive definite."""
+    from scipy.linalg import LinAlgError, cho_solve_banded, cholesky_banded
+
+    try:
+        cb = cholesky_banded(ab, lower=False, check_finite=False)
+    except LinAlgError:
+        return math.nan
+    schur = d_bb - float(c @ cho_solve_banded((cb, False), c, check_finite=False))
+    if not schur > 0:
+        return math.nan
+    return float(np.log(cb[-1]).sum()) + 0.5 * math.log(schur)
+
+
 def _sparse_step(
     ab: FloatArray, c: FloatArray, d_bb: float, g: FloatArray, g_b: float
 ) -> FloatArray:
@@ -429,7 +459,11 @@ class Arbitration:
     penalties
         Each candidate's offset penalty, nats (``offset_penalty`` of
         :func:`arbitrate`; zeros without one): the choice is the lowest
-        ``costs + penalties``.
+        ``costs + penalties`` (``+ log_volumes`` with
+        ``FilterConfig.arbiter_laplace``).
+    log_volumes
+        Each candidate's Laplace width term, nats (:attr:`Refined2d.log_volume`;
+        ``nan`` where not computed).
     """
 
     start: int
@@ -439,6 +473,7 @@ class Arbitration:
     chosen: int
     offsets_db: tuple[float, ...] = ()
     penalties: tuple[float, ...] = ()
+    log_volumes: tuple[float, ...] = ()
 
 
 def arbitrate(
@@ -544,8 +579,13 @@ def arbitrate(
             0.0 if r is None or offset_penalty is None else float(offset_penalty(r.offset_db))
             for r in results
         )
+        vols = tuple(r.log_volume if r is not None else math.nan for r in results)
+        occam = config.arbiter_laplace and all(
+            math.isfinite(v) for v, r in zip(vols, results, strict=True) if r is not None
+        )
         best = min(
-            (i for i, r in enumerate(results) if r is not None), key=lambda i: costs[i] + pen[i]
+            (i for i, r in enumerate(results) if r is not None),
+            key=lambda i: costs[i] + pen[i] + (vols[i] if occam else 0.0),
         )
         chosen = results[best]
         assert chosen is not None
@@ -562,7 +602,7 @@ def arbitrate(
                 est = candidates[best][r[2]]
             out[r[2]] = est
         inits = tuple(r.initial_cost if r is not None else math.nan for r in results)
-        log.append(Arbitration(a, j, costs, inits, best, offs, pen))
+        log.append(Arbitration(a, j, costs, inits, best, offs, pen, vols))
     return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
 
 
