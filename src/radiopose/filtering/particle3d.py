@@ -244,6 +244,15 @@ class Pose3dConfig:
         speed goal, so its passes can afford more particles; the causal
         filter, the streaming ``Tracker`` and the live server never read it
         (docs/pose3d.md, "Offline particles, 2026-11-27").
+    refine_anneal_sigma
+        Offline refinement (session 12; default empty: off): factors > 1,
+        largest first; each start of the refinement's search is first refined
+        with σ times each factor in turn, each from the last one's optimum,
+        then at σ (a graduated continuation: a larger σ weighs the data less
+        against the motion prior; docs/pose3d.md, "Annealed refinement").
+    refine_anneal_keep_direct
+        With ``refine_anneal_sigma``: also refine each start at σ directly and
+        keep the lower objective of the two (default off).
     """
 
     n_particles: int = 2000
@@ -284,6 +293,8 @@ class Pose3dConfig:
     refine_restarts: int = 0
     refine_restart_members: bool = False
     offline_n_particles: int = 0
+    refine_anneal_sigma: tuple[float, ...] = ()
+    refine_anneal_keep_direct: bool = False
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
@@ -328,6 +339,14 @@ class Pose3dConfig:
             n = self.refine_restarts
             raise InputError(
                 f"3-D filter setting refine_restarts = {n!r} must be in [0, {MAX_RESTARTS}]"
+            )
+        if not all(
+            isinstance(f, int | float) and math.isfinite(f) and 1 < f <= 100
+            for f in self.refine_anneal_sigma
+        ) or list(self.refine_anneal_sigma) != sorted(self.refine_anneal_sigma, reverse=True):
+            raise InputError(
+                f"3-D filter setting refine_anneal_sigma = {list(self.refine_anneal_sigma)!r} "
+                "must be factors in (1, 100], largest first"
             )
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts

@@ -649,6 +649,8 @@ def refine_smoothed(
     polish_starts: int = 1,
     polish_margin: float = math.inf,
     polish_switch: float = 0.0,
+    anneal_sigma: Sequence[float] = (),
+    anneal_keep_direct: bool = False,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -680,7 +682,13 @@ def refine_smoothed(
     objective is lower by more than ``polish_switch`` (σ² units: a
     log-likelihood ratio in nats; 0: the lowest polished objective wins).
     Starts identical to an earlier one (the chosen member's own track) are
-    refined once.
+    refined once. ``anneal_sigma`` (factors > 1, largest first; empty: off):
+    each start is first refined with σ times each factor in turn, each from
+    the last one's optimum, before its refinement at σ (a graduated
+    continuation: a larger σ weighs the data less against the motion prior,
+    docs/pose3d.md "Annealed refinement"); with ``anneal_keep_direct`` each
+    start is also refined at σ directly and the lower objective of the two is
+    that start's result.
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -732,7 +740,26 @@ def refine_smoothed(
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
             )  # fmt: skip
 
-        done = [solve(*init) for init in inits]
+        def annealed(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
+            for factor in anneal_sigma:
+                r = refine_track(
+                    model, t_rows, h_rows, pos, ori, off, sigma * factor, search,
+                    offset_prior_db=0.0, offset_prior_sd_db=config.offset_prior_sd_db,
+                    max_nfev=max_nfev,
+                )  # fmt: skip
+                pos, ori, off = r.position_m, r.orientation_deg, r.offset_db
+            return solve(pos, ori, off)
+
+        def searched(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
+            if not anneal_sigma:
+                return solve(pos, ori, off)
+            a = annealed(pos, ori, off)
+            if not anneal_keep_direct:
+                return a
+            d = solve(pos, ori, off)
+            return a if a.cost < d.cost else d
+
+        done = [searched(*init) for init in inits]
         if hybrid_segment_s > 0 and len(done) > 1:
             costs = np.array([
                 packet_costs(model, h_rows, d.position_m, d.orientation_deg, d.offset_db, sigma)

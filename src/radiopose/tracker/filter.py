@@ -512,7 +512,8 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         height_accel_noise_mps2=p3.refine_height_accel_noise_mps2,
         tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
         polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
-        polish_switch=p3.refine_polish_switch,
+        polish_switch=p3.refine_polish_switch, anneal_sigma=p3.refine_anneal_sigma,
+        anneal_keep_direct=p3.refine_anneal_keep_direct,
     )  # fmt: skip
 
 
