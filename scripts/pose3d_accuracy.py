@@ -42,8 +42,6 @@ this likelihood and motion prior does near the right mode).
 from __future__ import annotations
 
 import argparse
-import ast
-import dataclasses
 import math
 import sys
 import time
@@ -56,6 +54,7 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import AxisErrors, axis_errors, axis_errors_of
 from radiopose.filtering import FilterConfig, particle3d
+from radiopose.filtering.config import config_overrides
 from radiopose.filtering.refine3d import MotionPrior, refine_track
 from radiopose.likelihood import candidate_space
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
@@ -121,23 +120,13 @@ def oracle_one(
 
 
 def pose3d_overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, Any]:
-    """``FIELD=VALUE`` items as :class:`Pose3dConfig` overrides (checked by
-    building the config; argparse errors name the item)."""
-    fields = {f.name for f in dataclasses.fields(particle3d.Pose3dConfig)}
-    out: dict[str, Any] = {}
-    for item in items:
-        key, _, value = item.partition("=")
-        if key not in fields:
-            ap.error(f"--pose3d-set {item}: {key!r} is not a Pose3dConfig field")
-        try:
-            out[key] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            ap.error(f"--pose3d-set {item}: {value!r} is not a Python literal")
+    """``FIELD=VALUE`` items as :class:`Pose3dConfig` overrides
+    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors
+    name the item)."""
     try:
-        replace(particle3d.Pose3dConfig(), **out)
-    except (TypeError, InputError) as exc:
-        ap.error(f"--pose3d-set: {exc}")
-    return out
+        return config_overrides(items, particle3d.Pose3dConfig)
+    except InputError as exc:
+        ap.error(f"--pose3d-set {exc}")
 
 
 def pooled(runs: list[AxisErrors]) -> dict[str, float]:

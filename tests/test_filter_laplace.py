@@ -3,8 +3,9 @@
 
 * ``_half_log_det`` of the banded normal matrix with the offset's row and
   column equals ½ log det of the same matrix built dense (hypothesis);
-* the term is computed only with the option, and computing it changes
-  neither the refined track nor its objective;
+* the term is computed only with the option (with either solve, banded or
+  sparse), and computing it changes neither the refined track nor its
+  objective;
 * with the option the arbiter keeps the lowest ``cost + penalty +
   log_volume``, without it the lowest ``cost + penalty``;
 * the ``tracker.toml`` key reads, a non-boolean is a one-line error;
@@ -90,6 +91,9 @@ def test_log_volume_only_with_the_option_and_nothing_else_changes() -> None:
     assert on.cost == off.cost and on.offset_db == off.offset_db
     np.testing.assert_array_equal(on.position_m, off.position_m)
     np.testing.assert_array_equal(on.orientation_deg, off.orientation_deg)
+    # the sparse solve (refine_banded = false) gets the term too, from the same matrix
+    sparse = refine_track_2d(*args, replace(cfg, arbiter_laplace=True, refine_banded=False))
+    assert sparse.log_volume == pytest.approx(on.log_volume, rel=1e-6)
 
 
 def test_arbiter_adds_the_term_only_with_the_option() -> None:

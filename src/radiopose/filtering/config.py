@@ -241,7 +241,9 @@ class FilterConfig:
         its Laplace width term, ½ log det of the objective's Gauss–Newton
         Hessian at the optimum (−log of the mode's posterior mass instead of
         its peak; :attr:`radiopose.filtering.refine2d.Refined2d.log_volume`;
-        docs/filter.md, "Laplace arbiter").
+        docs/filter.md, "Laplace arbiter"). A track where some candidate's
+        Hessian is not numerically positive definite (no finite term) is
+        arbitrated without the term.
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -438,9 +440,11 @@ class FilterEstimate:
     sigma_db: float = math.nan
 
 
-def config_overrides(items: Sequence[str]) -> dict[str, object]:
+def config_overrides(items: Sequence[str], config: type = FilterConfig) -> dict[str, object]:
     """``FIELD=VALUE`` items (the scripts' ``--set``; VALUE a Python literal)
-    as :class:`FilterConfig` overrides, checked by building the config.
+    as overrides of the dataclass ``config`` (:class:`FilterConfig`, or e.g.
+    :class:`radiopose.filtering.particle3d.Pose3dConfig`), checked by
+    building it.
 
     Raises
     ------
@@ -448,18 +452,18 @@ def config_overrides(items: Sequence[str]) -> dict[str, object]:
         An unknown field, a VALUE that is not a literal, or a value the
         config refuses; the message names the item.
     """
-    fields = {f.name for f in dataclasses.fields(FilterConfig)}
+    fields = {f.name for f in dataclasses.fields(config)}
     out: dict[str, object] = {}
     for item in items:
         key, _, value = item.partition("=")
         if key not in fields:
-            raise InputError(f"{item}: {key!r} is not a FilterConfig field")
+            raise InputError(f"{item}: {key!r} is not a {config.__name__} field")
         try:
             out[key] = ast.literal_eval(value)
         except (ValueError, SyntaxError):
             raise InputError(f"{item}: {value!r} is not a Python literal") from None
     try:
-        dataclasses.replace(FilterConfig(), **out)  # type: ignore[arg-type]
+        dataclasses.replace(config(), **out)
     except TypeError as exc:
         raise InputError(str(exc)) from None
     return out

@@ -249,16 +249,14 @@ def refine_track_2d(
     f0 = fun(x0)
     initial_cost = 0.5 * float(loss(f0 * f0)[0].sum())
     lb, ub = np.append(lo, -np.inf), np.append(hi, np.inf)
-    log_volume = math.nan
+    # the normal equations in band form: the banded solve's, and the Laplace
+    # term's whichever solve ran (the same matrix as the sparse rows')
+    normal = _BandedNormal(n, pkt, coef, sig, sd_b) if A is None or config.arbiter_laplace else None
     if A is None:
-        normal = _BandedNormal(n, pkt, coef, sig, sd_b)
+        assert normal is not None
         x_opt, cost, nfev = _banded_levenberg_marquardt(
             fun, data_jac, normal, loss, x0, lb, ub, max_nfev
         )
-        if config.arbiter_laplace:
-            f_opt = fun(x_opt)
-            ab, c, d_bb, _, _ = normal.build(data_jac(x_opt), loss(f_opt * f_opt)[1], f_opt)
-            log_volume = _half_log_det(ab, c, d_bb)
     else:
         data_rows = np.repeat(np.arange(m), _POSE)
         data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
@@ -273,6 +271,11 @@ def refine_track_2d(
             return sp.vstack([data + bcol, prior_rows, last], format="csr")
 
         x_opt, cost, nfev = _levenberg_marquardt(fun, jac, loss, x0, lb, ub, max_nfev)
+    log_volume = math.nan
+    if normal is not None and config.arbiter_laplace:
+        f_opt = fun(x_opt)
+        ab, c, d_bb, _, _ = normal.build(data_jac(x_opt), loss(f_opt * f_opt)[1], f_opt)
+        log_volume = _half_log_det(ab, c, d_bb)
     X = x_opt[: _POSE * n].reshape(n, _POSE)
     out_pos = pos.copy()
     out_pos[:, :2] = X[:, :2]

@@ -733,31 +733,28 @@ def refine_smoothed(
         sigma = max(s_db, config.sigma_floor_db)
 
         def solve(
-            pos: FloatArray, ori: FloatArray, off: float, pri: MotionPrior = search
+            pos: FloatArray,
+            ori: FloatArray,
+            off: float,
+            pri: MotionPrior = search,
+            factor: float = 1.0,
         ) -> RefinedTrack:
             return refine_track(
-                model, t_rows, h_rows, pos, ori, off, sigma, pri, offset_prior_db=0.0,
+                model, t_rows, h_rows, pos, ori, off, sigma * factor, pri, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
             )  # fmt: skip
 
-        def annealed(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
-            for factor in anneal_sigma:
-                r = refine_track(
-                    model, t_rows, h_rows, pos, ori, off, sigma * factor, search,
-                    offset_prior_db=0.0, offset_prior_sd_db=config.offset_prior_sd_db,
-                    max_nfev=max_nfev,
-                )  # fmt: skip
-                pos, ori, off = r.position_m, r.orientation_deg, r.offset_db
-            return solve(pos, ori, off)
-
         def searched(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
-            if not anneal_sigma:
-                return solve(pos, ori, off)
-            a = annealed(pos, ori, off)
-            if not anneal_keep_direct:
-                return a
-            d = solve(pos, ori, off)
-            return a if a.cost < d.cost else d
+            """A start refined at σ, first at σ × each ``anneal_sigma`` factor."""
+            at = pos, ori, off
+            for factor in anneal_sigma:
+                r = solve(*at, factor=factor)
+                at = r.position_m, r.orientation_deg, r.offset_db
+            r = solve(*at)
+            if anneal_sigma and anneal_keep_direct:
+                direct = solve(pos, ori, off)
+                return r if r.cost < direct.cost else direct
+            return r
 
         done = [searched(*init) for init in inits]
         if hybrid_segment_s > 0 and len(done) > 1:
