@@ -19,7 +19,9 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    ``locate`` on a site); and the row ``filter, offline_workers = 1`` (the
    offline passes all in the one process, as before the eighth pass: the
    site's ``tracker.toml`` says so), and the row ``filter, refine_banded =
-   false`` (the arbiter's sparse LU, round 6's solve; banded is the default).
+   false`` (the arbiter's sparse LU, round 6's solve; banded is the default),
+   and ``filter, offline_coarse_track = true`` (session 13's coarse-grid HMM
+   candidate, an option: what it costs a whole file).
    CPU: the process's and its forked children's. Peak memory: the largest
    ``ru_maxrss`` of the process and its children (read in a small launcher,
    since Linux carries a parent's ``ru_maxrss`` into its children); a forked
@@ -151,6 +153,11 @@ SERIAL_FILTER = "filter, offline_workers = 1"
 site's ``tracker.toml`` says so; docs/performance.md, "Eighth pass")."""
 
 
+COARSE_FILTER = "filter, offline_coarse_track = true"
+"""Section 2's row of ``filter`` with session 13's coarse-grid HMM candidate (the
+site's ``tracker.toml`` says so; docs/filter.md, "Coarse-grid HMM")."""
+
+
 SPARSE_FILTER = "filter, refine_banded = false"
 """Section 2's row of ``filter`` with the arbiter's sparse LU (round 6's solve; the
 banded one is the default since 2026-11-27; docs/performance.md, "Ninth pass")."""
@@ -166,12 +173,18 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     sparse_dir = tmp / "site_sparse"
     write_site(sim.site, sparse_dir)
     (sparse_dir / "tracker.toml").write_text("[filter]\nrefine_banded = false\n", encoding="utf-8")
+    coarse_dir = tmp / "site_coarse"
+    write_site(sim.site, coarse_dir)
+    (coarse_dir / "tracker.toml").write_text(
+        "[filter]\noffline_coarse_track = true\n", encoding="utf-8"
+    )
     packets = tmp / "packets.csv"
     write_packets_csv(sim.packets, packets)
     n = len(group_packets(sim.packets))
     rows = {m: (m, site_dir) for m in METHODS} | {
         SERIAL_FILTER: ("filter", serial_dir),
         SPARSE_FILTER: ("filter", sparse_dir),
+        COARSE_FILTER: ("filter", coarse_dir),
     }
 
     def args(label: str) -> list[str]:

@@ -36,10 +36,41 @@ were found with it: under 270 the forward filter leaves some of those locks by
 itself, so those tests keep the setting under which their case exists."""
 
 
+def require_wrong_mode(value: float, bound: float, case: str) -> None:
+    """Skip the rest of a test whose seeded wrong mode does not occur on this host.
+
+    The 3-D filter's wrong modes are chaotic: the same seed lands in or out of
+    one with the last bits of the host's floating point (seen 2026-11-27: four
+    3-D cases measured on earlier hosts did not occur on an AMD znver3 host with
+    the same packages; docs/testing.md "Host-dependent wrong modes"). A test of a
+    part that leaves such a mode checks the part's own result first, then
+    calls this with the default's error (``value``) and the bound above which
+    the default is in the wrong mode: below it the part's necessity cannot be
+    shown here, and the test is reported skipped (with the value), never passed."""
+    import pytest
+
+    if not value > bound:
+        pytest.skip(f"{case}: the default is at {value:.2f}, not above {bound} on this host "
+                    "(a host-dependent wrong mode)")  # fmt: skip
+
+
+BEFORE_COARSE: dict[str, object] = {"offline_coarse_track": False}
+"""The offline arbiter without session 13's coarse-grid HMM candidate (the
+default since; docs/filter.md "Coarse-grid HMM"). The seeded wrong-lock cases of
+the earlier offline mechanisms (offset selection, profile, grid, reversed pass,
+arbiter, angular noise) were found without it, and the coarse path leaves several
+of them by itself, so those tests keep the pipeline under which their case exists."""
+
+
 def tracker_before_angular_noise(**filter_settings: object) -> TrackerConfig:
     """A ``TrackerConfig`` whose filter has the angular noise of before 2026-11-27
-    (``ANGULAR_NOISE_BEFORE_DPS2``) and ``filter_settings``."""
-    settings = {"angular_accel_noise_dps2": ANGULAR_NOISE_BEFORE_DPS2, **filter_settings}
+    (``ANGULAR_NOISE_BEFORE_DPS2``), no coarse-grid HMM candidate (``BEFORE_COARSE``)
+    and ``filter_settings``."""
+    settings = {
+        "angular_accel_noise_dps2": ANGULAR_NOISE_BEFORE_DPS2,
+        **BEFORE_COARSE,
+        **filter_settings,
+    }
     return TrackerConfig(filter=FilterConfig(**settings))  # type: ignore[arg-type]
 
 

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+from filter_support import require_wrong_mode
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors
 from radiopose.filtering import particle3d
@@ -133,6 +134,9 @@ def test_more_offline_particles_leave_a_wrong_mode():
     on = replace(base, pose3d=replace(base.pose3d, offline_n_particles=OFFLINE_PARTICLES_FIXED))
     e_off = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", off).estimates)
     e_on = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", on).estimates)
-    assert e_off.rotation_deg.mean() > 20.0 and e_off.position_m.mean() > 0.8
     assert e_on.rotation_deg.mean() < 6.0 and e_on.position_m.mean() < 0.3
     assert e_on.coverage == 1.0
+    require_wrong_mode(
+        e_off.rotation_deg.mean(), 20.0, f"seed {SEED_FIXED} with 2,000 offline particles"
+    )
+    assert e_off.position_m.mean() > 0.8

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filter_support import scene_3d_records, track_axis_errors
+from filter_support import require_wrong_mode, scene_3d_records, track_axis_errors
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors
 from radiopose.filtering import FilterConfig
@@ -172,6 +172,6 @@ def test_a_restart_leaves_a_wrong_mode():
     on = replace(base, pose3d=replace(base.pose3d, refine_restarts=2))
     e_off = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", base).estimates)
     e_on = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", on).estimates)
-    assert e_off.rotation_deg.mean() > 50.0
     assert e_on.rotation_deg.mean() < 6.0 and e_on.position_m.mean() < 0.3
     assert e_on.coverage == 1.0
+    require_wrong_mode(e_off.rotation_deg.mean(), 50.0, f"seed {SEED_FIXED} without restarts")

@@ -244,6 +244,18 @@ class FilterConfig:
         docs/filter.md, "Laplace arbiter"). A track where some candidate's
         Hessian is not numerically positive definite (no finite term) is
         arbitrated without the term.
+    offline_coarse_track
+        Offline only, 2-D, with ``offline_refine`` (session 13; default on):
+        one more candidate of the arbiter, the most likely path of a coarse
+        grid HMM over the whole file's 0.1 s windows at the offset of its
+        largest evidence (:mod:`radiopose.filtering.coarse_track`): a search
+        that no particle filter's lock can mislead (docs/filter.md,
+        "Coarse-grid HMM").
+    coarse_track_margin
+        With ``offline_coarse_track``: the coarse path's refined track wins the
+        arbiter only if its objective is lower than every other candidate's by
+        more than this (σ² units ≈ nats; default 2, chosen on the tuning
+        seeds' margins: docs/filter.md, "Coarse-grid HMM").
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -325,6 +337,11 @@ class FilterConfig:
     # issue 15 (σ = 3 dB ties, session 12): the arbiter compares the candidates'
     # posterior mass (Laplace) instead of their peak (off)
     arbiter_laplace: bool = False
+    # issue 15 (search failures, session 13): the whole file's coarse-grid HMM
+    # path as one more arbiter candidate, winning only by a margin (on by
+    # default: docs/filter.md, "Coarse-grid HMM")
+    offline_coarse_track: bool = True
+    coarse_track_margin: float = 2.0
 
     def __post_init__(self) -> None:
         positive = (
@@ -376,7 +393,9 @@ class FilterConfig:
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
         if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
-        for name in ("offset_selection_merge_db", "offset_selection_trigger_db"):
+        for name in (
+            "offset_selection_merge_db", "offset_selection_trigger_db", "coarse_track_margin",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")

@@ -104,6 +104,7 @@ def arbitrate_offline(
     seed: int,
     workers: int = 1,
     cache: dict[tuple[object, ...], Refined2d] | None = None,
+    handicaps_nats: list[float] | None = None,
 ) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration], list[OffsetPass]]:
     """Round 6's arbiter with round 7's offset evidence and refit (module docstring).
 
@@ -125,6 +126,9 @@ def arbitrate_offline(
     workers, cache
         As :func:`radiopose.filtering.refine2d.arbitrate` (the cache serves the
         first arbitration only: a refit's contenders have another reference).
+    handicaps_nats
+        Per candidate, nats added to its refined objective in the first
+        arbitration (:func:`radiopose.filtering.refine2d.arbitrate`).
 
     Returns
     -------
@@ -137,7 +141,7 @@ def arbitrate_offline(
     penalty = evidence_penalty(passes, sd) if cfg.arbiter_offset_evidence else None
     out, log = arbitrate(
         pf.model, records, candidates, sigma_db, cfg, cfg.refine_max_nfev,
-        workers=workers, cache=cache, offset_penalty=penalty,
+        workers=workers, cache=cache, offset_penalty=penalty, handicaps_nats=handicaps_nats,
     )  # fmt: skip
     if not cfg.offline_offset_refit:
         return out, log, passes

@@ -479,44 +479,31 @@ class Arbitration:
     log_volumes: tuple[float, ...] = ()
 
 
-def arbitrate(
-    model: FilterModel,
+_Job = tuple[FloatArray, list[HeardRss], FloatArray, FloatArray]
+
+
+def _refinement_jobs(
     records: Sequence[tuple[float, HeardRss, object]],
     candidates: Sequence[dict[object, FilterEstimate]],
     sigma_db: float,
     config: FilterConfig,
     max_nfev: int,
-    refine_output: bool = True,
-    workers: int = 1,
-    cache: dict[tuple[object, ...], Refined2d] | None = None,
-    offset_penalty: Callable[[float], float] | None = None,
-) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
-    """Every packet's estimate from the candidate track of the lowest refined
-    objective, per track (module docstring).
-
-    ``records`` are the packets ``(t_s, heard, key)`` in time order;
-    ``candidates[0]`` is the reference (a packet it has no estimate for is left
-    out). A candidate that lacks an estimate of some packet of a track does not
-    compete there. ``refine_output``: emit the refined poses (else the chosen
-    candidate's own). Spread and σ of the reference are kept. ``workers``:
-    processes the refinements may use, this one included
-    (:func:`radiopose.filtering.forked.map_forked`; the result does not depend
-    on it). A candidate identical to an earlier one over a track is refined
-    once there (the same input, the same optimum). ``cache``: refinements by
-    their input (track, σ, ``max_nfev``, the candidate's poses), read and
-    filled: an earlier call with the same ``records``, ``candidates[0]`` and
-    settings over some of the candidates (e.g. while another process runs the
-    pass that gives the others) spares this one their work.
-    ``offset_penalty``: nats added to a candidate's refined objective as a
-    function of its refined device offset (dB) before the lowest is taken
-    (round 7, :func:`radiopose.filtering.offset_refit.evidence_penalty`).
-    """
-    if not candidates:
-        raise InputError("arbitrate: no candidate track")
+) -> tuple[
+    list[tuple[float, HeardRss, object]],
+    list[tuple[int, int]],
+    float,
+    list[_Job],
+    list[tuple[object, ...]],
+    list[list[int | None]],
+]:
+    """:func:`arbitrate`'s work list: the reference's heard packets, their
+    tracks (``(start, stop)`` rows; silences longer than ``reacquire_gap_s``
+    split them), the σ used, every distinct (track, candidate) refinement
+    ``(t, heard, position, orientation)`` with its cache key, and per track the
+    job of each candidate (``None``: the candidate does not cover the track).
+    A candidate identical to an earlier one over a track shares its job."""
     ref = candidates[0]
     rows = [r for r in records if r[2] in ref and r[1].n_heard > 0]
-    out = dict(ref)
-    log: list[Arbitration] = []
     sig = config.sigma_prior_db
     if math.isfinite(sigma_db):
         sig = max(float(sigma_db), config.sigma_floor_db)
@@ -530,7 +517,7 @@ def arbitrate(
     # every (track, candidate) refinement, a candidate identical to an earlier
     # one over the track (e.g. the combined track where no segment took the
     # reversed poses) refined once: the same input gives the same optimum
-    jobs: list[tuple[FloatArray, list[HeardRss], FloatArray, FloatArray]] = []
+    jobs: list[_Job] = []
     keys: list[tuple[object, ...]] = []
     job_of: list[list[int | None]] = []
     for a, b in spans:
@@ -561,6 +548,83 @@ def arbitrate(
                 same = len(jobs) - 1
             mine.append(same)
         job_of.append(mine)
+    return rows, spans, sig, jobs, keys, job_of
+
+
+def refine_for_arbiter(
+    model: FilterModel,
+    records: Sequence[tuple[float, HeardRss, object]],
+    reference: dict[object, FilterEstimate],
+    candidate: dict[object, FilterEstimate],
+    sigma_db: float,
+    config: FilterConfig,
+    max_nfev: int,
+) -> dict[tuple[object, ...], Refined2d]:
+    """The refinements :func:`arbitrate` would compute for ``candidate`` with
+    ``reference`` as its ``candidates[0]`` (the same ``records``, σ, settings),
+    by their cache keys: computed ahead (e.g. on another process) and handed to
+    a later :func:`arbitrate` through its ``cache``, they spare it that work
+    (the same input, the same result)."""
+    _, _, sig, jobs, keys, job_of = _refinement_jobs(
+        records, [reference, candidate], sigma_db, config, max_nfev
+    )
+    mine = {q for row in job_of for q in row[1:] if q is not None}
+    out: dict[tuple[object, ...], Refined2d] = {}
+    for q in sorted(mine):
+        t, h, pos, ori = jobs[q]
+        out[keys[q]] = refine_track_2d(model, t, h, pos, ori, sig, config, max_nfev=max_nfev)
+    return out
+
+
+def arbitrate(
+    model: FilterModel,
+    records: Sequence[tuple[float, HeardRss, object]],
+    candidates: Sequence[dict[object, FilterEstimate]],
+    sigma_db: float,
+    config: FilterConfig,
+    max_nfev: int,
+    refine_output: bool = True,
+    workers: int = 1,
+    cache: dict[tuple[object, ...], Refined2d] | None = None,
+    offset_penalty: Callable[[float], float] | None = None,
+    handicaps_nats: Sequence[float] | None = None,
+) -> tuple[list[tuple[object, FilterEstimate]], list[Arbitration]]:
+    """Every packet's estimate from the candidate track of the lowest refined
+    objective, per track (module docstring).
+
+    ``records`` are the packets ``(t_s, heard, key)`` in time order;
+    ``candidates[0]`` is the reference (a packet it has no estimate for is left
+    out). A candidate that lacks an estimate of some packet of a track does not
+    compete there. ``refine_output``: emit the refined poses (else the chosen
+    candidate's own). Spread and σ of the reference are kept. ``workers``:
+    processes the refinements may use, this one included
+    (:func:`radiopose.filtering.forked.map_forked`; the result does not depend
+    on it). A candidate identical to an earlier one over a track is refined
+    once there (the same input, the same optimum). ``cache``: refinements by
+    their input (track, σ, ``max_nfev``, the candidate's poses), read and
+    filled: an earlier call with the same ``records``, ``candidates[0]`` and
+    settings over some of the candidates (e.g. while another process runs the
+    pass that gives the others) spares this one their work.
+    ``offset_penalty``: nats added to a candidate's refined objective as a
+    function of its refined device offset (dB) before the lowest is taken
+    (round 7, :func:`radiopose.filtering.offset_refit.evidence_penalty`).
+    ``handicaps_nats``: per candidate, nats added to its refined objective
+    before the lowest is taken (session 13: an outsider must win by that
+    margin; ``None``: none). Both appear in the log's ``penalties``.
+    """
+    if not candidates:
+        raise InputError("arbitrate: no candidate track")
+    hand = tuple(float(v) for v in handicaps_nats) if handicaps_nats is not None else None
+    if hand is not None and (len(hand) != len(candidates) or not all(map(math.isfinite, hand))):
+        raise InputError(
+            f"arbitrate: {len(hand)} handicaps for {len(candidates)} candidates, or not finite"
+        )
+    ref = candidates[0]
+    rows, spans, sig, jobs, keys, job_of = _refinement_jobs(
+        records, candidates, sigma_db, config, max_nfev
+    )
+    out = dict(ref)
+    log: list[Arbitration] = []
     memo = {} if cache is None else cache
     todo = [q for q, key in enumerate(keys) if key not in memo]
     done = map_forked(
@@ -579,8 +643,9 @@ def arbitrate(
         costs = tuple(r.cost if r is not None else math.nan for r in results)
         offs = tuple(r.offset_db if r is not None else math.nan for r in results)
         pen = tuple(
-            0.0 if r is None or offset_penalty is None else float(offset_penalty(r.offset_db))
-            for r in results
+            (0.0 if r is None or offset_penalty is None else float(offset_penalty(r.offset_db)))
+            + (0.0 if r is None or hand is None else hand[i])
+            for i, r in enumerate(results)
         )
         vols = tuple(r.log_volume if r is not None else math.nan for r in results)
         occam = config.arbiter_laplace and all(
@@ -609,4 +674,4 @@ def arbitrate(
     return [(r[2], out[r[2]]) for r in records if r[2] in ref], log
 
 
-__all__ = ["Arbitration", "Refined2d", "arbitrate", "refine_track_2d"]
+__all__ = ["Arbitration", "Refined2d", "arbitrate", "refine_for_arbiter", "refine_track_2d"]

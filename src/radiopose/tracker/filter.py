@@ -28,9 +28,9 @@ import math
 import weakref
 import zlib
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -63,6 +63,9 @@ from radiopose.tracker.reasons import (
     SKIP_OUT_OF_ORDER,
     SKIP_TOO_FEW_RECEIVERS,
 )
+
+if TYPE_CHECKING:
+    from radiopose.filtering.refine2d import Refined2d
 
 
 @dataclass(frozen=True)
@@ -217,7 +220,7 @@ class FilterMethod:
             return _as_delayed(chosen)
         # (imported here: scipy.optimize pulls scipy.spatial, which a plain
         # offline locate does not import; tests/test_startup_cache.py)
-        from radiopose.filtering.refine2d import Refined2d, arbitrate
+        from radiopose.filtering.refine2d import arbitrate
 
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
@@ -225,59 +228,80 @@ class FilterMethod:
         forward = dict(chosen if best > 0 else kept + chosen)
         sigma_db = math.sqrt(state.sigma2_db2)
         candidates = [forward]
-        # the offset selection's other passes (pass 1 when a further one won)
-        others = [dict(kept + first)] if best > 0 else []
-        # (round 8: the offset profile's pass only if it won, unless "always")
-        keep_profile = pf.config.offset_profile_track == "always"
-        others += [
-            t
-            for i, t in enumerate(other_passes, start=1)
-            if i != best and (keep_profile or not passes[i].from_profile)
-        ]
-        cache: dict[tuple[object, ...], Refined2d] = {}
-        if _reverses(device):
-            # round 5: a pass over the reversed packets, combined per segment
-            # (run beside the forward pass by the look-ahead when pass 1 stood,
-            # else on a child now), while the candidates that do not need it
-            # are refined here (round 6; the arbiter below reuses them)
-            if ahead is not None and best != 0:
-                ahead.cancel()  # its prior is pass 1's, not the chosen pass's
-                ahead = None
-            job: ForkedCall[ReversedRun] | None = None
-            if ahead is None and workers > 1 and _arbitrates(device):
-                job = try_fork(partial(run_reversed, pf, records, passes[best].centre_db, seed))
-            try:
-                if _arbitrates(device) and (
-                    job is not None or (ahead is not None and not ahead.ready())
-                ):
-                    arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
-                              pf.config.refine_max_nfev, cache=cache)  # fmt: skip
-            except BaseException:
-                if job is not None:
-                    job.cancel()
-                raise
-            pre = ahead.take(records) if ahead is not None else result_or_none(job)
-            rev: dict[object, FilterEstimate] = {}
-            combined, _ = reverse_pass(
-                pf, records, forward, passes[best].centre_db, seed, sigma_db,
-                tight_evidence if best > 0 else evidence, rev, pre,
-            )  # fmt: skip
-            if not _arbitrates(device):
-                return _as_delayed(combined)
-            candidates += [dict(combined), rev]
-            # session 11 (off by default): reversed passes at the runner-up
-            # passes' offsets too, as more candidates of the arbiter
-            candidates += [
-                dict(r) for r in _more_reversed(pf, records, passes, best, seed, workers)
+        # session 13 (off by default): the coarse-grid HMM's path and its
+        # refinement on a child meanwhile (here at the end without a child)
+        coarse_job: ForkedCall[_CoarseRefined] | None = None
+        if pf.config.offline_coarse_track and _arbitrates(device) and workers > 1:
+            coarse_job = try_fork(partial(_coarse_refined, pf, records, forward, sigma_db, True))
+        try:
+            # the offset selection's other passes (pass 1 when a further one won)
+            others = [dict(kept + first)] if best > 0 else []
+            # (round 8: the offset profile's pass only if it won, unless "always")
+            keep_profile = pf.config.offset_profile_track == "always"
+            others += [
+                t
+                for i, t in enumerate(other_passes, start=1)
+                if i != best and (keep_profile or not passes[i].from_profile)
             ]
+            cache: dict[tuple[object, ...], Refined2d] = {}
+            if _reverses(device):
+                # round 5: a pass over the reversed packets, combined per segment
+                # (run beside the forward pass by the look-ahead when pass 1 stood,
+                # else on a child now), while the candidates that do not need it
+                # are refined here (round 6; the arbiter below reuses them)
+                if ahead is not None and best != 0:
+                    ahead.cancel()  # its prior is pass 1's, not the chosen pass's
+                    ahead = None
+                job: ForkedCall[ReversedRun] | None = None
+                if ahead is None and workers > 1 and _arbitrates(device):
+                    job = try_fork(partial(run_reversed, pf, records, passes[best].centre_db, seed))
+                try:
+                    if _arbitrates(device) and (
+                        job is not None or (ahead is not None and not ahead.ready())
+                    ):
+                        arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
+                                  pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+                except BaseException:
+                    if job is not None:
+                        job.cancel()
+                    raise
+                pre = ahead.take(records) if ahead is not None else result_or_none(job)
+                rev: dict[object, FilterEstimate] = {}
+                combined, _ = reverse_pass(
+                    pf, records, forward, passes[best].centre_db, seed, sigma_db,
+                    tight_evidence if best > 0 else evidence, rev, pre,
+                )  # fmt: skip
+                if not _arbitrates(device):
+                    return _as_delayed(combined)
+                candidates += [dict(combined), rev]
+                # session 11 (off by default): reversed passes at the runner-up
+                # passes' offsets too, as more candidates of the arbiter
+                candidates += [
+                    dict(r) for r in _more_reversed(pf, records, passes, best, seed, workers)
+                ]
+        except BaseException:
+            if coarse_job is not None:
+                coarse_job.cancel()
+            raise
         candidates += others
+        if pf.config.offline_coarse_track:
+            got = result_or_none(coarse_job)
+            if got is None:  # no child (or it failed): its refinement runs with the others
+                got = _coarse_refined(pf, records, forward, sigma_db, False)
+            candidates.append(got[0])
+            cache.update(got[1])
+        # the coarse path is an outsider: it wins only by coarse_track_margin
+        hand = [0.0] * len(candidates)
+        if pf.config.offline_coarse_track:
+            hand[-1] = pf.config.coarse_track_margin
         # round 6: each candidate refined by batch MAP, the lowest objective kept;
         # round 7: with the offset's evidence and a refit pass (both off by default)
         from radiopose.filtering.offset_refit import arbitrate_offline
 
         out, _, _ = arbitrate_offline(
-            pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache
-        )
+            pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache,
+            handicaps_nats=hand,
+        )  # fmt: skip
         return _as_delayed(out)
 
 
@@ -301,6 +325,61 @@ def _more_reversed(
     calls = [partial(run_reversed, pf, records, passes[i].centre_db, seed)
              for i in order if i != best][:n]  # fmt: skip
     return [rev for rev, _ in map_forked(calls, workers)]
+
+
+_CoarseRefined = tuple[dict[object, FilterEstimate], dict[tuple[object, ...], "Refined2d"]]
+
+
+def _coarse_refined(
+    pf: ParticleFilter,
+    records: list[tuple[float, HeardRss, object]],
+    reference: dict[object, FilterEstimate],
+    sigma_db: float,
+    refine: bool,
+) -> _CoarseRefined:
+    """Session 13: the whole file's coarse-grid HMM path as one more arbiter
+    candidate (:func:`_coarse_candidate`) and, with ``refine``, the arbiter's
+    refinements of it (:func:`radiopose.filtering.refine2d.refine_for_arbiter`,
+    by their cache keys; the arbiter computes them itself otherwise)."""
+    cand = _coarse_candidate(pf, records, reference, sigma_db)
+    if not refine:
+        return cand, {}
+    from radiopose.filtering.refine2d import refine_for_arbiter
+
+    cfg = pf.config
+    return cand, refine_for_arbiter(
+        pf.model, records, reference, cand, sigma_db, cfg, cfg.refine_max_nfev
+    )
+
+
+def _coarse_candidate(
+    pf: ParticleFilter,
+    records: list[tuple[float, HeardRss, object]],
+    reference: dict[object, FilterEstimate],
+    sigma_db: float,
+) -> dict[object, FilterEstimate]:
+    """Session 13: the whole file's coarse-grid HMM path
+    (:func:`radiopose.filtering.coarse_track.coarse_track` at ``sigma_db``) as
+    one more arbiter candidate: ``reference``'s estimates with the path's x, y
+    and azimuth at each packet's time (height, pitch and roll kept)."""
+    from radiopose.filtering.coarse_track import coarse_track
+
+    sig = sigma_db if math.isfinite(sigma_db) else pf.config.sigma_prior_db
+    ct = coarse_track(pf.model, records, max(sig, pf.config.sigma_floor_db),
+                      pf.config.reacquire_gap_s)  # fmt: skip
+    rows = [r for r in records if r[2] in reference]
+    if ct.window_times_s.size == 0 or not rows:
+        return dict(reference)
+    xy, az = ct.poses_at(np.array([r[0] for r in rows]))
+    out = dict(reference)
+    for (_, _, key), p, a in zip(rows, xy, az, strict=True):
+        e = reference[key]
+        out[key] = replace(
+            e,
+            position_m=(float(p[0]), float(p[1]), e.position_m[2]),
+            orientation_deg=(float(a), e.orientation_deg[1], e.orientation_deg[2]),
+        )
+    return out
 
 
 def _profile_db(
