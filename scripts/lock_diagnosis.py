@@ -160,7 +160,11 @@ def _errors(
 
 
 def _candidate_labels(
-    passes: list[Any], n_candidates: int, reverses: bool, keep_profile: bool = False
+    passes: list[Any],
+    n_candidates: int,
+    reverses: bool,
+    keep_profile: bool = False,
+    coarse: bool = False,
 ) -> list[str]:
     """The arbiter's candidates in :meth:`FilterMethod.flush`'s order (pass 1 is
     the filter's own pass, wide offset prior; passes 2… the offset selection's
@@ -178,7 +182,9 @@ def _candidate_labels(
         for i in range(1, len(passes))
         if i != best and (keep_profile or not passes[i].from_profile)
     ]
-    labels += [f"candidate {i}" for i in range(len(labels), n_candidates)]
+    # session 13: the coarse-grid HMM's path is the last candidate
+    tail = ["coarse HMM path"] if coarse and n_candidates > len(labels) else []
+    labels += [f"candidate {i}" for i in range(len(labels), n_candidates - len(tail))] + tail
     return labels[:n_candidates]
 
 
@@ -262,6 +268,7 @@ def diagnose_candidates(
                 len(candidates),
                 tcfg.filter.offline_reverse_pass,
                 tcfg.filter.offset_profile_track == "always",
+                tcfg.filter.offline_coarse_track,
             )
             if n_arb:  # round 7's refit: the first arbitration's output against the new pass
                 kinds = {"forward": ["forward"], "reversed": ["reversed"]}

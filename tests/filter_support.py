@@ -43,10 +43,10 @@ def require_wrong_mode(value: float, bound: float, case: str) -> None:
     one with the last bits of the host's floating point (seen 2026-11-27: four
     3-D cases measured on earlier hosts did not occur on an AMD znver3 host with
     the same packages; docs/testing.md "Host-dependent wrong modes"). A test of a
-    part that leaves such a mode checks the part's own result first, then
-    calls this with the default's error (``value``) and the bound above which
-    the default is in the wrong mode: below it the part's necessity cannot be
-    shown here, and the test is reported skipped (with the value), never passed."""
+    part that leaves such a mode calls this with the default's error (``value``)
+    and the bound above which the default is in the wrong mode, before running
+    the part: below the bound the part's necessity cannot be shown here, and the
+    test is reported skipped (with the value), never passed."""
     import pytest
 
     if not value > bound:

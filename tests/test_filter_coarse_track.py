@@ -30,6 +30,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import ndimage
 
+import radiopose.filtering.coarse_track as coarse_track_module
 import radiopose.filtering.forked as forked
 import radiopose.filtering.offset_refit as offset_refit
 import radiopose.filtering.refine2d as refine2d
@@ -299,3 +300,17 @@ def test_poses_at_interpolates_within_the_nearest_windows_track() -> None:
     np.testing.assert_allclose(az, [350.0, 0.0, 15.0, 20.0, 90.0, 95.0, 100.0], atol=1e-9)
     one = CoarseTrack(np.zeros(1), np.zeros(1), 0.0, wt[:1], poses[:1], np.array([0]))
     np.testing.assert_allclose(one.poses_at(np.array([0.0, 9.0]))[1], [350.0, 350.0])
+
+
+def test_the_chunked_backtrack_is_the_whole_one(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The Viterbi back-pointers are kept one chunk at a time (bounded memory on
+    long files); any chunk length gives the same path, gaps included."""
+    site = small_site()
+    gap = FilterConfig().reacquire_gap_s
+    records = site.records[:40] + site.records[70:]  # a hole of several walk steps
+    whole = coarse_track(site.model, records, 0.5, gap)
+    for n in (1, 2, 3):
+        monkeypatch.setattr(coarse_track_module, "_CHUNK_WINDOWS", n)
+        chunked = coarse_track(site.model, records, 0.5, gap)
+        np.testing.assert_array_equal(chunked.window_poses, whole.window_poses)
+        np.testing.assert_array_equal(chunked.log_evidence, whole.log_evidence)

@@ -7,7 +7,8 @@ mean nothing at this size: these tests only keep the scripts from rotting (an AP
 they call renamed, an option gone). ``real_data.py --quick`` changes a module
 global of ``radiopose.realdata.experiment``, so it runs in a subprocess. The
 scripts whose smallest run is still long (standard-site filter runs, the real
-site's cross-validation, the detector's quick plan) are marked ``slow``.
+site's cross-validation, the detector's quick plan, every 3-D variant of
+``pose3d_accuracy.py``) are marked ``slow``.
 """
 
 from __future__ import annotations
@@ -196,6 +197,7 @@ def test_real_data(tmp_path: Path) -> None:
     assert _table_rows(out.read_text(encoding="utf-8"))
 
 
+@pytest.mark.slow  # ~45 s: every 3-D variant on a 0.3 s trace
 def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1"]
     variants = ["--heading-prior-deg", "30", "--power-error-db", "4", "--no-refine", "--oracle"]

@@ -39,7 +39,7 @@ The forward step runs in a compiled kernel over every (offset, pose);
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numba
@@ -48,6 +48,7 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.filtering.model import FilterModel
 from radiopose.filtering.offset_profile import CoarseTable, Record, window_medians
+from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
 
@@ -395,9 +396,12 @@ def coarse_track(
     ka = _kernel(cs.turn_sd_cells)
     windows = window_medians(records, cs.window_s)
     times = _window_times(records, cs.window_s)
-    # the windows read (enough receivers) and the walk steps before each
-    read: list[tuple[int, FloatArray, FloatArray, float, int]] = []
+    # the windows read (enough receivers) and the walk steps before each; the
+    # per-pose terms are recomputed in each pass (not kept: a long file has
+    # tens of thousands of windows of ~170 kB of terms each)
+    read: list[tuple[int, HeardRss, FloatArray]] = []
     track_of: list[int] = []
+    win_t: list[float] = []
     last_t = -math.inf
     track = -1
     for (heard, n), t in zip(windows, times, strict=True):
@@ -409,53 +413,90 @@ def coarse_track(
         else:
             steps = min(max(round((t - last_t) / cs.window_s), 1), cs.max_steps)
         last_t = t
-        w = n / ((math.pi / 2) * sigma_db**2 + cs.grid_sigma_db**2 * n)
-        a_cost, b_cost, w_sum = _window_terms(
-            tab.table_dbm, np.asarray(heard.receiver_index), np.asarray(heard.rss_dbm), w
-        )
-        read.append((steps, a_cost, b_cost, w_sum, len(track_of)))
+        read.append((steps, heard, n / ((math.pi / 2) * sigma_db**2 + cs.grid_sigma_db**2 * n)))
         track_of.append(track)
-    n_read = len(read)
-    win_t = np.array(
-        [t for (h, _), t in zip(windows, times, strict=True) if h.n_heard >= cs.min_receivers]
-    )
+        win_t.append(t)
+
+    def terms(q: int) -> tuple[FloatArray, FloatArray, float]:
+        _, heard, w = read[q]
+        rx = np.asarray(heard.receiver_index)
+        return _window_terms(tab.table_dbm, rx, np.asarray(heard.rss_dbm), w)
+
     ll = np.zeros(offs.size)
-    if n_read == 0:
-        return CoarseTrack(offs, ll, math.nan, win_t, np.empty((0, 3)), np.empty(0, dtype=np.int64))
-    alpha = np.empty((offs.size, *shape))
-    for steps, a_cost, b_cost, w_sum, _ in read:
-        _forward_window(alpha, steps, a_cost, b_cost, w_sum, offs, kx, ka, ll)
-    best = int(np.argmax(ll))
-    b = float(offs[best])
-    # Viterbi at the best offset, one track at a time
-    lx = np.log(kx)
-    la = np.log(ka)
-    poses = tab.poses.reshape(*shape, 3)
-    path = np.empty((n_read, 3))
     tracks = np.asarray(track_of, dtype=np.int64)
+    if not read:
+        return CoarseTrack(offs, ll, math.nan, np.asarray(win_t), np.empty((0, 3)), tracks)
+    alpha = np.empty((offs.size, *shape))
+    for q in range(len(read)):
+        _forward_window(alpha, read[q][0], *terms(q), offs, kx, ka, ll)
+    b = float(offs[int(np.argmax(ll))])
+    path = _viterbi_path(read, tracks, terms, b, shape, np.log(kx), np.log(ka))
+    poses = tab.poses.reshape(*shape, 3)
+    return CoarseTrack(offs, ll, b, np.asarray(win_t), np.array([poses[c] for c in path]), tracks)
+
+
+_CHUNK_WINDOWS = 256
+"""Windows per chunk of :func:`_viterbi_path`'s back-pointers (3 bytes per grid
+cell and walk step are kept for one chunk at a time)."""
+
+
+def _viterbi_path(
+    read: Sequence[tuple[int, object, object]],
+    tracks: np.ndarray,
+    terms: Callable[[int], tuple[FloatArray, FloatArray, float]],
+    offset_db: float,
+    shape: tuple[int, int, int],
+    lx: FloatArray,
+    la: FloatArray,
+) -> list[tuple[int, int, int]]:
+    """The Viterbi path (grid cells, one per window read) at ``offset_db``, one
+    track at a time. Memory stays bounded on long files: a first pass keeps the
+    scores only at the start of every chunk of ``_CHUNK_WINDOWS`` windows; the
+    backtrack then recomputes one chunk's back-pointers at a time from its
+    start, last chunk first (the same path as keeping them all)."""
+
+    def cost(q: int) -> FloatArray:
+        a_cost, b_cost, w_sum = terms(q)
+        out: FloatArray = (a_cost - offset_db * b_cost + 0.5 * offset_db**2 * w_sum).reshape(shape)
+        return out
+
+    scratch = np.zeros((1, 3, *shape), dtype=np.int8)
+
+    def step(delta: FloatArray, q: int, keep: bool) -> np.ndarray:
+        steps = read[q][0]
+        back = np.zeros((max(steps, 1), 3, *shape), dtype=np.int8) if keep else scratch
+        if not keep and steps > scratch.shape[0]:
+            back = np.zeros((steps, 3, *shape), dtype=np.int8)
+        _viterbi_step(delta, steps, cost(q), lx, la, back)
+        return back[:steps]
+
+    cells: list[tuple[int, int, int]] = []
     for tr in np.unique(tracks):
-        idx = np.flatnonzero(tracks == tr)
+        idx = np.flatnonzero(tracks == tr).tolist()
+        chunks = [idx[i : i + _CHUNK_WINDOWS] for i in range(0, len(idx), _CHUNK_WINDOWS)]
         delta = np.empty(shape)
-        backs: list[np.ndarray] = []
-        for q in idx:
-            steps, a_cost, b_cost, w_sum, _ = read[q]
-            cost = (a_cost - b * b_cost + 0.5 * b * b * w_sum).reshape(shape)
-            back = np.zeros((max(steps, 1), 3, *shape), dtype=np.int8)
-            _viterbi_step(delta, steps, cost, lx, la, back)
-            backs.append(back[:steps])
-        s = np.unravel_index(int(np.argmax(delta)), shape)
-        cells = [s]
-        for back in reversed(backs[1:]):
-            i, j, a = s
-            for step in back[::-1]:
-                i = i - int(step[0, i, j, a])
-                j = j - int(step[1, i, j, a])
-                a = (a - int(step[2, i, j, a])) % shape[2]
-            s = (i, j, a)
-            cells.append(s)
-        cells.reverse()
-        path[idx] = np.array([poses[c] for c in cells])
-    return CoarseTrack(offs, ll, b, win_t, path, tracks)
+        starts: list[FloatArray] = []
+        for chunk in chunks:
+            starts.append(delta.copy())
+            for q in chunk:
+                step(delta, q, keep=False)
+        i0, j0, a0 = np.unravel_index(int(np.argmax(delta)), shape)
+        s = (int(i0), int(j0), int(a0))
+        mine: list[tuple[int, int, int]] = []
+        for chunk, start in zip(reversed(chunks), reversed(starts), strict=True):
+            delta = start.copy()
+            backs = [step(delta, q, keep=True) for q in chunk]
+            for back in reversed(backs):
+                mine.append(s)
+                i, j, a = s
+                for st in back[::-1]:
+                    i = i - int(st[0, i, j, a])
+                    j = j - int(st[1, i, j, a])
+                    a = (a - int(st[2, i, j, a])) % shape[2]
+                s = (i, j, a)
+        mine.reverse()
+        cells += mine
+    return cells
 
 
 def _window_times(records: Sequence[Record], window_s: float) -> list[float]:
