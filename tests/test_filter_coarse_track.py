@@ -204,11 +204,12 @@ def test_the_coarse_child_gives_the_serial_answer(monkeypatch: pytest.MonkeyPatc
     """With a second core the path and its refinement are computed on a child
     while the parent runs the reversed pass; the estimates are the serial ones,
     bit for bit, and the child's refinement is the one the arbiter uses."""
+    # (these runs' children never enter a parallel region: the filter's
+    # one-thread scorer; tests/test_filter_offline_workers.py): set before the
+    # check, which an earlier test's parallel kernel would otherwise fail
+    monkeypatch.setattr(forked, "numba_fork_safe", lambda: True)
     if forked.effective_workers(2) < 2:
         pytest.skip("needs fork and two cores")
-    # (these runs' children never enter a parallel region: the filter's
-    # one-thread scorer; tests/test_filter_offline_workers.py)
-    monkeypatch.setattr(forked, "numba_fork_safe", lambda: True)
     sim = simulate(replace(SMALL, duration_s=1.5, noise_db=1.0), 5)
 
     def cfg(workers: int) -> TrackerConfig:

@@ -50,6 +50,7 @@ def built(monkeypatch: pytest.MonkeyPatch) -> list[int]:
     return sizes
 
 
+@pytest.mark.slow  # ~20 s for an option that is off (offline_n_particles = 0)
 def test_only_the_offline_passes_use_it(built: list[int]):
     """Offline (batch ``locate`` with the smoothing lag) the forward pass, the
     reversed pass and each restart's two halves get ``offline_n_particles``

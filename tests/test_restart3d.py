@@ -83,6 +83,7 @@ def test_a_restart_covers_every_packet_and_follows_the_truth(scene):
     assert midtrack_tracks3d(pf, records, seed=5, n_restarts=0) == []
 
 
+@pytest.mark.slow  # ~30 s for an option that is off (refine_restarts = 0)
 def test_locate_restarts_offline_only_when_on(monkeypatch):
     """With ``refine_restarts`` the offline refinement gets one spliced start per
     restart (with ``refine_restart_members`` also one per bank member); off (the
