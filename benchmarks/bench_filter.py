@@ -20,8 +20,8 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    offline passes all in the one process, as before the eighth pass: the
    site's ``tracker.toml`` says so), and the row ``filter, refine_banded =
    false`` (the arbiter's sparse LU, round 6's solve; banded is the default),
-   and ``filter, offline_coarse_track = true`` (session 13's coarse-grid HMM
-   candidate, an option: what it costs a whole file).
+   and ``filter, offline_coarse_track = false`` (without session 13's
+   coarse-grid HMM candidate, the default since: what it costs a whole file).
    CPU: the process's and its forked children's. Peak memory: the largest
    ``ru_maxrss`` of the process and its children (read in a small launcher,
    since Linux carries a parent's ``ru_maxrss`` into its children); a forked
@@ -153,9 +153,10 @@ SERIAL_FILTER = "filter, offline_workers = 1"
 site's ``tracker.toml`` says so; docs/performance.md, "Eighth pass")."""
 
 
-COARSE_FILTER = "filter, offline_coarse_track = true"
-"""Section 2's row of ``filter`` with session 13's coarse-grid HMM candidate (the
-site's ``tracker.toml`` says so; docs/filter.md, "Coarse-grid HMM")."""
+COARSE_FILTER = "filter, offline_coarse_track = false"
+"""Section 2's row of ``filter`` without session 13's coarse-grid HMM candidate (the
+default since; the site's ``tracker.toml`` says so; docs/filter.md, "Coarse-grid
+HMM"): what the HMM costs a whole file, measured in the same run."""
 
 
 SPARSE_FILTER = "filter, refine_banded = false"
@@ -176,7 +177,7 @@ def section_process(n_packets: int, repeat: int, tmp: Path) -> list[dict]:
     coarse_dir = tmp / "site_coarse"
     write_site(sim.site, coarse_dir)
     (coarse_dir / "tracker.toml").write_text(
-        "[filter]\noffline_coarse_track = true\n", encoding="utf-8"
+        "[filter]\noffline_coarse_track = false\n", encoding="utf-8"
     )
     packets = tmp / "packets.csv"
     write_packets_csv(sim.packets, packets)
