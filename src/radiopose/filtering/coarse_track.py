@@ -10,7 +10,7 @@ there). This module searches the whole file exhaustively on a coarse grid
 instead, so what it finds does not depend on what a filter happened to hold:
 
 1. the packets are cut into windows of ``window_s`` (median RSS per heard
-   receiver, :func:`radiopose.filtering.offset_profile.window_medians`);
+   receiver, :func:`radiopose.filtering.offset_profile.timed_windows`);
 2. each window scores every pose of a coarse grid (``position_step_m`` ×
    ``azimuth_step_deg``, :class:`~radiopose.filtering.offset_profile.CoarseTable`)
    at each device offset ``b`` of a fixed set:
@@ -47,7 +47,7 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering.model import FilterModel
-from radiopose.filtering.offset_profile import CoarseTable, Record, window_medians
+from radiopose.filtering.offset_profile import CoarseTable, Record, timed_windows
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
@@ -394,8 +394,6 @@ def coarse_track(
     offs = np.asarray(cs.offsets_db, dtype=float)
     kx = _kernel(cs.step_sd_cells)
     ka = _kernel(cs.turn_sd_cells)
-    windows = window_medians(records, cs.window_s)
-    times = _window_times(records, cs.window_s)
     # the windows read (enough receivers) and the walk steps before each; the
     # per-pose terms are recomputed in each pass (not kept: a long file has
     # tens of thousands of windows of ~170 kB of terms each)
@@ -404,7 +402,7 @@ def coarse_track(
     win_t: list[float] = []
     last_t = -math.inf
     track = -1
-    for (heard, n), t in zip(windows, times, strict=True):
+    for heard, n, t in timed_windows(records, cs.window_s):
         if heard.n_heard < cs.min_receivers:
             continue
         if t - last_t > reacquire_gap_s:
@@ -497,31 +495,6 @@ def _viterbi_path(
         mine.reverse()
         cells += mine
     return cells
-
-
-def _window_times(records: Sequence[Record], window_s: float) -> list[float]:
-    """The mean time of the heard packets of each window of
-    :func:`window_medians` (the same cut: from the first packet's time, every
-    ``window_s``; a window with no heard packet is not one)."""
-    out: list[float] = []
-    if not records:
-        return out
-    t0 = records[0][0]
-    current = None
-    acc: list[float] = []
-    for t_s, heard, _ in records:
-        if heard.n_heard == 0:  # no reading: window_medians does not count it
-            continue
-        w = math.floor((t_s - t0) / window_s)
-        if w != current:
-            if acc:
-                out.append(float(np.mean(acc)))
-            acc = []
-            current = w
-        acc.append(t_s)
-    if acc:
-        out.append(float(np.mean(acc)))
-    return out
 
 
 __all__ = ["CoarseSettings", "CoarseTrack", "coarse_track"]

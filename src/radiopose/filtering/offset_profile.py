@@ -197,13 +197,22 @@ def window_medians(records: Sequence[Record], window_s: float) -> list[tuple[Hea
     """The packets cut into windows of ``window_s`` from the first packet's time:
     per window the median RSS of each receiver that heard any of its packets and
     that receiver's packet count."""
+    return [(heard, n) for heard, n, _ in timed_windows(records, window_s)]
+
+
+def timed_windows(
+    records: Sequence[Record], window_s: float
+) -> list[tuple[HeardRss, FloatArray, float]]:
+    """:func:`window_medians`' windows, each with the mean time of the packets
+    that gave it a reading (seconds)."""
     if not (window_s > 0):
         raise ValueError(f"window_medians: window_s {window_s!r} must be positive")
-    out: list[tuple[HeardRss, FloatArray]] = []
+    out: list[tuple[HeardRss, FloatArray, float]] = []
     if not records:
         return out
     t0 = records[0][0]
     per: dict[int, list[float]] = {}
+    times: list[float] = []
     current = 0
 
     def close() -> None:
@@ -211,14 +220,17 @@ def window_medians(records: Sequence[Record], window_s: float) -> list[tuple[Hea
             rx = np.array(sorted(per), dtype=np.int64)
             med = np.array([float(np.median(per[r])) for r in rx])
             n = np.array([float(len(per[r])) for r in rx])
-            out.append((HeardRss(rx, med), n))
+            out.append((HeardRss(rx, med), n, float(np.mean(times))))
 
     for t_s, heard, _ in records:
         w = math.floor((t_s - t0) / window_s)
         if w != current:
             close()
             per = {}
+            times = []
             current = w
+        if heard.n_heard:
+            times.append(t_s)
         for r, v in zip(heard.receiver_index.tolist(), heard.rss_dbm.tolist(), strict=True):
             per.setdefault(r, []).append(v)
     close()
@@ -310,5 +322,6 @@ __all__ = [
     "OffsetProfile",
     "data_offset_db",
     "offset_profile",
+    "timed_windows",
     "window_medians",
 ]
