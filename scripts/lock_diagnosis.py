@@ -164,7 +164,7 @@ def _candidate_labels(
     n_candidates: int,
     reverses: bool,
     keep_profile: bool = False,
-    coarse: bool = False,
+    coarse: int = 0,
 ) -> list[str]:
     """The arbiter's candidates in :meth:`FilterMethod.flush`'s order (pass 1 is
     the filter's own pass, wide offset prior; passes 2… the offset selection's
@@ -182,8 +182,11 @@ def _candidate_labels(
         for i in range(1, len(passes))
         if i != best and (keep_profile or not passes[i].from_profile)
     ]
-    # session 13: the coarse-grid HMM's path is the last candidate
-    tail = ["coarse HMM path"] if coarse and n_candidates > len(labels) else []
+    # session 13: the coarse-grid HMM's paths are the last candidates (``coarse``
+    # of them; session 14: more than one with ``coarse_track_paths``)
+    tail = [f"coarse HMM path {i + 1}" for i in range(coarse)]
+    tail = ["coarse HMM path"] if coarse == 1 else tail
+    tail = tail if n_candidates >= len(labels) + len(tail) else []
     labels += [f"candidate {i}" for i in range(len(labels), n_candidates - len(tail))] + tail
     return labels[:n_candidates]
 
@@ -203,6 +206,13 @@ def _run_recorded(sim: Simulation, tcfg: TrackerConfig, scorer: Any) -> tuple[An
     def arbitrate(model, records, candidates, sigma, cfg, max_nfev, *a: Any, **kw: Any):  # type: ignore[no-untyped-def]
         out = arbitrate0(model, records, candidates, sigma, cfg, max_nfev, *a, **kw)
         pen = kw.get("offset_penalty")
+        # the coarse paths: the trailing candidates with the margin (with a
+        # margin of 0 the number asked for, which a file may not reach)
+        hand = list(kw.get("handicaps_nats") or ())
+        n = 0
+        while n < len(hand) and hand[len(hand) - 1 - n] > 0:
+            n += 1
+        seen["coarse"] = n if cfg.coarse_track_margin > 0 else cfg.coarse_track_paths
         seen["arb"].append((model, list(records), list(candidates), sigma, cfg, max_nfev, out, pen))
         return out
 
@@ -268,7 +278,7 @@ def diagnose_candidates(
                 len(candidates),
                 tcfg.filter.offline_reverse_pass,
                 tcfg.filter.offset_profile_track == "always",
-                tcfg.filter.offline_coarse_track,
+                int(seen.get("coarse", 0)) if tcfg.filter.offline_coarse_track else 0,
             )
             if n_arb:  # round 7's refit: the first arbitration's output against the new pass
                 kinds = {"forward": ["forward"], "reversed": ["reversed"]}

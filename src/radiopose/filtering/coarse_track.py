@@ -30,7 +30,12 @@ instead, so what it finds does not depend on what a filter happened to hold:
    same model) is the file's most likely coarse track, interpolated to the
    packets' times (azimuth unwrapped): a start for the arbiter's batch MAP
    refinement, which takes it from the grid's ±0.5 cell to the optimum of its
-   basin (:class:`CoarseTrack`).
+   basin (:class:`CoarseTrack`);
+6. optionally (``paths`` > 1, :func:`coarse_tracks`) the Viterbi paths at the
+   next local maxima of ``ℓ`` too: ``ℓ`` over the offsets is often
+   multi-peaked at σ = 3 dB, and a mirror track can take the largest peak
+   while the truth's path lies under the second (docs/filter.md,
+   "Coarse-grid HMM: more than one path").
 
 The forward step runs in a compiled kernel over every (offset, pose);
 ``Σ`` and ``max`` over the random walk are separable per axis.
@@ -74,6 +79,13 @@ class CoarseSettings:
     max_steps
         At most this many walk steps between two windows (longer gaps within a
         track are this many: the walk is nearly flat by then).
+    path_position_step_m
+        The Viterbi paths' grid step, metres (``None``: ``position_step_m``).
+        A finer step than the evidence's (session 14) gives a path closer to
+        the truth's basin at a fraction of the cost of a finer grid throughout:
+        the evidence over every offset stays on the coarse grid, the path is
+        found at one offset only. The walk keeps its size in metres
+        (``step_sd_cells × position_step_m``).
     """
 
     position_step_m: float = 1.0
@@ -85,6 +97,7 @@ class CoarseSettings:
     offsets_db: tuple[float, ...] = tuple(float(v) for v in range(-12, 13))
     min_receivers: int = 3
     max_steps: int = 30
+    path_position_step_m: float | None = None
 
     def __post_init__(self) -> None:
         for name in (
@@ -98,6 +111,11 @@ class CoarseSettings:
             raise InputError(f"coarse track offsets {self.offsets_db!r} must be finite, not empty")
         if self.min_receivers < 1 or self.max_steps < 1:
             raise InputError("coarse track: min_receivers and max_steps must be at least 1")
+        step = self.path_position_step_m
+        if step is not None and not (math.isfinite(step) and step > 0):
+            raise InputError(
+                f"coarse track setting path_position_step_m = {step!r} must be positive"
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,7 +130,9 @@ class CoarseTrack:
         ``(m,)`` ``ℓ(b)``: the file's log evidence per offset, nats (the
         windows' readings; constants shared by every offset left out).
     offset_db
-        The offset of the largest ``ℓ``, dB (``nan`` with no window read).
+        The offset of this path, dB: the largest ``ℓ``'s for the first path
+        (``nan`` with no window read), a further peak's for the others
+        (:func:`coarse_tracks`).
     window_times_s
         ``(w,)`` each window's mean packet time, seconds.
     window_poses
@@ -360,7 +380,24 @@ def coarse_track(
     table: CoarseTable | None = None,
 ) -> CoarseTrack:
     """The file's coarse HMM: the evidence per offset and the best path at the
-    best offset (module docstring).
+    best offset (module docstring; :func:`coarse_tracks`' first)."""
+    return coarse_tracks(model, records, sigma_db, reacquire_gap_s, settings, table)[0]
+
+
+def coarse_tracks(
+    model: FilterModel,
+    records: Sequence[Record],
+    sigma_db: float,
+    reacquire_gap_s: float,
+    settings: CoarseSettings | None = None,
+    table: CoarseTable | None = None,
+    paths: int = 1,
+) -> list[CoarseTrack]:
+    """The file's coarse HMM: the evidence per offset and the best path at the
+    best offset (module docstring), then at the next local maxima of the
+    evidence over the offsets (:func:`evidence_peaks`), up to ``paths`` paths
+    in all, largest evidence first (session 14: a file whose evidence has a
+    second peak near the first may hold the truth's path there).
 
     Parameters
     ----------
@@ -377,15 +414,19 @@ def coarse_track(
     table
         The coarse grid, if built already (it depends on the model and the
         settings' steps only).
+    paths
+        At most this many paths (fewer when the evidence has fewer peaks).
 
     Raises
     ------
     InputError
-        σ not positive.
+        σ not positive, ``paths`` below 1.
     """
     cs = settings or CoarseSettings()
     if not (math.isfinite(sigma_db) and sigma_db > 0):
         raise InputError(f"coarse_track: sigma_db {sigma_db!r} must be positive")
+    if paths < 1:
+        raise InputError(f"coarse_track: paths = {paths!r} must be at least 1")
     tab = table or CoarseTable.build(model, cs.position_step_m, cs.azimuth_step_deg)
     xs = np.unique(tab.poses[:, 0])
     ys = np.unique(tab.poses[:, 1])
@@ -415,22 +456,59 @@ def coarse_track(
         track_of.append(track)
         win_t.append(t)
 
-    def terms(q: int) -> tuple[FloatArray, FloatArray, float]:
-        _, heard, w = read[q]
-        rx = np.asarray(heard.receiver_index)
-        return _window_terms(tab.table_dbm, rx, np.asarray(heard.rss_dbm), w)
+    def terms_on(grid: CoarseTable) -> Callable[[int], tuple[FloatArray, FloatArray, float]]:
+        def terms(q: int) -> tuple[FloatArray, FloatArray, float]:
+            _, heard, w = read[q]
+            rx = np.asarray(heard.receiver_index)
+            return _window_terms(grid.table_dbm, rx, np.asarray(heard.rss_dbm), w)
+
+        return terms
+
+    terms = terms_on(tab)
 
     ll = np.zeros(offs.size)
     tracks = np.asarray(track_of, dtype=np.int64)
     if not read:
-        return CoarseTrack(offs, ll, math.nan, np.asarray(win_t), np.empty((0, 3)), tracks)
+        return [CoarseTrack(offs, ll, math.nan, np.asarray(win_t), np.empty((0, 3)), tracks)]
     alpha = np.empty((offs.size, *shape))
     for q in range(len(read)):
         _forward_window(alpha, read[q][0], *terms(q), offs, kx, ka, ll)
-    b = float(offs[int(np.argmax(ll))])
-    path = _viterbi_path(read, tracks, terms, b, shape, np.log(kx), np.log(ka))
-    poses = tab.poses.reshape(*shape, 3)
-    return CoarseTrack(offs, ll, b, np.asarray(win_t), np.array([poses[c] for c in path]), tracks)
+    # the paths' grid: the evidence's, or a finer one (the walk's size in metres kept)
+    fine = cs.path_position_step_m
+    if fine is not None and fine != cs.position_step_m:
+        ptab = CoarseTable.build(model, fine, cs.azimuth_step_deg)
+        shape = (np.unique(ptab.poses[:, 0]).size, np.unique(ptab.poses[:, 1]).size, az.size)
+        terms = terms_on(ptab)
+        kx = _kernel(cs.step_sd_cells * cs.position_step_m / fine)
+    else:
+        ptab = tab
+    poses = ptab.poses.reshape(*shape, 3)
+    out = []
+    for i in evidence_peaks(ll)[:paths]:
+        b = float(offs[i])
+        path = _viterbi_path(read, tracks, terms, b, shape, np.log(kx), np.log(ka))
+        out.append(
+            CoarseTrack(offs, ll, b, np.asarray(win_t), np.array([poses[c] for c in path]), tracks)
+        )
+    return out
+
+
+def evidence_peaks(log_evidence: FloatArray) -> list[int]:
+    """The local maxima of ``ℓ`` over the offsets (an index whose finite ``ℓ``
+    is at least each neighbour's; plateaus give their first index), largest
+    first (ties: the lower index); ``[argmax]`` when none is finite."""
+    ll = np.asarray(log_evidence, dtype=float)
+    n = ll.size
+    peaks = [
+        i
+        for i in range(n)
+        if math.isfinite(ll[i])
+        and (i == 0 or ll[i] > ll[i - 1])
+        and (i == n - 1 or ll[i] >= ll[i + 1])
+    ]
+    if not peaks:
+        return [int(np.argmax(ll))]
+    return sorted(peaks, key=lambda i: (-ll[i], i))
 
 
 _CHUNK_WINDOWS = 256
@@ -449,9 +527,10 @@ def _viterbi_path(
 ) -> list[tuple[int, int, int]]:
     """The Viterbi path (grid cells, one per window read) at ``offset_db``, one
     track at a time. Memory stays bounded on long files: a first pass keeps the
-    scores only at the start of every chunk of ``_CHUNK_WINDOWS`` windows; the
-    backtrack then recomputes one chunk's back-pointers at a time from its
-    start, last chunk first (the same path as keeping them all)."""
+    scores only at the start of every chunk of ``_CHUNK_WINDOWS`` windows (up
+    to the last chunk's); the backtrack then computes one chunk's back-pointers
+    at a time from its start, last chunk first (the same path as keeping them
+    all; a track of one chunk is computed once)."""
 
     def cost(q: int) -> FloatArray:
         a_cost, b_cost, w_sum = terms(q)
@@ -474,16 +553,19 @@ def _viterbi_path(
         chunks = [idx[i : i + _CHUNK_WINDOWS] for i in range(0, len(idx), _CHUNK_WINDOWS)]
         delta = np.empty(shape)
         starts: list[FloatArray] = []
-        for chunk in chunks:
+        for chunk in chunks[:-1]:  # (the last chunk's pass is its backtrack's)
             starts.append(delta.copy())
             for q in chunk:
                 step(delta, q, keep=False)
-        i0, j0, a0 = np.unravel_index(int(np.argmax(delta)), shape)
-        s = (int(i0), int(j0), int(a0))
+        starts.append(delta)
         mine: list[tuple[int, int, int]] = []
-        for chunk, start in zip(reversed(chunks), reversed(starts), strict=True):
+        s = (0, 0, 0)
+        for c, (chunk, start) in enumerate(zip(reversed(chunks), reversed(starts), strict=True)):
             delta = start.copy()
             backs = [step(delta, q, keep=True) for q in chunk]
+            if c == 0:  # the track's end: its best cell
+                i0, j0, a0 = np.unravel_index(int(np.argmax(delta)), shape)
+                s = (int(i0), int(j0), int(a0))
             for back in reversed(backs):
                 mine.append(s)
                 i, j, a = s
@@ -497,4 +579,4 @@ def _viterbi_path(
     return cells
 
 
-__all__ = ["CoarseSettings", "CoarseTrack", "coarse_track"]
+__all__ = ["CoarseSettings", "CoarseTrack", "coarse_track", "coarse_tracks", "evidence_peaks"]

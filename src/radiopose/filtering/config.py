@@ -256,6 +256,19 @@ class FilterConfig:
         arbiter only if its objective is lower than every other candidate's by
         more than this (σ² units ≈ nats; default 2, chosen on the tuning
         seeds' margins: docs/filter.md, "Coarse-grid HMM").
+    coarse_track_paths
+        With ``offline_coarse_track``: how many coarse paths enter the
+        arbiter, each with the margin: the path at the evidence's largest
+        peak over the offsets, then at its next local maxima, largest first
+        (:func:`radiopose.filtering.coarse_track.coarse_tracks`; session 14,
+        docs/filter.md, "Coarse-grid HMM: more than one path"); an integer in
+        [1, 8].
+    coarse_track_path_step_m
+        With ``offline_coarse_track``: the grid step of the coarse paths,
+        metres (default 0.5 since session 14; 1 is session 13's path); the
+        evidence over the offsets stays on the 1 m grid
+        (``CoarseSettings.path_position_step_m``; docs/filter.md, "Coarse-grid
+        HMM: a finer path"); positive, at most 5.
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -339,9 +352,12 @@ class FilterConfig:
     arbiter_laplace: bool = False
     # issue 15 (search failures, session 13): the whole file's coarse-grid HMM
     # path as one more arbiter candidate, winning only by a margin (on by
-    # default: docs/filter.md, "Coarse-grid HMM")
+    # default: docs/filter.md, "Coarse-grid HMM"); session 14: the path on a
+    # 0.5 m grid (default), more paths (an option)
     offline_coarse_track: bool = True
     coarse_track_margin: float = 2.0
+    coarse_track_paths: int = 1
+    coarse_track_path_step_m: float = 0.5
 
     def __post_init__(self) -> None:
         positive = (
@@ -377,6 +393,17 @@ class FilterConfig:
         if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
             raise InputError(
                 "filter settings offset_scans_per_reentry and difference_memory must be >= 0"
+            )
+        n_paths = self.coarse_track_paths
+        if isinstance(n_paths, bool) or not (isinstance(n_paths, int) and 1 <= n_paths <= 8):
+            raise InputError(
+                f"filter setting coarse_track_paths = {n_paths!r} must be an integer in [1, 8]"
+            )
+        step = self.coarse_track_path_step_m
+        if not (isinstance(step, int | float) and not isinstance(step, bool)
+                and math.isfinite(step) and 0 < step <= 5.0):  # fmt: skip
+            raise InputError(
+                f"filter setting coarse_track_path_step_m = {step!r} must be in (0, 5] m"
             )
         n_rev = self.offset_selection_reversed_passes
         if isinstance(n_rev, bool) or not (isinstance(n_rev, int) and 1 <= n_rev <= 16):

@@ -284,16 +284,25 @@ class FilterMethod:
                 coarse_job.cancel()
             raise
         candidates += others
+        if coarse_job is not None and not coarse_job.ready():
+            # session 14: while the child runs the HMM, the other candidates'
+            # refinements here (the arbiter below finds them in the cache; the
+            # same refinements as its own, so the estimates do not change)
+            try:
+                arbitrate(pf.model, records, candidates, sigma_db, pf.config,
+                          pf.config.refine_max_nfev, cache=cache)  # fmt: skip
+            except BaseException:
+                coarse_job.cancel()
+                raise
+        hand = [0.0] * len(candidates)
         if pf.config.offline_coarse_track:
             got = result_or_none(coarse_job)
             if got is None:  # no child (or it failed): its refinement runs with the others
                 got = _coarse_refined(pf, records, forward, sigma_db, False)
-            candidates.append(got[0])
+            candidates += got[0]
             cache.update(got[1])
-        # the coarse path is an outsider: it wins only by coarse_track_margin
-        hand = [0.0] * len(candidates)
-        if pf.config.offline_coarse_track:
-            hand[-1] = pf.config.coarse_track_margin
+            # the coarse paths are outsiders: each wins only by coarse_track_margin
+            hand += [pf.config.coarse_track_margin] * len(got[0])
         # round 6: each candidate refined by batch MAP, the lowest objective kept;
         # round 7: with the offset's evidence and a refit pass (both off by default)
         from radiopose.filtering.offset_refit import arbitrate_offline
@@ -327,7 +336,7 @@ def _more_reversed(
     return [rev for rev, _ in map_forked(calls, workers)]
 
 
-_CoarseRefined = tuple[dict[object, FilterEstimate], dict[tuple[object, ...], "Refined2d"]]
+_CoarseRefined = tuple[list[dict[object, FilterEstimate]], dict[tuple[object, ...], "Refined2d"]]
 
 
 def _coarse_refined(
@@ -337,48 +346,58 @@ def _coarse_refined(
     sigma_db: float,
     refine: bool,
 ) -> _CoarseRefined:
-    """Session 13: the whole file's coarse-grid HMM path as one more arbiter
-    candidate (:func:`_coarse_candidate`) and, with ``refine``, the arbiter's
-    refinements of it (:func:`radiopose.filtering.refine2d.refine_for_arbiter`,
+    """Session 13: the whole file's coarse-grid HMM paths as more arbiter
+    candidates (:func:`_coarse_candidates`) and, with ``refine``, the arbiter's
+    refinements of them (:func:`radiopose.filtering.refine2d.refine_for_arbiter`,
     by their cache keys; the arbiter computes them itself otherwise)."""
-    cand = _coarse_candidate(pf, records, reference, sigma_db)
+    cands = _coarse_candidates(pf, records, reference, sigma_db)
     if not refine:
-        return cand, {}
+        return cands, {}
     from radiopose.filtering.refine2d import refine_for_arbiter
 
     cfg = pf.config
-    return cand, refine_for_arbiter(
-        pf.model, records, reference, cand, sigma_db, cfg, cfg.refine_max_nfev
-    )
+    cache: dict[tuple[object, ...], Refined2d] = {}
+    for cand in cands:
+        ahead = refine_for_arbiter(
+            pf.model, records, reference, cand, sigma_db, cfg, cfg.refine_max_nfev
+        )
+        cache.update(ahead)
+    return cands, cache
 
 
-def _coarse_candidate(
+def _coarse_candidates(
     pf: ParticleFilter,
     records: list[tuple[float, HeardRss, object]],
     reference: dict[object, FilterEstimate],
     sigma_db: float,
-) -> dict[object, FilterEstimate]:
-    """Session 13: the whole file's coarse-grid HMM path
-    (:func:`radiopose.filtering.coarse_track.coarse_track` at ``sigma_db``) as
-    one more arbiter candidate: ``reference``'s estimates with the path's x, y
-    and azimuth at each packet's time (height, pitch and roll kept)."""
-    from radiopose.filtering.coarse_track import coarse_track
+) -> list[dict[object, FilterEstimate]]:
+    """Session 13: the whole file's coarse-grid HMM paths
+    (:func:`radiopose.filtering.coarse_track.coarse_tracks` at ``sigma_db``,
+    ``FilterConfig.coarse_track_paths`` of them) as more arbiter candidates:
+    ``reference``'s estimates with a path's x, y and azimuth at each packet's
+    time (height, pitch and roll kept)."""
+    from radiopose.filtering.coarse_track import CoarseSettings, coarse_tracks
 
-    sig = sigma_db if math.isfinite(sigma_db) else pf.config.sigma_prior_db
-    ct = coarse_track(pf.model, records, max(sig, pf.config.sigma_floor_db),
-                      pf.config.reacquire_gap_s)  # fmt: skip
+    cfg = pf.config
+    sig = sigma_db if math.isfinite(sigma_db) else cfg.sigma_prior_db
+    settings = CoarseSettings(path_position_step_m=float(cfg.coarse_track_path_step_m))
+    cts = coarse_tracks(pf.model, records, max(sig, cfg.sigma_floor_db), cfg.reacquire_gap_s,
+                        settings, paths=cfg.coarse_track_paths)  # fmt: skip
     rows = [r for r in records if r[2] in reference]
-    if ct.window_times_s.size == 0 or not rows:
-        return dict(reference)
-    xy, az = ct.poses_at(np.array([r[0] for r in rows]))
-    out = dict(reference)
-    for (_, _, key), p, a in zip(rows, xy, az, strict=True):
-        e = reference[key]
-        out[key] = replace(
-            e,
-            position_m=(float(p[0]), float(p[1]), e.position_m[2]),
-            orientation_deg=(float(a), e.orientation_deg[1], e.orientation_deg[2]),
-        )
+    if cts[0].window_times_s.size == 0 or not rows:
+        return [dict(reference)]
+    out = []
+    for ct in cts:
+        xy, az = ct.poses_at(np.array([r[0] for r in rows]))
+        cand = dict(reference)
+        for (_, _, key), p, a in zip(rows, xy, az, strict=True):
+            e = reference[key]
+            cand[key] = replace(
+                e,
+                position_m=(float(p[0]), float(p[1]), e.position_m[2]),
+                orientation_deg=(float(a), e.orientation_deg[1], e.orientation_deg[2]),
+            )
+        out.append(cand)
     return out
 
 
