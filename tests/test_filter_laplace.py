@@ -123,6 +123,7 @@ def test_tracker_toml_key(tmp_path: Path) -> None:
 
 
 # ------------------------------------------------------- end to end: tuning seed 7784
+@pytest.mark.slow  # an option off by default (arbiter_laplace = false): session 14's cut
 def test_loud_laplace_leaves_the_wrong_lock() -> None:
     """Tuning seed 7784 (σ = 3 dB, device +6 dB): measured 0.44 m / 43.2° by
     default, 0.08 m / 2.0° with the Laplace term."""

@@ -136,6 +136,7 @@ def _loud_run(seed: int, **over: object) -> tuple[float, float]:
 grid = partial(_loud_run, offset_selection_grid_db=GRID_DB)
 
 
+@pytest.mark.slow  # an option off by default (offset_selection_grid_db = ()): session 14's cut
 def test_loud_grid_pass_leaves_the_wrong_lock() -> None:
     """Tuning seed 7628: measured 4.29 m / 121.4° by default, 0.12 m / 1.3° with
     the grid."""
@@ -145,6 +146,7 @@ def test_loud_grid_pass_leaves_the_wrong_lock() -> None:
     assert ori_deg < 5.0 and pos_m < 0.5
 
 
+@pytest.mark.slow  # an option off by default (offset_selection_grid_db = ()): session 14's cut
 def test_loud_runner_up_reversed_pass_reaches_the_truth() -> None:
     """Tuning seed 7662: measured 1.10 m / 93.9° with the grid alone (the +6 dB
     pass's reversed pass misses), 0.09 m / 1.6° with the runner-up's reversed

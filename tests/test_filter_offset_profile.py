@@ -151,6 +151,7 @@ def _loud_run(
     )
 
 
+@pytest.mark.slow  # an option off by default (offline_offset_profile = false): session 14's cut
 def test_round8_profile_pass_leaves_the_wrong_lock() -> None:
     """Tuning seed 7320, σ = 3 dB, device +6 dB: the default's tight passes ran at
     0 and +4.1 dB (pass 1's beliefs) and every arbiter candidate is metres off
@@ -163,6 +164,7 @@ def test_round8_profile_pass_leaves_the_wrong_lock() -> None:
     assert ori_deg < 5.0 and pos_m < 0.5
 
 
+@pytest.mark.slow  # an option off by default (offline_offset_profile = false): session 14's cut
 def test_round8_losing_profile_pass_is_no_arbiter_candidate() -> None:
     """Tuning seed 7301, σ = 3 dB, device +6 dB: the default is right (0.32 m,
     2.0°, the combined track); the profile's pass at +6.0 dB loses the evidence

@@ -96,6 +96,7 @@ def _loud_run(seed: int, sigma_db: float, over: dict) -> tuple[float, float]:
     return loud_run(seed, sigma_db, TrackerConfig(), **over)
 
 
+@pytest.mark.slow  # an option off by default (offline_offset_refit = false): session 14's cut
 def test_round7_evidence_penalty_moves_the_arbiters_choice_on_a_tuning_seed() -> None:
     """Tuning seed 7063, σ = 3 dB, +6 dB: the default keeps a mirror track at the
     wrong offset (134.9° / 12.7 m); round 7's evidence penalty moves the
