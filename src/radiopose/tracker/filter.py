@@ -228,8 +228,8 @@ class FilterMethod:
         forward = dict(chosen if best > 0 else kept + chosen)
         sigma_db = math.sqrt(state.sigma2_db2)
         candidates = [forward]
-        # session 13 (off by default): the coarse-grid HMM's path and its
-        # refinement on a child meanwhile (here at the end without a child)
+        # session 13 (on by default): the coarse-grid HMM's paths and their
+        # refinements on a child meanwhile (here at the end without a child)
         coarse_job: ForkedCall[_CoarseRefined] | None = None
         if pf.config.offline_coarse_track and _arbitrates(device) and workers > 1:
             coarse_job = try_fork(partial(_coarse_refined, pf, records, forward, sigma_db, True))
