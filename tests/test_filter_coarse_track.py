@@ -258,7 +258,7 @@ def test_refinements_computed_ahead_spare_the_arbiter_their_work(
     site = small_site()
     cfg = FilterConfig()
     cand = turned(site.truth, site.records, 3, 30)
-    ahead = refine2d.refine_for_arbiter(site.model, site.records, site.truth, cand, 0.5, cfg, 5)
+    ahead = refine2d.refine_for_arbiter(site.model, site.records, site.truth, [cand], 0.5, cfg, 5)
     assert len(ahead) == 1  # one track, the candidate's refinement only
     calls: list[int] = []
     refine0 = refine2d.refine_track_2d

@@ -428,10 +428,7 @@ def coarse_tracks(
     if paths < 1:
         raise InputError(f"coarse_track: paths = {paths!r} must be at least 1")
     tab = table or CoarseTable.build(model, cs.position_step_m, cs.azimuth_step_deg)
-    xs = np.unique(tab.poses[:, 0])
-    ys = np.unique(tab.poses[:, 1])
-    az = np.unique(tab.poses[:, 2])
-    shape = (xs.size, ys.size, az.size)
+    shape = _grid_shape(tab)
     offs = np.asarray(cs.offsets_db, dtype=float)
     kx = _kernel(cs.step_sd_cells)
     ka = _kernel(cs.turn_sd_cells)
@@ -477,7 +474,7 @@ def coarse_tracks(
     fine = cs.path_position_step_m
     if fine is not None and fine != cs.position_step_m:
         ptab = CoarseTable.build(model, fine, cs.azimuth_step_deg)
-        shape = (np.unique(ptab.poses[:, 0]).size, np.unique(ptab.poses[:, 1]).size, az.size)
+        shape = _grid_shape(ptab)
         terms = terms_on(ptab)
         kx = _kernel(cs.step_sd_cells * cs.position_step_m / fine)
     else:
@@ -491,6 +488,13 @@ def coarse_tracks(
             CoarseTrack(offs, ll, b, np.asarray(win_t), np.array([poses[c] for c in path]), tracks)
         )
     return out
+
+
+def _grid_shape(table: CoarseTable) -> tuple[int, int, int]:
+    """The grid's ``(nx, ny, na)``: its distinct x, y and azimuth values (its
+    poses run x, then y, then azimuth fastest: ``CoarseTable.build``)."""
+    nx, ny, na = (int(np.unique(table.poses[:, k]).size) for k in range(3))
+    return nx, ny, na
 
 
 def evidence_peaks(log_evidence: FloatArray) -> list[int]:

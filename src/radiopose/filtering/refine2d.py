@@ -555,18 +555,19 @@ def refine_for_arbiter(
     model: FilterModel,
     records: Sequence[tuple[float, HeardRss, object]],
     reference: dict[object, FilterEstimate],
-    candidate: dict[object, FilterEstimate],
+    candidates: Sequence[dict[object, FilterEstimate]],
     sigma_db: float,
     config: FilterConfig,
     max_nfev: int,
 ) -> dict[tuple[object, ...], Refined2d]:
-    """The refinements :func:`arbitrate` would compute for ``candidate`` with
+    """The refinements :func:`arbitrate` would compute for ``candidates`` with
     ``reference`` as its ``candidates[0]`` (the same ``records``, σ, settings),
     by their cache keys: computed ahead (e.g. on another process) and handed to
     a later :func:`arbitrate` through its ``cache``, they spare it that work
-    (the same input, the same result)."""
+    (the same input, the same result; a track identical in two candidates is
+    refined once)."""
     _, _, sig, jobs, keys, job_of = _refinement_jobs(
-        records, [reference, candidate], sigma_db, config, max_nfev
+        records, [reference, *candidates], sigma_db, config, max_nfev
     )
     mine = {q for row in job_of for q in row[1:] if q is not None}
     out: dict[tuple[object, ...], Refined2d] = {}

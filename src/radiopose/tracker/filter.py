@@ -30,7 +30,7 @@ import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import partial
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -218,10 +218,6 @@ class FilterMethod:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
         if not (_reverses(device) or _arbitrates(device)):
             return _as_delayed(chosen)
-        # (imported here: scipy.optimize pulls scipy.spatial, which a plain
-        # offline locate does not import; tests/test_startup_cache.py)
-        from radiopose.filtering.refine2d import arbitrate
-
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
@@ -255,16 +251,10 @@ class FilterMethod:
                 job: ForkedCall[ReversedRun] | None = None
                 if ahead is None and workers > 1 and _arbitrates(device):
                     job = try_fork(partial(run_reversed, pf, records, passes[best].centre_db, seed))
-                try:
-                    if _arbitrates(device) and (
-                        job is not None or (ahead is not None and not ahead.ready())
-                    ):
-                        arbitrate(pf.model, records, [forward, *others], sigma_db, pf.config,
-                                  pf.config.refine_max_nfev, cache=cache)  # fmt: skip
-                except BaseException:
-                    if job is not None:
-                        job.cancel()
-                    raise
+                if _arbitrates(device) and (
+                    job is not None or (ahead is not None and not ahead.ready())
+                ):
+                    _refine_meanwhile(pf, records, [forward, *others], sigma_db, cache, job)
                 pre = ahead.take(records) if ahead is not None else result_or_none(job)
                 rev: dict[object, FilterEstimate] = {}
                 combined, _ = reverse_pass(
@@ -286,14 +276,8 @@ class FilterMethod:
         candidates += others
         if coarse_job is not None and not coarse_job.ready():
             # session 14: while the child runs the HMM, the other candidates'
-            # refinements here (the arbiter below finds them in the cache; the
-            # same refinements as its own, so the estimates do not change)
-            try:
-                arbitrate(pf.model, records, candidates, sigma_db, pf.config,
-                          pf.config.refine_max_nfev, cache=cache)  # fmt: skip
-            except BaseException:
-                coarse_job.cancel()
-                raise
+            # refinements here (the same as the arbiter's own below)
+            _refine_meanwhile(pf, records, candidates, sigma_db, cache, coarse_job)
         hand = [0.0] * len(candidates)
         if pf.config.offline_coarse_track:
             got = result_or_none(coarse_job)
@@ -336,6 +320,31 @@ def _more_reversed(
     return [rev for rev, _ in map_forked(calls, workers)]
 
 
+def _refine_meanwhile(
+    pf: ParticleFilter,
+    records: list[tuple[float, HeardRss, object]],
+    candidates: list[dict[object, FilterEstimate]],
+    sigma_db: float,
+    cache: dict[tuple[object, ...], Refined2d],
+    job: ForkedCall[Any] | None,
+) -> None:
+    """The arbiter's refinements of ``candidates`` (``candidates[0]`` its
+    reference) into ``cache`` while ``job``'s child works: the arbiter later
+    finds them there (the same refinements as its own, so the estimates do not
+    change). The child is killed if this raises."""
+    # (imported here: scipy.optimize pulls scipy.spatial, which a plain offline
+    # locate does not import; tests/test_startup_cache.py)
+    from radiopose.filtering.refine2d import arbitrate
+
+    try:
+        cfg = pf.config
+        arbitrate(pf.model, records, candidates, sigma_db, cfg, cfg.refine_max_nfev, cache=cache)
+    except BaseException:
+        if job is not None:
+            job.cancel()
+        raise
+
+
 _CoarseRefined = tuple[list[dict[object, FilterEstimate]], dict[tuple[object, ...], "Refined2d"]]
 
 
@@ -356,13 +365,9 @@ def _coarse_refined(
     from radiopose.filtering.refine2d import refine_for_arbiter
 
     cfg = pf.config
-    cache: dict[tuple[object, ...], Refined2d] = {}
-    for cand in cands:
-        ahead = refine_for_arbiter(
-            pf.model, records, reference, cand, sigma_db, cfg, cfg.refine_max_nfev
-        )
-        cache.update(ahead)
-    return cands, cache
+    return cands, refine_for_arbiter(
+        pf.model, records, reference, cands, sigma_db, cfg, cfg.refine_max_nfev
+    )
 
 
 def _coarse_candidates(
@@ -386,9 +391,10 @@ def _coarse_candidates(
     rows = [r for r in records if r[2] in reference]
     if cts[0].window_times_s.size == 0 or not rows:
         return [dict(reference)]
+    times_s = np.array([r[0] for r in rows])
     out = []
     for ct in cts:
-        xy, az = ct.poses_at(np.array([r[0] for r in rows]))
+        xy, az = ct.poses_at(times_s)
         cand = dict(reference)
         for (_, _, key), p, a in zip(rows, xy, az, strict=True):
             e = reference[key]
