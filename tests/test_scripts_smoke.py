@@ -251,8 +251,18 @@ def test_real_data_ablation(capsys: pytest.CaptureFixture[str]) -> None:
     assert _table_rows(printed)
 
 
+def test_coarse3d_lead(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["--seeds", "9000", "--no-pipeline", "--duration-s", "1"]
+    printed = _run(SCRIPTS / "coarse3d_lead.py", argv, capsys)
+    rows = _table_rows(printed)[2:]
+    assert [row.split("|")[1].strip() for row in rows] == ["9000"]
+    position_m = float(rows[0].split("|")[3].split("/")[0])
+    assert 0.0 <= position_m < 10.0  # a path inside the 10 m site
+
+
 SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "accuracy_table": test_accuracy_table,
+    "coarse3d_lead": test_coarse3d_lead,
     "enrol_mitll": test_enrol_mitll,
     "filter_accuracy": test_filter_accuracy,
     "filter_scenarios": test_filter_scenarios,
