@@ -5,12 +5,12 @@ the hand-held scenario is simulated (6 receivers, σ 1 dB, 4 s by default); the
 3-D filter's acquisition grid (:class:`radiopose.filtering.particle3d.CoarseGrid`)
 scores every 0.1 s window's median RSS at offset 0 (``Σ w (y − E)² / 2``,
 ``w = n / ((π/2) σ² + σ_g² n)``), height, pitch and roll are minimised per
-(x, y, azimuth) cell, and the Viterbi path over (x, y, azimuth)
-(:func:`radiopose.filtering.coarse_track._viterbi_path`; a walk of 0.35 m and
-9° per window) is compared with the truth at the windows' times, beside the
-default offline ``locate``'s errors (unless ``--no-pipeline``). Nothing in
-the pipeline uses this: it measures whether the search would find the right
-mode where the pipeline does not.
+(x, y, azimuth) cell, and the Viterbi path over (x, y, azimuth) (a walk of
+0.35 m and 9° per window; since 2026-11-28 computed by
+:mod:`radiopose.filtering.coarse3d`, which the optional refinement start
+``refine_coarse_path`` uses: the same path) is compared with the truth at the
+windows' times, beside the default offline ``locate``'s errors (unless
+``--no-pipeline``).
 
 Usage (tuning seeds only)::
 
@@ -20,7 +20,6 @@ Usage (tuning seeds only)::
 from __future__ import annotations
 
 import argparse
-import math
 import time
 from dataclasses import replace
 
@@ -28,8 +27,7 @@ import numpy as np
 
 from radiopose.evaluate.pose3d import axis_errors
 from radiopose.filtering import particle3d
-from radiopose.filtering.coarse_track import _kernel, _viterbi_path
-from radiopose.filtering.offset_profile import timed_windows
+from radiopose.filtering.coarse3d import CoarseScorer, read_windows, window_path
 from radiopose.likelihood import candidate_space
 from radiopose.packets import group_packets
 from radiopose.simulate.handheld import HandheldConfig, Simulation, simulate_handheld
@@ -51,44 +49,20 @@ def _azimuth_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def coarse_path(
     sim: Simulation, sigma_db: float, grid_sigma_db: float = 1.5
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The windows' mean times (s) and the Viterbi path's x, y (m), azimuth (°)."""
+    """The windows' mean times (s) and the Viterbi path's x, y (m), azimuth (°)
+    at offset 0 (:func:`radiopose.filtering.coarse3d.window_path`, the tilts
+    and height minimised per cell)."""
     obs = group_packets(sim.packets)
     space = candidate_space(sim.site, obs[0].transmitter)
     model = particle3d.FilterModel3d.build3d(sim.site, space, particle3d.Pose3dConfig())
-    grid = model.coarse
-    assert grid is not None
-    pos, ori = grid.positions_m, grid.orientations_deg
-    table = grid.table_dbm.astype(np.float64)
-    xs, ys = np.unique(pos[:, 0]), np.unique(pos[:, 1])
-    azs = np.unique(ori[:, 0])
-    shape = (xs.size, ys.size, azs.size)
-    # each (orientation, position) row's cell of (x, y, azimuth)
-    cell = (
-        (np.searchsorted(xs, pos[:, 0])[None, :] * shape[1] + np.searchsorted(ys, pos[:, 1]))
-        * shape[2]
-        + np.searchsorted(azs, ori[:, 0])[:, None]
-    ).ravel()
-    records = [(o.timestamp_s, space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
-    costs: list[np.ndarray] = []
-    times: list[float] = []
-    for heard, n, t in timed_windows(records, 0.1):
-        if heard.n_heard < 3:
-            continue
-        w = n / ((math.pi / 2) * sigma_db**2 + grid_sigma_db**2 * n)
-        e = np.asarray(heard.rss_dbm)[None, :] - table[:, np.asarray(heard.receiver_index)]
-        best = np.full(math.prod(shape), np.inf)
-        np.minimum.at(best, cell, 0.5 * (e * e) @ w)  # height, pitch, roll minimised
-        costs.append(best)
-        times.append(t)
-    read = [(0 if q == 0 else 1, None, None) for q in range(len(costs))]
-    step_m = float(np.min(np.diff(xs)))
-    lx = np.log(_kernel(0.35 / step_m))
-    la = np.log(_kernel(9.0 / float(azs[1] - azs[0])))
-    path = _viterbi_path(
-        read, np.zeros(len(costs), dtype=np.int64),
-        lambda q: (costs[q], np.zeros_like(costs[q]), 0.0), 0.0, shape, lx, la,
-    )  # fmt: skip
-    return np.array(times), np.array([[xs[i], ys[j], azs[a]] for i, j, a in path])
+    assert model.coarse is not None
+    t = np.array([o.timestamp_s for o in obs])
+    wins = read_windows(t, [space.heard(o) for o in obs], sigma_db, grid_sigma_db, 0.1)
+    sc = CoarseScorer(model.coarse)
+    cells, _ = window_path(sc, wins, 0.0, 0.35, 9.0)
+    xs, ys, azs = sc.axes[3], sc.axes[4], sc.axes[2]
+    path = np.column_stack([xs[cells[:, 0]], ys[cells[:, 1]], azs[cells[:, 2]]])
+    return np.array([w.time_s for w in wins]), path
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -364,3 +364,23 @@ def test_refine_is_a_boolean(tmp_path: Path):
     with pytest.raises(InputError) as exc:
         read_tracker_settings(p)
     assert exc.value.column == "filter.pose3d.refine" and "\n" not in str(exc.value)
+
+
+def test_the_coarse_path_keys_read_and_bad_ones_are_one_line_errors(tmp_path: Path):
+    """``refine_coarse_path`` (a boolean), its walk and its number of paths read
+    from ``[filter.pose3d]``; 9 paths and a zero walk are one-line errors
+    naming the key."""
+    p = _write(
+        tmp_path,
+        "[filter.pose3d]\nrefine_coarse_path = true\nrefine_coarse_paths = 3\n"
+        "refine_coarse_walk_m = 0.5\nrefine_coarse_walk_deg = 12.0\n",
+    )
+    cfg = read_tracker_settings(p).pose3d()
+    assert cfg.refine_coarse_path is True and cfg.refine_coarse_paths == 3
+    assert (cfg.refine_coarse_walk_m, cfg.refine_coarse_walk_deg) == (0.5, 12.0)
+    for line, key in (("refine_coarse_paths = 9", "refine_coarse_paths"),
+                      ("refine_coarse_walk_m = 0.0", "refine_coarse_walk_m")):  # fmt: skip
+        p = _write(tmp_path, f"[filter.pose3d]\n{line}\n")
+        with pytest.raises(InputError) as exc:
+            read_tracker_settings(p)
+        assert exc.value.column == f"filter.pose3d.{key}" and "\n" not in str(exc.value)

@@ -89,6 +89,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_polish_margin": (0.0, 1e9),
     "refine_polish_switch": (0.0, 1e9),
     "refine_restarts": (0, 100),
+    "refine_coarse_paths": (1, 8),
     "offline_n_particles": (0, 1_000_000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,

@@ -79,6 +79,8 @@ MAX_RESTARTS = 100
 """Most offline mid-track restarts (``Pose3dConfig.refine_restarts``)."""
 MAX_PARTICLES = 1_000_000
 """Most particles per device (``Pose3dConfig.offline_n_particles``)."""
+MAX_COARSE_PATHS = 8
+"""Most coarse-HMM paths as refinement starts (``Pose3dConfig.refine_coarse_paths``)."""
 
 
 @dataclass(frozen=True)
@@ -253,6 +255,20 @@ class Pose3dConfig:
     refine_anneal_keep_direct
         With ``refine_anneal_sigma``: also refine each start at σ directly and
         keep the lower objective of the two (default off).
+    refine_coarse_path
+        Offline refinement (session 15): also refine from the most likely path
+        of a whole-file coarse HMM over (x, y, azimuth) on the acquisition
+        grid, height, pitch and roll minimised per cell
+        (:func:`radiopose.filtering.coarse3d.coarse_path3d`; docs/pose3d.md,
+        "A coarse-path start, 2026-11-28"): a start that no particle filter's
+        acquisition decides.
+    refine_coarse_walk_m, refine_coarse_walk_deg
+        The coarse HMM's random walk per 0.1 s window: position (m) and
+        azimuth (°) standard deviations.
+    refine_coarse_paths
+        With ``refine_coarse_path``: the paths at up to this many local maxima
+        of the coarse HMM's evidence over the device offset, the largest
+        first (1: the best offset's path only).
     """
 
     n_particles: int = 2000
@@ -295,6 +311,10 @@ class Pose3dConfig:
     offline_n_particles: int = 0
     refine_anneal_sigma: tuple[float, ...] = ()
     refine_anneal_keep_direct: bool = False
+    refine_coarse_path: bool = False
+    refine_coarse_walk_m: float = 0.35
+    refine_coarse_walk_deg: float = 9.0
+    refine_coarse_paths: int = 1
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
@@ -308,6 +328,7 @@ class Pose3dConfig:
             "angular_accel_noise_dps2", "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
             "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
             "heading_prior_time_s", "heading_prior_speed_mps", "offset_bank_sd_db",
+            "refine_coarse_walk_m", "refine_coarse_walk_deg",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -347,6 +368,11 @@ class Pose3dConfig:
             raise InputError(
                 f"3-D filter setting refine_anneal_sigma = {list(self.refine_anneal_sigma)!r} "
                 "must be factors in (1, 100], largest first"
+            )
+        if not (1 <= self.refine_coarse_paths <= MAX_COARSE_PATHS):
+            n = self.refine_coarse_paths
+            raise InputError(
+                f"3-D filter setting refine_coarse_paths = {n!r} must be in [1, {MAX_COARSE_PATHS}]"
             )
         if self.refine_polish_starts < 0:
             n = self.refine_polish_starts

@@ -627,6 +627,13 @@ def packet_costs(
     return np.bincount(pkt, weights=rho, minlength=n).astype(np.float64)
 
 
+CoarseStart = Callable[
+    [FloatArray, Sequence[HeardRss], float], Sequence[tuple[FloatArray, FloatArray, float]]
+]
+"""Starts from a track's packets: ``(times s, heard, σ dB) → [(positions m,
+orientations °, offset dB), …]``, poses per packet (:func:`refine_smoothed`)."""
+
+
 def _same_start(
     a: tuple[FloatArray, FloatArray, float], b: tuple[FloatArray, FloatArray, float]
 ) -> bool:
@@ -651,6 +658,7 @@ def refine_smoothed(
     polish_switch: float = 0.0,
     anneal_sigma: Sequence[float] = (),
     anneal_keep_direct: bool = False,
+    coarse_start: CoarseStart | None = None,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -688,7 +696,14 @@ def refine_smoothed(
     continuation: a larger σ weighs the data less against the motion prior,
     docs/pose3d.md "Annealed refinement"); with ``anneal_keep_direct`` each
     start is also refined at σ directly and the lower objective of the two is
-    that start's result.
+    that start's result. ``coarse_start`` (optional): a function of a track's
+    packet times (s), heard readings and σ (dB) returning more starts, each
+    positions (m) and orientations (°) per packet and an offset (dB) (the
+    whole-file coarse HMM's paths:
+    :func:`radiopose.filtering.coarse3d.coarse_paths3d`); each is refined and
+    competes like the others (polished only within the margin: forcing its
+    polish let a coarse path's mirror win over the filter's track on a tuning
+    seed, docs/pose3d.md).
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -731,6 +746,8 @@ def refine_smoothed(
         t_rows = np.array([r[0] for r in rows])
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
+        if coarse_start is not None:
+            inits += coarse_start(t_rows, h_rows, sigma)
 
         def solve(
             pos: FloatArray,

@@ -65,7 +65,9 @@ from radiopose.tracker.reasons import (
 )
 
 if TYPE_CHECKING:
+    from radiopose.filtering.particle3d import ParticleFilter3d
     from radiopose.filtering.refine2d import Refined2d
+    from radiopose.filtering.refine3d import CoarseStart
 
 
 @dataclass(frozen=True)
@@ -617,7 +619,22 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
         polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
         polish_switch=p3.refine_polish_switch, anneal_sigma=p3.refine_anneal_sigma,
-        anneal_keep_direct=p3.refine_anneal_keep_direct,
+        anneal_keep_direct=p3.refine_anneal_keep_direct, coarse_start=_coarse_start(pf),
+    )  # fmt: skip
+
+
+def _coarse_start(pf: ParticleFilter3d) -> CoarseStart | None:
+    """The whole-file coarse HMM's paths as refinement starts, when
+    ``Pose3dConfig.refine_coarse_path`` is on (docs/pose3d.md, "A coarse-path
+    start, 2026-11-28")."""
+    from radiopose.filtering.coarse3d import coarse_paths3d
+
+    p3, grid = pf.pose3d, pf.model3d.coarse
+    if not p3.refine_coarse_path or grid is None:
+        return None
+    return partial(
+        coarse_paths3d, grid, walk_m=p3.refine_coarse_walk_m, walk_deg=p3.refine_coarse_walk_deg,
+        offset_prior_sd_db=pf.config.offset_prior_sd_db, paths=p3.refine_coarse_paths,
     )  # fmt: skip
 
 
