@@ -66,7 +66,8 @@ def test_window_index_and_its_error():
 def test_the_compiled_profile_is_numpys(scene):
     """:func:`_profile` equals the cost of every grid row minimised over height
     by numpy, per (x, y, azimuth, pitch, roll) cell, at several offsets, for a
-    window of four receivers; the best height at a cell is that minimum's."""
+    window of four receivers (and over the tilts too without them); the best
+    rows at a cell are that minimum's."""
     _, model, _, _ = scene
     grid = model.coarse
     _, shape = _axes(grid)
@@ -84,9 +85,14 @@ def test_the_compiled_profile_is_numpys(scene):
         want = row.transpose(3, 4, 2, 0, 1, 5).min(axis=5)
         np.testing.assert_allclose(got[..., j], want, rtol=1e-5, atol=1e-6)
     cell = (2, 3, 5, 1, 2)
-    k = sc.best_height(win, 0.0, cell)
     rows = (0.5 * (e**2) @ w).reshape(shape).transpose(3, 4, 2, 0, 1, 5)
-    assert rows[cell][k] == pytest.approx(got[(*cell, 1)])
+    ip, ir, k = sc.best_rows(win, 0.0, cell)
+    assert (ip, ir) == cell[3:] and rows[cell][k] == pytest.approx(got[(*cell, 1)])
+    # over every tilt too: the cost minimised over pitch, roll and height there
+    flat = sc.cost(win, offs, tilts=False)
+    np.testing.assert_allclose(flat, got.min(axis=(3, 4)), rtol=1e-12)
+    ip, ir, k = sc.best_rows(win, 0.0, cell[:3])
+    assert rows[(*cell[:3], ip, ir)][k] == pytest.approx(flat[(*cell[:3], 1)])
 
 
 def _brute_force(cost, steps_before, log_k, wraps):

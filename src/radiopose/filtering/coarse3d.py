@@ -279,9 +279,7 @@ class CoarseScorer:
         n_pitch, n_roll, n_az, nx, ny, _ = self.shape
         self.cells = (nx, ny, n_az, n_pitch, n_roll)
 
-    def cost(
-        self, window: CoarseWindow, offsets_db: FloatArray, tilts: bool = True
-    ) -> FloatArray:
+    def cost(self, window: CoarseWindow, offsets_db: FloatArray, tilts: bool = True) -> FloatArray:
         """``(nx, ny, n_az, n_pitch, n_roll, m)``: the window's cost per cell and
         offset (nats), height minimised; without ``tilts`` ``(nx, ny, n_az, m)``,
         pitch and roll minimised too."""
@@ -293,17 +291,26 @@ class CoarseScorer:
             return out.reshape(*self.cells, offsets_db.size)
         return out[:, :, :, 0, :]
 
-    def best_height(self, window: CoarseWindow, offset_db: float, cell: tuple[int, ...]) -> int:
-        """The height index minimising the window's cost at ``cell`` (x, y,
-        azimuth, pitch, roll indices) and ``offset_db``."""
-        _, n_roll, n_az, nx, ny, nz = self.shape
-        ix, iy, ia, ip, ir = cell
-        rows = (((ip * n_roll + ir) * n_az + ia) * (nx * ny * nz) + (ix * ny + iy) * nz
-                + np.arange(nz))  # fmt: skip
+    def best_rows(
+        self, window: CoarseWindow, offset_db: float, cell: tuple[int, ...]
+    ) -> tuple[int, int, int]:
+        """The (pitch, roll, height) indices minimising the window's cost at
+        ``cell``: ``(x, y, azimuth)`` indices (over every pitch and roll) or
+        ``(x, y, azimuth, pitch, roll)`` (over the heights), at ``offset_db``."""
+        n_pitch, n_roll, n_az, nx, ny, nz = self.shape
+        ix, iy, ia = cell[:3]
+        ip, ir, iz = np.meshgrid(
+            np.arange(n_pitch) if len(cell) == 3 else np.array([cell[3]]),
+            np.arange(n_roll) if len(cell) == 3 else np.array([cell[4]]),
+            np.arange(nz),
+            indexing="ij",
+        )
+        rows = ((ip * n_roll + ir) * n_az + ia) * (nx * ny * nz) + (ix * ny + iy) * nz + iz
         e = (window.median_dbm - offset_db)[None, :] - self.table[
-            rows[:, None], window.receivers[None, :]
+            rows.ravel()[:, None], window.receivers[None, :]
         ]
-        return int(np.argmin((e * e) @ window.weight))
+        k = int(np.argmin((e * e) @ window.weight))
+        return int(ip.ravel()[k]), int(ir.ravel()[k]), int(iz.ravel()[k])
 
 
 def offset_evidence(
@@ -446,10 +453,9 @@ def window_path(
             steps, lambda q: sc.cost(wins[q], b, tilts=False)[..., 0], sc.cells[:3],
             [np.log(kx), np.log(kx), np.log(ka)], [False, False, True],
         )  # fmt: skip
-        path: list[tuple[int, ...]] = []
-        for w, (i, j, a) in zip(wins, path3, strict=True):
-            k = int(np.argmin(sc.cost(w, b)[i, j, a, :, :, 0]))
-            path.append((i, j, a, *(int(v) for v in np.unravel_index(k, sc.cells[3:]))))
+        best = [sc.best_rows(w, offset_db, c) for w, c in zip(wins, path3, strict=True)]
+        cells = np.array([(*c, ip, ir) for c, (ip, ir, _) in zip(path3, best, strict=True)])
+        return cells.astype(np.int64), np.array([iz for _, _, iz in best], dtype=np.int64)
     else:
         rolls = axes[1]
         span = rolls[-1] - rolls[0] + (np.mean(np.diff(rolls)) if rolls.size > 1 else 0.0)
@@ -461,7 +467,7 @@ def window_path(
             [False, False, True, False, roll_wraps],
         )  # fmt: skip
     cells = np.array(path, dtype=np.int64)  # (windows, 5): ix, iy, iaz, ipitch, iroll
-    iz = np.array([sc.best_height(w, offset_db, c) for w, c in zip(wins, path, strict=True)])
+    iz = np.array([sc.best_rows(w, offset_db, c)[2] for w, c in zip(wins, path, strict=True)])
     return cells, iz
 
 
