@@ -229,7 +229,7 @@ def test_too_few_receivers_give_no_path_and_bad_settings_are_errors(scene):
         coarse_paths3d(model.coarse, t, heard, 1.0, paths=0)
     with pytest.raises(InputError, match="tilt_walk_deg"):
         coarse_paths3d(model.coarse, t, heard, 1.0, tilt_walk_deg=-1.0)
-    assert not Pose3dConfig().refine_coarse_path
+    assert Pose3dConfig().refine_coarse_path  # the default since 2026-11-28
 
 
 def test_the_refinement_takes_the_coarse_start_when_the_filters_are_wrong(scene):

@@ -109,19 +109,26 @@ def test_refinement_runs_offline_only(monkeypatch):
     polish = Pose3dConfig().refine_polish_starts  # the constant-rate prior's polish (default on)
     assert polish == 3
     # the chosen track, each member's (a member's track equal to the chosen one
-    # is refined once), the reversed pass's track, at most one hybrid start
-    # spliced from them, then up to three distinct refined tracks polished with
-    # the constant-rate prior
+    # is refined once), the reversed pass's track, the coarse HMM's path, at
+    # most one hybrid start spliced from them, then up to three distinct
+    # refined tracks polished with the constant-rate prior
     assert calls and set(calls) == {n}
-    assert 2 + n_members <= len(calls) <= 3 + n_members + polish
+    assert 3 + n_members <= len(calls) <= 4 + n_members + polish
     assert np.all(off.estimates.position_m == 1.234)
     calls.clear()
     one = TrackerConfig()
     one = replace(
-        one, pose3d=replace(one.pose3d, refine_from_members=False, refine_reverse_pass=False)
-    )
+        one,
+        pose3d=replace(one.pose3d, refine_from_members=False, refine_reverse_pass=False,
+                       refine_coarse_path=False),
+    )  # fmt: skip
     locate(sim.site, sim.packets, "filter", one)
     assert calls == [n, n]  # the chosen track, then its polish
+    calls.clear()
+    locate(sim.site, sim.packets, "filter",
+           replace(one, pose3d=replace(one.pose3d, refine_coarse_path=True)))  # fmt: skip
+    # the chosen track and the coarse path's, at most one hybrid, 1–2 polished
+    assert 3 <= len(calls) <= 5 and set(calls) == {n}
     calls.clear()
     walks = replace(one, pose3d=replace(one.pose3d, refine_tilt_accel_noise_dps2=0.0,
                                         refine_height_accel_noise_mps2=0.0))  # fmt: skip
