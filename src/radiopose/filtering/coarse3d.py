@@ -16,12 +16,17 @@ This is its 3-D analogue:
 * the packets are read in windows of ``window_s``: per window and receiver
   the median RSS of its ``n`` readings, scored at every grid pose as
   ``Σ w (y − E − b)² / 2`` with ``w = n / ((π/2) σ² + σ_g² n)`` (the median's
-  variance plus the grid's coarseness ``σ_g``, as in 2-D), at the start's
+  variance plus the grid's coarseness ``σ_g``, as in 2-D), at a device
   offset ``b``; windows with fewer than three receivers are not read;
-* height, pitch and roll are minimised per (x, y, azimuth) cell: the HMM's
-  state is (x, y, azimuth), whose walk is the 2-D one (a Gaussian random
-  walk of ``walk_m`` and ``walk_deg`` per window, azimuth wrapping); the
-  most likely path is :func:`radiopose.filtering.coarse_track._viterbi_path`;
+* height, pitch and roll are minimised per (x, y, azimuth) cell (a compiled
+  kernel, :func:`_profile`): the HMM's state is (x, y, azimuth), whose walk
+  is the 2-D one (a Gaussian random walk of ``walk_m`` and ``walk_deg`` per
+  window, azimuth wrapping);
+* the offset ``b`` is the one of :data:`OFFSETS_DB` whose forward-algorithm
+  evidence plus the offset prior is largest (:func:`offset_evidence`; with
+  ``paths`` > 1 also the next local maxima);
+* the most likely path is :func:`viterbi_nd` (optionally with pitch and roll
+  as walking states, ``tilt_walk_deg``: measured, not better);
 * the path becomes a start of one pose per packet: x, y and azimuth
   interpolated linearly in time between the read windows' mean times (held
   beyond the first and last), height, pitch and roll those that minimised
