@@ -77,7 +77,7 @@ def test_the_compiled_profile_is_numpys(scene):
     w = rng.uniform(0.2, 1.0, rx.size)
     offs = np.array([-3.0, 0.0, 2.5])
     sc = CoarseScorer(grid)
-    win = CoarseWindow(0, rx, med, w, np.arange(1), 0.0)
+    win = CoarseWindow(0, rx, med, w, 0.0)
     got = sc.cost(win, offs)
     e = med[None, :] - grid.table_dbm[:, rx].astype(float)
     for j, b in enumerate(offs):
@@ -186,7 +186,7 @@ def test_more_paths_are_at_other_offsets_and_tilts_can_walk(scene, monkeypatch):
     offs = np.array(c3.OFFSETS_DB)
     ll = -np.abs(offs) * 3.0
     ll[offs == -4.0], ll[offs == 3.0] = -1.0, -2.0
-    monkeypatch.setattr(c3, "offset_evidence", lambda *a, **k: ll)
+    monkeypatch.setattr(c3, "_evidence", lambda *a, **k: ll)
     one = coarse_path3d(model.coarse, t, heard, 1.0)
     three = coarse_paths3d(model.coarse, t, heard, 1.0, paths=3)
     assert [p[2] for p in three] == [0.0, -4.0, 3.0]

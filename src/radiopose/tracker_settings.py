@@ -37,7 +37,7 @@ from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import SMOOTHERS
 from radiopose.filtering.particle import LIKELIHOODS
 from radiopose.filtering.particle3d import ESTIMATES as POSE3D_ESTIMATES
-from radiopose.filtering.particle3d import Pose3dConfig
+from radiopose.filtering.particle3d import MAX_COARSE_PATHS, Pose3dConfig
 
 if TYPE_CHECKING:  # the tracker package loads the registry: imported only when asked
     from radiopose.tracker.config import TrackerConfig
@@ -89,7 +89,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_polish_margin": (0.0, 1e9),
     "refine_polish_switch": (0.0, 1e9),
     "refine_restarts": (0, 100),
-    "refine_coarse_paths": (1, 8),
+    "refine_coarse_paths": (1, MAX_COARSE_PATHS),
     "offline_n_particles": (0, 1_000_000),
 }
 """Accepted range of each ``[filter.pose3d]`` key: ``[low, high]`` for an integer field,

@@ -100,13 +100,12 @@ def _medians(
 @dataclass(frozen=True)
 class CoarseWindow:
     """One read window: the walk steps before it (0: the first), its receivers,
-    their median RSS (dBm) and weights (1/dB²), its packets and their mean time (s)."""
+    their median RSS (dBm) and weights (1/dB²), and its packets' mean time (s)."""
 
     steps: int
     receivers: np.ndarray
     median_dbm: FloatArray
     weight: FloatArray
-    members: np.ndarray
     time_s: float
 
 
@@ -128,7 +127,7 @@ def read_windows(
         w_idx = int(win[members[0]])
         w = n / ((math.pi / 2) * sigma_db**2 + grid_sigma_db**2 * n)
         steps = w_idx - last if out else 0
-        out.append(CoarseWindow(steps, ids, med, w, members, float(np.mean(times_s[members]))))
+        out.append(CoarseWindow(steps, ids, med, w, float(np.mean(times_s[members]))))
         last = w_idx
     return out
 
@@ -227,6 +226,7 @@ def viterbi_nd(
         raise InputError("viterbi_nd: one kernel and one wrap flag per axis")
     views = [(math.prod(shape[:k]), shape[k], math.prod(shape[k + 1 :])) for k in range(nd)]
     buf = np.empty(shape)
+    scratch = np.zeros((nd, *shape), dtype=np.int8)  # the back-pointers a pass drops
 
     def advance(delta: FloatArray, q: int, keep: bool) -> list[np.ndarray]:
         backs: list[np.ndarray] = []
@@ -234,7 +234,7 @@ def viterbi_nd(
             delta[:] = -cost(q)
             return backs
         for _ in range(steps[q]):
-            arg = np.zeros((nd, *shape), dtype=np.int8)
+            arg = np.zeros((nd, *shape), dtype=np.int8) if keep else scratch
             for k in reversed(range(nd)):  # last axis first
                 _max_axis(delta.reshape(views[k]), buf.reshape(views[k]),
                           arg[k].reshape(views[k]), log_kernels[k], wraps[k])  # fmt: skip
@@ -338,7 +338,13 @@ def offset_evidence(
     wins = read_windows(np.asarray(times_s, float), heard, sigma_db, grid_sigma_db, window_s)
     if not wins:
         return np.full(offs.size, -np.inf)
-    sc = CoarseScorer(grid)
+    return _evidence(CoarseScorer(grid), wins, offs, walk_m, walk_deg)
+
+
+def _evidence(
+    sc: CoarseScorer, wins: list[CoarseWindow], offs: FloatArray, walk_m: float, walk_deg: float
+) -> FloatArray:
+    """:func:`offset_evidence` over windows already read (not empty)."""
     kx, ka = _walks(sc, walk_m, walk_deg)
     flat = sc.cells[:3]
     alpha = np.empty((offs.size, *flat))
@@ -419,14 +425,13 @@ def coarse_paths3d(
     wins = read_windows(t, heard, sigma_db, grid_sigma_db, window_s)
     if not wins:
         return []
+    sc = CoarseScorer(grid)
     chosen: list[float] = [] if offset_db is None else [float(offset_db)]
     if offset_db is None:
         offs = np.asarray(offsets_db, dtype=float)
-        ll = offset_evidence(grid, t, heard, sigma_db, tuple(offs.tolist()), window_s, walk_m,
-                             walk_deg, grid_sigma_db)  # fmt: skip
+        ll = _evidence(sc, wins, offs, walk_m, walk_deg)
         score = ll - 0.5 * (offs / offset_prior_sd_db) ** 2
         chosen = [float(offs[i]) for i in evidence_peaks(score)[:paths]]
-    sc = CoarseScorer(grid)
     return [_path(sc, wins, t, b, walk_m, walk_deg, tilt_walk_deg) for b in chosen]
 
 
@@ -461,16 +466,15 @@ def window_path(
         best = [sc.best_rows(w, offset_db, c) for w, c in zip(wins, path3, strict=True)]
         cells = np.array([(*c, ip, ir) for c, (ip, ir, _) in zip(path3, best, strict=True)])
         return cells.astype(np.int64), np.array([iz for _, _, iz in best], dtype=np.int64)
-    else:
-        rolls = axes[1]
-        span = rolls[-1] - rolls[0] + (np.mean(np.diff(rolls)) if rolls.size > 1 else 0.0)
-        roll_wraps = bool(rolls.size > 1 and span >= 359.0)
-        path = viterbi_nd(
-            steps, lambda q: sc.cost(wins[q], b)[..., 0], sc.cells,
-            [np.log(kx), np.log(kx), np.log(ka), np.log(_tilt_kernel(axes[0], tilt_walk_deg)),
-             np.log(_tilt_kernel(rolls, tilt_walk_deg))],
-            [False, False, True, False, roll_wraps],
-        )  # fmt: skip
+    rolls = axes[1]
+    span = rolls[-1] - rolls[0] + (np.mean(np.diff(rolls)) if rolls.size > 1 else 0.0)
+    roll_wraps = bool(rolls.size > 1 and span >= 359.0)
+    path = viterbi_nd(
+        steps, lambda q: sc.cost(wins[q], b)[..., 0], sc.cells,
+        [np.log(kx), np.log(kx), np.log(ka), np.log(_tilt_kernel(axes[0], tilt_walk_deg)),
+         np.log(_tilt_kernel(rolls, tilt_walk_deg))],
+        [False, False, True, False, roll_wraps],
+    )  # fmt: skip
     cells = np.array(path, dtype=np.int64)  # (windows, 5): ix, iy, iaz, ipitch, iroll
     iz = np.array([sc.best_rows(w, offset_db, c)[2] for w, c in zip(wins, path, strict=True)])
     return cells, iz
