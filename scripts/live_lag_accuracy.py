@@ -26,7 +26,7 @@ Usage::
         [--variants causal "live, lag 0.25 s"] [--set FIELD=VALUE ...] [--quick]
 
 ``--set`` overrides :class:`~radiopose.filtering.FilterConfig` fields in every
-variant (e.g. ``--set coarse_relock=True``: docs/filter.md, "A causal re-lock").
+variant (e.g. ``--set jump_probability=0.01``); ``--variants`` picks the rows.
 """
 
 from __future__ import annotations

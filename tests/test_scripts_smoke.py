@@ -67,6 +67,14 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert len(rows) == 2 + 4  # header, rule, one row per variant
     assert all(row.startswith("| 1 |") for row in rows[2:])
+    # --variants picks rows; --set overrides the filter (a bad field is argparse's error)
+    argv += ["--variants", "causal", "--set", "jump_probability=0.01"]
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert len(rows) == 2 + 1 and "| causal |" in rows[2]
+    with pytest.raises(SystemExit) as exc:
+        _load(SCRIPTS / "live_lag_accuracy.py").main(["--quick", "--set", "no_such_field=1"])
+    assert exc.value.code == 2
+    assert "no_such_field" in capsys.readouterr().err
 
 
 def test_mirror_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:

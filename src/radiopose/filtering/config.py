@@ -269,19 +269,6 @@ class FilterConfig:
         evidence over the offsets stays on the 1 m grid
         (``CoarseSettings.path_position_step_m``; docs/filter.md, "Coarse-grid
         HMM: a finer path"); positive, at most 5.
-    coarse_relock
-        Causal, 2-D (session 16; off by default): the coarse-grid HMM's
-        forward filter runs beside the particle filter
-        (:mod:`radiopose.filtering.coarse_online`); when its posterior mass
-        outside the cells the particles occupy (dilated by one cell) exceeds
-        the mass inside by a log odds of ``coarse_relock_log_odds``, a
-        ``coarse_relock_fraction`` of the particles is replaced by draws from
-        the HMM's posterior there, the two parts weighted by the HMM's masses;
-        at most once per ``coarse_relock_interval_s`` seconds
-        (docs/filter.md, "A causal re-lock").
-    coarse_relock_log_odds, coarse_relock_fraction, coarse_relock_interval_s
-        With ``coarse_relock``: the threshold (nats, >= 0), the fraction
-        replaced (in (0, 1]) and the shortest interval between re-locks (s).
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -371,12 +358,6 @@ class FilterConfig:
     coarse_track_margin: float = 2.0
     coarse_track_paths: int = 1
     coarse_track_path_step_m: float = 0.5
-    # issue 15 (live wrong locks, session 16): the coarse HMM's causal forward
-    # filter re-locks the particle filter when it disagrees (off)
-    coarse_relock: bool = False
-    coarse_relock_log_odds: float = 3.0
-    coarse_relock_fraction: float = 0.5
-    coarse_relock_interval_s: float = 0.3
 
     def __post_init__(self) -> None:
         positive = (
@@ -386,7 +367,7 @@ class FilterConfig:
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
             "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
-            "offset_profile_tolerance_db", "coarse_relock_interval_s",
+            "offset_profile_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -407,11 +388,6 @@ class FilterConfig:
             )
         if not 0 < self.reentry_fraction < 1 or not 0 < self.jump_probability < 1:
             raise InputError("filter settings reentry_fraction and jump_probability lie in (0, 1)")
-        if not 0 < self.coarse_relock_fraction <= 1:
-            raise InputError(
-                f"filter setting coarse_relock_fraction = {self.coarse_relock_fraction!r} "
-                "not in (0, 1]"
-            )
         if not 0 <= self.rest_fraction <= 1:
             raise InputError(f"filter setting rest_fraction = {self.rest_fraction!r} not in [0, 1]")
         if self.offset_scans_per_reentry < 0 or self.difference_memory < 0:
@@ -446,7 +422,6 @@ class FilterConfig:
             raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
         for name in (
             "offset_selection_merge_db", "offset_selection_trigger_db", "coarse_track_margin",
-            "coarse_relock_log_odds",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):

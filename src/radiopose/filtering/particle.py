@@ -130,12 +130,6 @@ class FilterState:
     forward_kept: list | None = None
     forward_evidence: dict | None = None  # and each packet's log evidence by key
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
-    # session 16 (FilterConfig.coarse_relock): the coarse HMM's forward filter
-    # (radiopose.filtering.coarse_online.OnlineCoarse), the last re-lock's time
-    # and the number of re-locks
-    coarse: Any = None
-    relock_time_s: float = -math.inf
-    relocks: int = 0
 
 
 class ParticleFilter:
@@ -154,9 +148,6 @@ class ParticleFilter:
         packets have been seen (and all of them after :meth:`flush`).
     """
 
-    RELOCKS = True
-    """Whether ``FilterConfig.coarse_relock`` applies (the coarse grid is 2-D)."""
-
     def __init__(self, model: FilterModel, config: FilterConfig, lag_s: float | None = None):
         self.model = model
         self.config = config
@@ -172,9 +163,6 @@ class ParticleFilter:
             ]
         )
         self._work: _Work | None = None
-        # the causal re-lock's coarse grid (built at the first packet that needs it)
-        self._relocks = config.coarse_relock and self.RELOCKS
-        self._coarse_grid: Any = None
         # smoother: the backward smoother replaces the genealogy when chosen (and lagged)
         self._backward = (
             BackwardSettings(
@@ -342,70 +330,6 @@ class ParticleFilter:
         if st.backward is not None:  # smoother: no ancestors in the previous set
             st.backward.reentered(slots)
 
-    def _coarse_relock(self, st: FilterState, t_s: float, heard: HeardRss, w: FloatArray) -> bool:
-        """Feed the coarse HMM's forward filter; when it disagrees with the cloud
-        (``FilterConfig.coarse_relock``), replace a fraction of the particles by
-        its hypotheses, weighting both parts by its masses. Returns whether it did."""
-        from radiopose.filtering.coarse_online import (
-            CoarseGrid,
-            CoarseSettings,
-            OnlineCoarse,
-            relock_proposal,
-        )
-
-        cfg = self.config
-        if self._coarse_grid is None:
-            from radiopose.filtering.offset_profile import CoarseTable
-
-            cs = CoarseSettings()
-            table = CoarseTable.build(self.model, cs.position_step_m, cs.azimuth_step_deg)
-            self._coarse_grid = CoarseGrid.build(table)
-        grid = self._coarse_grid
-        if st.coarse is None:
-            st.coarse = OnlineCoarse(grid, CoarseSettings(), cfg.reacquire_gap_s)
-        sigma = max(math.sqrt(st.sigma2_db2), cfg.sigma_floor_db)
-        if not st.coarse.add(grid, t_s, heard, sigma):
-            return False
-        if t_s - st.relock_time_s < cfg.coarse_relock_interval_s:
-            return False
-        S, logw = st.particles, st.log_weights
-        assert S is not None and logw is not None
-        n = S.shape[0]
-        m = max(1, min(n - 1, round(cfg.coarse_relock_fraction * n)))
-        prop = relock_proposal(
-            st.coarse, grid, S[:, K.X_M], S[:, K.Y_M], np.rad2deg(S[:, K.AZIMUTH_RAD]),
-            st.offset_prior_db, cfg.offset_prior_sd_db, m, st.rng,
-        )  # fmt: skip
-        if prop is None or prop.log_odds < cfg.coarse_relock_log_odds:
-            return False
-        slots = st.rng.choice(n, size=m, replace=False)
-        new = S[slots].copy()  # height, pitch and roll of the replaced particles
-        new[:, K.X_M] = prop.x_m
-        new[:, K.Y_M] = prop.y_m
-        new[:, K.AZIMUTH_RAD] = np.deg2rad(prop.azimuth_deg)
-        new[:, K.VX_MPS : K.VY_MPS + 1] = 0.0  # the HMM knows no velocity: at rest
-        new[:, K.RATE_RAD_S] = 0.0
-        half = 0.5 * float(np.diff(st.coarse.offsets_db[:2])[0]) if prop.offset_db.size else 0.5
-        new[:, K.OFFSET_DB] = prop.offset_db + st.rng.uniform(-half, half, m)
-        new[:, K.OFFSET_VAR_DB2] = half**2
-        keep = np.ones(n, dtype=bool)
-        keep[slots] = False
-        lse_keep = float(K.log_sum_exp(logw[keep]))
-        S[slots] = new
-        # the two parts weighed as the HMM weighs the cloud's cells and the mode
-        logw[keep] += math.log(prop.p_in) - lse_keep
-        logw[slots] = math.log(prop.p_mode / m)
-        if st.lineage is not None:  # a jump: no past in the cloud, static before now
-            st.lineage.inject(
-                t_s, cfg.proposal_window_s, new, slots, slots,
-                inherit=np.zeros(m, dtype=bool), box_m=self.model.box_m,
-            )  # fmt: skip
-        if st.backward is not None:
-            st.backward.reentered(slots)
-        st.relock_time_s = t_s
-        st.relocks += 1
-        return True
-
     def _inject_lineage(
         self,
         st: FilterState,
@@ -524,8 +448,6 @@ class ParticleFilter:
         if t_s - st.reentry_time_s >= cfg.reentry_interval_s:
             self._reenter(st, t_s, w)
             st.reentry_time_s = t_s
-            K.normalise_into(logw, w)
-        if self._relocks and self._coarse_relock(st, t_s, heard, w):
             K.normalise_into(logw, w)
         moments = work.moments
         K.posterior_moments(S, w, work.rows, moments)

@@ -589,8 +589,6 @@ class ParticleFilter3d(ParticleFilter):
         ``config``'s.
     """
 
-    RELOCKS = False  # FilterConfig.coarse_relock: the coarse grid is 2-D
-
     def __init__(
         self,
         model: FilterModel3d,
