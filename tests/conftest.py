@@ -77,6 +77,7 @@ TIERS: dict[str, str] = {
     "test_pipeline_cli": "e2e",
     "test_pose3d": "e2e",
     "test_refine3d": "e2e",
+    "test_refine3d_heading": "property",
     "test_reverse3d": "e2e",
     "test_restart3d": "e2e",
     "test_offline_particles3d": "e2e",

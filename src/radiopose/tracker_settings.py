@@ -79,6 +79,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "refine_steps": (0, 100),
     "max_table_entries": (1000, 1_000_000_000),
     "heading_prior_deg": (0.0, 180.0),
+    "refine_heading_deg": (0.0, 180.0),
     "mode_radius_deg": (0.0, 180.0),
     "offset_bank_db": (-60.0, 60.0),
     "refine_max_nfev": (1, 100_000),

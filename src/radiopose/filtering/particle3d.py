@@ -270,6 +270,17 @@ class Pose3dConfig:
         With ``refine_coarse_path``: the paths at up to this many local maxima
         of the coarse HMM's evidence over the device offset, the largest
         first (1: the best offset's path only).
+    refine_heading_deg
+        Offline, with ``refine`` (0: off, the default): the refinement's mode
+        choice adds the hand-held heading prior's cost of each refined track
+        (:func:`radiopose.filtering.refine3d.heading_cost`: the azimuth
+        within a von Mises spread of this many degrees of the walking
+        direction, with ``heading_prior_time_s`` and
+        ``heading_prior_speed_mps``) to its objective, both where the modes to
+        polish are picked and where the polished one is chosen. The tracks
+        themselves are refined without it. The same modelling assumption as
+        ``heading_prior_deg`` (docs/pose3d.md, "Heading in the mode choice,
+        2026-11-28").
     """
 
     n_particles: int = 2000
@@ -316,6 +327,7 @@ class Pose3dConfig:
     refine_coarse_walk_m: float = 0.35
     refine_coarse_walk_deg: float = 9.0
     refine_coarse_paths: int = 1
+    refine_heading_deg: float = 0.0
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
@@ -383,6 +395,11 @@ class Pose3dConfig:
         if self.estimate not in ESTIMATES:
             raise InputError(
                 f"3-D filter setting estimate = {self.estimate!r} is not one of {ESTIMATES}"
+            )
+        if not (0 <= self.refine_heading_deg <= 180.0):
+            raise InputError(
+                f"3-D filter setting refine_heading_deg = {self.refine_heading_deg!r} "
+                "must be in [0, 180]"
             )
         if not (0 <= self.heading_prior_deg < math.inf):
             raise InputError(

@@ -627,6 +627,48 @@ def packet_costs(
     return np.bincount(pkt, weights=rho, minlength=n).astype(np.float64)
 
 
+def heading_cost(
+    t_s: FloatArray,
+    position_m: FloatArray,
+    orientation_deg: FloatArray,
+    sd_deg: float,
+    time_s: float,
+    speed_mps: float,
+    span_s: float = 0.5,
+) -> float:
+    """The hand-held heading prior's cost of a whole track, nats.
+
+    The prior of the 3-D filter (:func:`radiopose.filtering.kernels3d.heading_prior`,
+    ``Pose3dConfig.heading_prior_deg``) integrated over the track: per packet
+    ``(dt / τ) κ g(v) (1 − cos Δ)``, ``Δ`` the angle between the azimuth and
+    the walking direction (``atan2(vy, vx) − 90°``: the phone's top ahead),
+    ``κ = 1 / sd²`` (radians), ``g(v) = v² / (v² + v0²)``, ``τ = time_s``,
+    ``v0 = speed_mps``, ``dt`` the packet's share of the track's time. The
+    velocity is the track's own: the positions ``span_s / 2`` seconds either
+    side (interpolated; clipped at the ends) differenced, so a refined
+    track's per-packet jitter does not turn the walking direction.
+    ``t_s`` ascending seconds; ``position_m`` ``(n, 3)``; ``orientation_deg``
+    ``(n, 3)`` (only the azimuth is read)."""
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 2 or not sd_deg > 0:
+        return 0.0
+    p = np.asarray(position_m, dtype=float)
+    lo = np.maximum(t - 0.5 * span_s, t[0])
+    hi = np.minimum(t + 0.5 * span_s, t[-1])
+    dt_span = np.maximum(hi - lo, 1e-9)
+    vx = (np.interp(hi, t, p[:, 0]) - np.interp(lo, t, p[:, 0])) / dt_span
+    vy = (np.interp(hi, t, p[:, 1]) - np.interp(lo, t, p[:, 1])) / dt_span
+    v2 = vx * vx + vy * vy
+    walk = np.arctan2(vy, vx) - 0.5 * math.pi
+    delta = np.deg2rad(np.asarray(orientation_deg, dtype=float)[:, 0]) - walk
+    # each packet's share of the track's time: half the intervals either side
+    edges = np.concatenate([[t[0]], 0.5 * (t[1:] + t[:-1]), [t[-1]]])
+    share = np.diff(edges)
+    kappa = 1.0 / math.radians(sd_deg) ** 2
+    g = v2 / (v2 + speed_mps * speed_mps)
+    return float(np.sum(share / time_s * kappa * g * (1.0 - np.cos(delta))))
+
+
 CoarseStart = Callable[
     [FloatArray, Sequence[HeardRss], float], Sequence[tuple[FloatArray, FloatArray, float]]
 ]
@@ -659,6 +701,7 @@ def refine_smoothed(
     anneal_sigma: Sequence[float] = (),
     anneal_keep_direct: bool = False,
     coarse_start: CoarseStart | None = None,
+    heading: tuple[float, float, float] | None = None,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -773,6 +816,12 @@ def refine_smoothed(
                 return r if r.cost < direct.cost else direct
             return r
 
+        def extra(r: RefinedTrack) -> float:
+            """The mode choice's extra term: the heading prior's cost, if on."""
+            if heading is None:
+                return 0.0
+            return heading_cost(t_rows, r.position_m, r.orientation_deg, *heading)
+
         done = [searched(*init) for init in inits]
         if hybrid_segment_s > 0 and len(done) > 1:
             costs = np.array([
@@ -791,16 +840,18 @@ def refine_smoothed(
             # the constant-rate prior as a polish of the lowest-objective tracks
             # the random walks found (their objectives are not comparable with
             # the polished ones: only polished tracks compete)
-            done.sort(key=lambda r: r.cost)
+            chosen = [r.cost + extra(r) for r in done]
+            done = [done[i] for i in np.argsort(chosen, kind="stable")]
+            chosen.sort()
             picked: list[RefinedTrack] = []
-            for d in done:
-                if len(picked) >= polish_starts or d.cost > done[0].cost + polish_margin:
+            for d, c in zip(done, chosen, strict=True):
+                if len(picked) >= polish_starts or c > chosen[0] + polish_margin:
                     break
                 if not any(same_track(d, p) for p in picked):
                     picked.append(d)
             done = [solve(d.position_m, d.orientation_deg, d.offset_db, prior)
                     for d in picked]  # fmt: skip
-        score = [r.cost for r in done]
+        score = [r.cost + extra(r) for r in done]
         if polish:
             # the search's own choice (done[0]) stays unless another mode is clearly lower
             score[0] -= polish_switch

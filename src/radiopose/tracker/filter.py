@@ -620,6 +620,10 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
         polish_switch=p3.refine_polish_switch, anneal_sigma=p3.refine_anneal_sigma,
         anneal_keep_direct=p3.refine_anneal_keep_direct, coarse_start=_coarse_start(pf),
+        heading=(
+            (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
+            if p3.refine_heading_deg > 0 else None
+        ),
     )  # fmt: skip
 
 
