@@ -100,7 +100,7 @@ def _two_modes(monkeypatch, heading):
     (90°). The objective prefers B by 5 nats under the random walks and 10
     under the constant-rate prior. Returns the kept track's azimuth."""
     n = 201
-    t, pos, ori = _walk(n, 1.0, 0.0)
+    t, pos, _ = _walk(n, 1.0, 0.0)
     heard = HeardRss(np.array([0, 1]), np.array([-50.0, -60.0]))
     records = [(float(ti), heard, i) for i, ti in enumerate(t)]
 
@@ -145,3 +145,27 @@ def test_bad_refine_heading_is_a_one_line_error(bad: float, tmp_path) -> None:
     with pytest.raises(InputError, match="refine_heading_deg") as exc:
         read_tracker_settings(path)
     assert "\n" not in str(exc.value)
+
+
+def test_locate_hands_the_heading_to_the_mode_choice(monkeypatch):
+    """``refine_heading_deg`` > 0: ``locate`` hands the refinement the spread
+    with the heading prior's time and speed; 0: nothing."""
+    from dataclasses import replace
+
+    from filter_support import scene_3d
+    from radiopose.tracker import TrackerConfig, locate
+
+    sim, *_ = scene_3d()
+    seen: list[object] = []
+
+    def spy(model, records, smoothed, *args, **kw):
+        seen.append(kw.get("heading"))
+        return list(smoothed)  # (the refinement itself is not this test's)
+
+    monkeypatch.setattr(r3, "refine_smoothed", spy)
+    base = TrackerConfig()
+    for deg in (0.0, 20.0):
+        p3 = replace(base.pose3d, refine_heading_deg=deg, heading_prior_time_s=2.0,
+                     refine_reverse_pass=False, refine_coarse_path=False)  # fmt: skip
+        locate(sim.site, sim.packets, "filter", replace(base, pose3d=p3))
+    assert seen == [None, (20.0, 2.0, 0.3)]
