@@ -147,6 +147,15 @@ def test_bad_refine_heading_is_a_one_line_error(bad: float, tmp_path) -> None:
     assert "\n" not in str(exc.value)
 
 
+def test_tracker_toml_switches_the_heading_off(tmp_path) -> None:
+    """0 is a value in ``tracker.toml`` (it switches the part off), the default is 30."""
+    assert Pose3dConfig().refine_heading_deg == 30.0
+    path = tmp_path / "tracker.toml"
+    for text, want in (("0", 0.0), ("0.0", 0.0), ("12.5", 12.5)):
+        path.write_text(f"[filter.pose3d]\nrefine_heading_deg = {text}\n", encoding="utf-8")
+        assert read_tracker_settings(path).pose3d_overrides["refine_heading_deg"] == want
+
+
 def test_locate_hands_the_heading_to_the_mode_choice(monkeypatch):
     """``refine_heading_deg`` > 0: ``locate`` hands the refinement the spread
     with the heading prior's time and speed; 0: nothing."""

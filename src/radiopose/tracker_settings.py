@@ -103,6 +103,7 @@ dataclass's own checks apply to every value."""
 POSE3D_ZERO_ALLOWED = frozenset(
     {
         "heading_prior_deg",
+        "refine_heading_deg",
         "refine_hybrid_segment_s",
         "refine_height_accel_noise_mps2",
         "refine_tilt_accel_noise_dps2",

@@ -747,6 +747,10 @@ def refine_smoothed(
     competes like the others (polished only within the margin: forcing its
     polish let a coarse path's mirror win over the filter's track on a tuning
     seed, docs/pose3d.md).
+    ``heading`` = ``(sd °, τ s, v0 m/s)`` (``None``: off) adds each refined
+    track's :func:`heading_cost` to its objective where the modes to polish
+    are picked and where the kept one is chosen (the tracks are refined
+    without it; docs/pose3d.md, "Heading in the mode choice, 2026-11-28").
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
