@@ -47,7 +47,7 @@ import numba
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.filtering.coarse_track import _forward_window, _kernel, evidence_peaks
+from radiopose.filtering.coarse_track import _forward_window, _kernel, evidence_peaks, nearest
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
@@ -426,8 +426,9 @@ def coarse_paths3d(
     if not wins:
         return []
     sc = CoarseScorer(grid)
-    chosen: list[float] = [] if offset_db is None else [float(offset_db)]
-    if offset_db is None:
+    if offset_db is not None:
+        chosen = [float(offset_db)]
+    else:
         offs = np.asarray(offsets_db, dtype=float)
         ll = _evidence(sc, wins, offs, walk_m, walk_deg)
         score = ll - 0.5 * (offs / offset_prior_sd_db) ** 2
@@ -498,17 +499,6 @@ def _path(
     pos = np.column_stack([x, y, axes[5][iz[near]]])
     ori = np.column_stack([az, axes[0][cells[near, 3]], axes[1][cells[near, 4]]])
     return pos, ori, offset_db
-
-
-def nearest(sorted_s: FloatArray, t_s: FloatArray) -> np.ndarray:
-    """Per time of ``t_s``, the index of the nearest of ``sorted_s`` (seconds,
-    non-decreasing, not empty; a tie goes to the earlier)."""
-    ref = np.asarray(sorted_s, dtype=float)
-    t = np.asarray(t_s, dtype=float)
-    if ref.size == 1:
-        return np.zeros(t.size, dtype=np.int64)
-    j = np.clip(np.searchsorted(ref, t), 1, ref.size - 1)
-    return np.where(np.abs(t - ref[j - 1]) <= np.abs(ref[j] - t), j - 1, j).astype(np.int64)
 
 
 __all__ = [

@@ -160,13 +160,7 @@ class CoarseTrack:
         az = np.empty(t.size)
         if self.window_times_s.size == 0:
             raise InputError("CoarseTrack.poses_at: no window was read")
-        wt_all = self.window_times_s  # ascending
-        right = np.clip(np.searchsorted(wt_all, t), 1, max(wt_all.size - 1, 1))
-        left = right - 1
-        if wt_all.size == 1:
-            near = np.zeros(t.size, dtype=np.int64)
-        else:
-            near = np.where(np.abs(t - wt_all[left]) <= np.abs(wt_all[right] - t), left, right)
+        near = nearest(self.window_times_s, t)  # (ascending)
         for tr in np.unique(self.window_track):
             w = self.window_track == tr
             sel = self.window_track[near] == tr
@@ -177,6 +171,17 @@ class CoarseTrack:
             xy[sel, 1] = np.interp(t[sel], wt, p[:, 1])
             az[sel] = np.interp(t[sel], wt, un) % 360.0
         return xy, az
+
+
+def nearest(sorted_s: FloatArray, t_s: FloatArray) -> np.ndarray:
+    """Per time of ``t_s``, the index of the nearest of ``sorted_s`` (seconds,
+    non-decreasing, not empty; a tie goes to the earlier)."""
+    ref = np.asarray(sorted_s, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    if ref.size == 1:
+        return np.zeros(t.size, dtype=np.int64)
+    j = np.clip(np.searchsorted(ref, t), 1, ref.size - 1)
+    return np.where(np.abs(t - ref[j - 1]) <= np.abs(ref[j] - t), j - 1, j).astype(np.int64)
 
 
 def _kernel(sd_cells: float) -> FloatArray:
