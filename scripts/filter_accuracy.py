@@ -76,10 +76,9 @@ from pathlib import Path
 
 import numpy as np
 
-from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
-from radiopose.filtering.config import config_overrides
+from radiopose.filtering.config import overrides_or_exit
 from radiopose.packets import Packets
 from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, simulate
 from radiopose.simulate.trajectories import RotationKind
@@ -157,15 +156,6 @@ def _edited(sim: Simulation, edit: str) -> Simulation:
         rss[first_rows[order][::5]] += 15.0
     packets = Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, rss)
     return replace(sim, packets=packets)
-
-
-def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
-    """``--set FIELD=VALUE`` items as :class:`FilterConfig` overrides
-    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors)."""
-    try:
-        return config_overrides(items)
-    except InputError as exc:
-        ap.error(f"--set {exc}")
 
 
 def _one(
@@ -264,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.seeds is not None or args.first_seed is not None:
         first = 1000 if args.first_seed is None else args.first_seed
         args.seed_sets = [range(first, first + (10 if args.seeds is None else args.seeds))]
-    overrides = _overrides(ap, args.set)
+    overrides = overrides_or_exit(ap, args.set)
     variants = [v for v in VARIANTS if v in args.variants]
     seeds = sorted({s for r in args.seed_sets for s in r})
     tasks = [

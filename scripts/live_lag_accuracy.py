@@ -38,10 +38,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
-from radiopose.filtering.config import config_overrides
+from radiopose.filtering.config import overrides_or_exit
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
@@ -78,10 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
-    try:
-        overrides = config_overrides(args.set)
-    except InputError as exc:
-        ap.error(f"--set {exc}")
+    overrides = overrides_or_exit(ap, args.set)
     variants = {v: VARIANTS[v] for v in args.variants}
     base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
     lines = [

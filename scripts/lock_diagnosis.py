@@ -49,10 +49,9 @@ import numpy as np
 
 import radiopose.filtering.offset_refit as offset_refit
 import radiopose.tracker.filter as tracker_filter
-from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig, FilterEstimate, FilterModel
-from radiopose.filtering.config import config_overrides
+from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.reverse import pose_residuals_db, profile_offset
 from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
@@ -311,15 +310,6 @@ def diagnose_candidates(
     return lines
 
 
-def _overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, object]:
-    """``--set FIELD=VALUE`` items as :class:`FilterConfig` overrides
-    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors)."""
-    try:
-        return config_overrides(items)
-    except InputError as exc:
-        ap.error(f"--set {exc}")
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[7030], help="tuning seeds only")
@@ -342,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = [5] if args.quick else args.seeds
     if args.candidates:
         tcfg = TrackerConfig()
-        overrides = _overrides(ap, args.set)
+        overrides = overrides_or_exit(ap, args.set)
         tcfg = replace(tcfg, filter=replace(tcfg.filter, **overrides))
         diagnose_candidates(seeds, args.sigma, args.loud, args.quick, tcfg)
         return 0

@@ -51,10 +51,9 @@ from typing import Any
 
 import numpy as np
 
-from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import AxisErrors, axis_errors, axis_errors_of
 from radiopose.filtering import FilterConfig, particle3d
-from radiopose.filtering.config import config_overrides
+from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.refine3d import MotionPrior, refine_track
 from radiopose.likelihood import candidate_space
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
@@ -117,16 +116,6 @@ def oracle_one(
         offset_prior_sd_db=fc.offset_prior_sd_db, max_nfev=p3.refine_max_nfev,
     )  # fmt: skip
     return axis_errors_of(r.position_m, r.orientation_deg, pos, ori)
-
-
-def pose3d_overrides(ap: argparse.ArgumentParser, items: list[str]) -> dict[str, Any]:
-    """``FIELD=VALUE`` items as :class:`Pose3dConfig` overrides
-    (:func:`~radiopose.filtering.config.config_overrides`; argparse errors
-    name the item)."""
-    try:
-        return config_overrides(items, particle3d.Pose3dConfig)
-    except InputError as exc:
-        ap.error(f"--pose3d-set {exc}")
 
 
 def pooled(runs: list[AxisErrors]) -> dict[str, float]:
@@ -326,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     for q in args.tilt_noise:
         variants.append((f"tilt noise {q:g}", {"tilt_noise_dps": q}, 0.0))
     if args.pose3d_set:
-        over = pose3d_overrides(ap, args.pose3d_set)
+        over = overrides_or_exit(ap, args.pose3d_set, "--pose3d-set", particle3d.Pose3dConfig)
         variants.append((", ".join(args.pose3d_set), over, 0.0))
     if args.only_variants:
         variants = [v for v in variants if v[1]]

@@ -94,3 +94,33 @@ def test_round_trip(tmp_path: Path, initial: tuple[float, ...], scan: tuple[floa
     write_tracker_toml(p, {"initial_offsets_db": initial, "offset_scan_db": scan})
     o = read_tracker_settings(p).filter_overrides
     assert o == {"initial_offsets_db": initial, "offset_scan_db": scan}
+
+
+def test_script_overrides_parse_or_exit_with_the_usage_error(capsys: pytest.CaptureFixture[str]):
+    """The scripts' ``--set`` / ``--pose3d-set``: literals into overrides of the
+    named config; an unknown field, a non-literal or a refused value is the
+    parser's usage error (exit 2) naming the option and the item."""
+    import argparse
+
+    from radiopose.filtering.config import overrides_or_exit
+    from radiopose.filtering.particle3d import Pose3dConfig
+
+    ap = argparse.ArgumentParser(prog="script")
+    assert overrides_or_exit(ap, ["n_particles=500", "smoother='backward'"]) == {
+        "n_particles": 500,
+        "smoother": "backward",
+    }
+    assert overrides_or_exit(ap, ["refine_heading_deg=0.0"], "--pose3d-set", Pose3dConfig) == {
+        "refine_heading_deg": 0.0
+    }
+    for items, option, config, what in (
+        (["no_such_field=1"], "--set", FilterConfig, "no_such_field"),
+        (["n_particles=abc"], "--set", FilterConfig, "n_particles=abc"),
+        (["n_particles=3"], "--set", FilterConfig, "n_particles"),
+        (["refine_heading_deg=200.0"], "--pose3d-set", Pose3dConfig, "refine_heading_deg"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            overrides_or_exit(ap, items, option, config)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert f"error: {option} " in err and what in err

@@ -12,9 +12,13 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from radiopose.errors import InputError
 from radiopose.filtering.forked import check_workers
+
+if TYPE_CHECKING:
+    import argparse
 
 LIKELIHOODS = ("mixture", "huber")
 """The values of :attr:`FilterConfig.likelihood`."""
@@ -513,3 +517,16 @@ def config_overrides(items: Sequence[str], config: type = FilterConfig) -> dict[
     except TypeError as exc:
         raise InputError(str(exc)) from None
     return out
+
+
+def overrides_or_exit(
+    parser: argparse.ArgumentParser, items: Sequence[str], option: str = "--set",
+    config: type = FilterConfig,
+) -> dict[str, object]:  # fmt: skip
+    """:func:`config_overrides` for a script's ``option`` (``--set``,
+    ``--pose3d-set``): a bad item is the parser's usage error naming the
+    option and the item (exit status 2), not a traceback."""
+    try:
+        return config_overrides(items, config)
+    except InputError as exc:
+        parser.error(f"{option} {exc}")
