@@ -268,6 +268,22 @@ def test_coarse3d_lead(capsys: pytest.CaptureFixture[str]) -> None:
     assert 0.0 <= position_m < 10.0  # a path inside the 10 m site
 
 
+@pytest.mark.slow
+def test_pose3d_misfit(capsys: pytest.CaptureFixture[str]) -> None:
+    import radiopose.filtering.refine3d as refine3d
+
+    before = refine3d.refine_smoothed
+    argv = ["--seeds", "9000", "--duration-s", "0.5", "--pose3d-set", "refine_heading_deg=0"]
+    rows = _table_rows(_run(SCRIPTS / "pose3d_misfit.py", argv, capsys))[2:]
+    cells = [c.strip() for c in rows[0].split("|")[1:-1]]
+    assert cells[0] == "9000" and int(cells[3]) > 0
+    assert 0.0 < float(cells[5]) < 10.0  # the residuals' RMS, dB (σ 1 dB simulated)
+    assert refine3d.refine_smoothed is before  # the script's hook is undone
+    with pytest.raises(SystemExit) as exc:
+        _load(SCRIPTS / "pose3d_misfit.py").main(["--pose3d-set", "no_such_field=1"])
+    assert exc.value.code == 2
+
+
 SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "accuracy_table": test_accuracy_table,
     "coarse3d_lead": test_coarse3d_lead,
@@ -278,6 +294,7 @@ SCRIPT_TESTS: dict[str, Callable[..., None]] = {
     "live_lag_accuracy": test_live_lag_accuracy,
     "lock_diagnosis": test_lock_diagnosis,
     "mirror_diagnosis": test_mirror_diagnosis,
+    "pose3d_misfit": test_pose3d_misfit,
     "offset_profile": test_offset_profile,
     "orientation_outliers": test_orientation_outliers,
     "live_pose3d": test_live_pose3d,
