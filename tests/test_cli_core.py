@@ -2,7 +2,6 @@
 
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -112,15 +111,6 @@ def test_console_script_no_traceback(tmp_path):
     )
     assert r.returncode == 2
     assert r.stderr.startswith("radiopose: ") and "Traceback" not in r.stderr
-
-
-def test_demo_writes_and_reports(tmp_path, capsys):
-    code, out, err = run(["demo", "-o", str(tmp_path / "d"), "--duration-s", "0.1"], capsys)
-    assert code == 0, err
-    for name in ("scene.png", "survey_map_rx1.png", "patterns.png"):
-        assert (tmp_path / "d" / name).stat().st_size > 10_000
-        assert name in out
-    assert Path(tmp_path / "d" / "scenario" / "packets.csv").is_file()
 
 
 def test_simulate_refuses_unwritable_outputs_before_writing(tmp_path, capsys):

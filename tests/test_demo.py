@@ -84,7 +84,7 @@ def test_demo_writes_non_trivial_figures_and_estimates(demo_run) -> None:
     f = read_estimates_csv(d / "estimates_filter.csv")
     assert f.position_std_m is not None and f.azimuth_std_deg is not None
     assert len(f) >= 0.99 * 200
-    assert (d / "scenario" / "truth.csv").is_file()
+    assert (d / "scenario" / "truth.csv").is_file() and (d / "scenario" / "packets.csv").is_file()
 
 
 def test_demo_method_option_is_for_live(tmp_path: Path, capsys) -> None:
