@@ -12,9 +12,19 @@ whose track misses the truth's basin fits worse than the readings' noise; a
 tie between modes does not. One track per run is assumed (no gap longer than
 the filter's re-acquisition gap; the last track's term is printed otherwise).
 
-Usage (tuning seeds only)::
+``--oracle`` adds the truth's basin: the refinement started at the true poses
+(offset 0 dB) with the kept track's σ and the constant-rate prior of the
+polish, and compares objectives (σ² units ≈ nats, each with the heading cost
+of the mode choice when ``refine_heading_deg`` > 0): ``kept − truth`` > 0 means
+the truth's basin is lower and no start reached it (a *search* failure); ≤ 0
+means the kept track is at least as likely as the truth's (an *objective* tie
+or error, which no search fixes). The kept track's objective is evaluated at
+its poses and offset without moving them.
 
-    python scripts/pose3d_misfit.py --seeds 7104-7124 9100-9139 [--pose3d-set FIELD=VALUE ...]
+Usage (tuning seeds only, or seeds already spent, for diagnosis)::
+
+    python scripts/pose3d_misfit.py --seeds 7104-7124 9100-9139 [--oracle]
+        [--pose3d-set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -27,7 +37,7 @@ from typing import Any
 import numpy as np
 
 import radiopose.filtering.refine3d as refine3d
-from radiopose.evaluate.pose3d import axis_errors
+from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.particle3d import Pose3dConfig
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
@@ -49,6 +59,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
     ap.add_argument("--duration-s", type=float, default=4.0)
     ap.add_argument("--pose3d-set", nargs="*", default=[], metavar="FIELD=VALUE")
+    ap.add_argument("--oracle", action="store_true", help="compare with the truth's basin")
     args = ap.parse_args(argv)
     over = overrides_or_exit(ap, args.pose3d_set, "--pose3d-set", Pose3dConfig)
     kept: dict[str, Any] = {}
@@ -67,10 +78,18 @@ def main(argv: list[str] | None = None) -> int:
             np.array([e.orientation_deg for e in ests]), ests[0].offset_db, sigma,
         )  # fmt: skip
         kept.update(data=float(data.sum()), m=sum(h.n_heard for h in heard), sigma=sigma)
+        if args.oracle:
+            kept.update(_versus_truth(model, rows, ests, sigma, config, a, kw, truth[0]))
         return out
 
-    print("| seed | position m | rotation ° | readings | σ̂ dB | residual RMS dB | score |")
-    print("|---|---|---|---|---|---|---|")
+    truth: list[Any] = [None]
+    head = "| seed | position m | rotation ° | readings | σ̂ dB | residual RMS dB | score |"
+    rule = "|---|---|---|---|---|---|---|"
+    if args.oracle:
+        head += " kept objective | truth's basin | its rotation ° | kept − truth |"
+        rule += "---|---|---|---|"
+    print(head)
+    print(rule)
     refine3d.refine_smoothed = keeping  # the tracker imports it from the module when it runs
     try:
         for seed in _seeds(args.seeds):
@@ -80,6 +99,7 @@ def main(argv: list[str] | None = None) -> int:
             tcfg = TrackerConfig()
             tcfg = replace(tcfg, pose3d=replace(tcfg.pose3d, **over))
             kept.clear()
+            truth[0] = sim.truth
             e = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", tcfg).estimates)
             if not kept:
                 print(f"| {seed} | {e.position_m.mean():.3f} | {e.rotation_deg.mean():.1f} "
@@ -88,11 +108,49 @@ def main(argv: list[str] | None = None) -> int:
             m, data, sigma = kept["m"], kept["data"], kept["sigma"]
             rms = sigma * math.sqrt(2.0 * data / m)
             score = (2.0 * data - m) / math.sqrt(2.0 * m)
-            print(f"| {seed} | {e.position_m.mean():.3f} | {e.rotation_deg.mean():.1f} | {m} "
-                  f"| {sigma:.2f} | {rms:.3f} | {score:.2f} |", flush=True)  # fmt: skip
+            row = (f"| {seed} | {e.position_m.mean():.3f} | {e.rotation_deg.mean():.1f} | {m} "
+                   f"| {sigma:.2f} | {rms:.3f} | {score:.2f} |")  # fmt: skip
+            if args.oracle:
+                k, o = kept["kept_objective"], kept["truth_objective"]
+                row += f" {k:.1f} | {o:.1f} | {kept['truth_rotation_deg']:.1f} | {k - o:+.1f} |"
+            print(row, flush=True)
     finally:
         refine3d.refine_smoothed = original
     return 0
+
+
+def _versus_truth(model, rows, ests, sigma, config, a, kw, truth) -> dict[str, float]:  # type: ignore[no-untyped-def]
+    """The kept track's objective and the truth's basin's (see the module docstring);
+    ``a``/``kw`` are ``refine_smoothed``'s own arguments after ``config``."""
+    height_noise, tilt_noise, max_nfev = a[0], a[1], a[2]
+    prior = refine3d.MotionPrior.of_filter(
+        config, height_noise, tilt_noise,
+        kw.get("height_accel_noise_mps2", 0.0), kw.get("tilt_accel_noise_dps2", 0.0),
+    )  # fmt: skip
+    t = np.array([r[0] for r in rows])
+    heard = [r[1] for r in rows]
+    pos = np.array([e.position_m for e in ests])
+    ori = np.array([e.orientation_deg for e in ests])
+    common = {"offset_prior_db": 0.0, "offset_prior_sd_db": config.offset_prior_sd_db}
+    at_kept = refine3d.refine_track(
+        model, t, heard, pos, ori, ests[0].offset_db, sigma, prior, max_nfev=1, **common
+    )
+    idx = np.searchsorted(truth.timestamp_s, t)
+    tp, to = truth.position_m[idx], truth.orientation_deg[idx]
+    basin = refine3d.refine_track(
+        model, t, heard, tp, to, 0.0, sigma, prior, max_nfev=max_nfev, **common
+    )
+    heading = kw.get("heading")
+
+    def extra(p: np.ndarray, o: np.ndarray) -> float:
+        return refine3d.heading_cost(t, p, o, *heading) if heading is not None else 0.0
+
+    rot = axis_errors_of(basin.position_m, basin.orientation_deg, tp, to).rotation_deg
+    return {
+        "kept_objective": at_kept.initial_cost + extra(pos, ori),
+        "truth_objective": basin.cost + extra(basin.position_m, basin.orientation_deg),
+        "truth_rotation_deg": float(rot.mean()),
+    }
 
 
 if __name__ == "__main__":

@@ -273,11 +273,13 @@ def test_pose3d_misfit(capsys: pytest.CaptureFixture[str]) -> None:
     import radiopose.filtering.refine3d as refine3d
 
     before = refine3d.refine_smoothed
-    argv = ["--seeds", "9000", "--duration-s", "0.5", "--pose3d-set", "refine_heading_deg=0"]
+    argv = ["--seeds", "9000", "--duration-s", "0.5", "--oracle"]
     rows = _table_rows(_run(SCRIPTS / "pose3d_misfit.py", argv, capsys))[2:]
     cells = [c.strip() for c in rows[0].split("|")[1:-1]]
     assert cells[0] == "9000" and int(cells[3]) > 0
     assert 0.0 < float(cells[5]) < 10.0  # the residuals' RMS, dB (σ 1 dB simulated)
+    kept, truth, gap = float(cells[7]), float(cells[8]), float(cells[10])
+    assert gap == pytest.approx(kept - truth, abs=0.11) and 0.0 <= float(cells[9]) < 180.0
     assert refine3d.refine_smoothed is before  # the script's hook is undone
     with pytest.raises(SystemExit) as exc:
         _load(SCRIPTS / "pose3d_misfit.py").main(["--pose3d-set", "no_such_field=1"])
