@@ -94,12 +94,11 @@ def test_heading_cost_is_the_filters_prior_summed() -> None:
     assert r3.heading_cost(t, pos, ori, 25.0, 1.0, 0.3) == pytest.approx(want, rel=1e-9)
 
 
-def _two_modes(monkeypatch, heading, in_solve=False, solves=None):
+def _two_modes(monkeypatch, heading):
     """:func:`refine_smoothed` over a fake solve with two starts walking along
     +x at 1 m/s for 4 s: A with its top ahead (azimuth 270°), B turned round
     (90°). The objective prefers B by 5 nats under the random walks and 10
-    under the constant-rate prior. Returns the kept track's azimuth; the
-    ``heading`` keyword each solve got is appended to ``solves``."""
+    under the constant-rate prior. Returns the kept track's azimuth."""
     n = 201
     t, pos, _ = _walk(n, 1.0, 0.0)
     heard = HeardRss(np.array([0, 1]), np.array([-50.0, -60.0]))
@@ -115,8 +114,6 @@ def _two_modes(monkeypatch, heading, in_solve=False, solves=None):
     rate_cost = {270.0: 150.0, 90.0: 140.0}
 
     def fake(model, times, h, p, o, off, sigma, prior, **kw):
-        if solves is not None:
-            solves.append(kw.get("heading"))
         rate = prior.tilt_accel_noise_dps2 > 0
         cost = (rate_cost if rate else walk_cost)[float(o[0, 0])]
         return r3.RefinedTrack(np.array(p), np.array(o), off, sigma, cost, cost, 1)
@@ -126,7 +123,6 @@ def _two_modes(monkeypatch, heading, in_solve=False, solves=None):
         None, records, track(90.0), FilterConfig(), 0.2, 20.0, 10, alternatives=[track(270.0)],
         hybrid_segment_s=0.0, height_accel_noise_mps2=1.0, tilt_accel_noise_dps2=400.0,
         polish_starts=3, polish_margin=10.0, polish_switch=5.0, heading=heading,
-        heading_in_solve=in_solve,
     )  # fmt: skip
     return out[0][1].orientation_deg[0]
 
@@ -137,17 +133,6 @@ def test_the_heading_decides_between_modes_only_when_on(monkeypatch):
     assert _two_modes(monkeypatch, (30.0, 1.0, 0.3)) == 270.0
     # a spread so wide that the prior weighs less than the objective's 10 nats
     assert _two_modes(monkeypatch, (150.0, 1.0, 0.3)) == 90.0
-
-
-def test_every_solve_carries_the_heading_only_in_the_solve_mode(monkeypatch):
-    """``heading_in_solve``: every refinement (the search's and the polish's)
-    gets the heading; otherwise none does (only the choice reads it)."""
-    h = (30.0, 1.0, 0.3)
-    off: list[object] = []
-    on: list[object] = []
-    assert _two_modes(monkeypatch, h, False, off) == 270.0
-    assert _two_modes(monkeypatch, h, True, on) == 270.0
-    assert len(off) == len(on) >= 3 and set(off) == {None} and set(on) == {h}
 
 
 @pytest.mark.parametrize("bad", [-1.0, 181.0, math.nan, math.inf])
@@ -169,17 +154,11 @@ def test_tracker_toml_switches_the_heading_off(tmp_path) -> None:
     for text, want in (("0", 0.0), ("0.0", 0.0), ("12.5", 12.5)):
         path.write_text(f"[filter.pose3d]\nrefine_heading_deg = {text}\n", encoding="utf-8")
         assert read_tracker_settings(path).pose3d_overrides["refine_heading_deg"] == want
-    path.write_text("[filter.pose3d]\nrefine_heading_in_solve = true\n", encoding="utf-8")
-    assert read_tracker_settings(path).pose3d_overrides["refine_heading_in_solve"] is True
-    path.write_text("[filter.pose3d]\nrefine_heading_in_solve = 2\n", encoding="utf-8")
-    with pytest.raises(InputError, match="refine_heading_in_solve"):
-        read_tracker_settings(path)
 
 
 def test_locate_hands_the_heading_to_the_mode_choice(monkeypatch):
     """``refine_heading_deg`` > 0: ``locate`` hands the refinement the spread
-    with the heading prior's time and speed; 0: nothing; and
-    ``refine_heading_in_solve`` as it is set."""
+    with the heading prior's time and speed; 0: nothing."""
     from dataclasses import replace
 
     from filter_support import scene_3d
@@ -189,65 +168,13 @@ def test_locate_hands_the_heading_to_the_mode_choice(monkeypatch):
     seen: list[object] = []
 
     def spy(model, records, smoothed, *args, **kw):
-        seen.append((kw.get("heading"), kw.get("heading_in_solve")))
+        seen.append(kw.get("heading"))
         return list(smoothed)  # (the refinement itself is not this test's)
 
     monkeypatch.setattr(r3, "refine_smoothed", spy)
     base = TrackerConfig()
-    for deg, in_solve in ((0.0, False), (20.0, False), (20.0, True)):
+    for deg in (0.0, 20.0):
         p3 = replace(base.pose3d, refine_heading_deg=deg, heading_prior_time_s=2.0,
-                     refine_reverse_pass=False, refine_coarse_path=False,
-                     refine_heading_in_solve=in_solve)  # fmt: skip
+                     refine_reverse_pass=False, refine_coarse_path=False)  # fmt: skip
         locate(sim.site, sim.packets, "filter", replace(base, pose3d=p3))
-    assert seen == [(None, False), ((20.0, 2.0, 0.3), False), ((20.0, 2.0, 0.3), True)]
-
-
-# ----------------------------------------------------------------------------- in the solve
-def _off_walk_deg(t, pos, ori) -> float:
-    """Mean angle (°) between the azimuth and the walking direction of ``pos``."""
-    walk, _ = r3.heading_weights(t, pos, 30.0, 1.0, 0.3)
-    d = ori[:, 0] - np.rad2deg(walk)
-    return float(np.mean(np.abs((d + 180.0) % 360.0 - 180.0)))
-
-
-def test_the_heading_in_the_solve_turns_the_track_toward_the_walk() -> None:
-    """``refine_track(heading=…)`` (``refine_heading_in_solve``): on the
-    noise-free 3-D scene started at the truth, with the data weighed lightly
-    (σ told 10 dB), a tight heading prior (2°) moves the refined azimuths onto
-    the walking direction, which the data alone keep the hand's wobble away
-    from (measured 4.7° → 1.4° off the walk; the solve without it 4.7°); the
-    returned costs leave the heading term out (with no step taken they equal
-    those of the solve without it)."""
-    from filter_support import scene_3d
-
-    sim, space, p3, model, obs = scene_3d()
-    heard = [space.heard(o) for o in obs]
-    t = np.array([o.timestamp_s for o in obs])
-    prior = r3.MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)
-    pos, ori = sim.truth.position_m, sim.truth.orientation_deg
-    free = r3.refine_track(model, t, heard, pos, ori, 0.0, 10.0, prior, max_nfev=30)
-    held = r3.refine_track(
-        model, t, heard, pos, ori, 0.0, 10.0, prior, max_nfev=30, heading=(2.0, 1.0, 0.3)
-    )
-    truth_off = _off_walk_deg(t, pos, ori)
-    free_off = _off_walk_deg(t, pos, free.orientation_deg)
-    held_off = _off_walk_deg(t, pos, held.orientation_deg)
-    assert truth_off > 3.0  # the scene's wobble: something to pull
-    assert held_off < 0.5 * free_off, (truth_off, free_off, held_off)
-    # the heading rows are left out of the costs returned
-    a = r3.refine_track(model, t, heard, pos, ori, 0.0, 0.5, prior, max_nfev=1)
-    b = r3.refine_track(
-        model, t, heard, pos, ori, 0.0, 0.5, prior, max_nfev=1, heading=(2.0, 1.0, 0.3)
-    )
-    assert b.initial_cost == pytest.approx(a.initial_cost, rel=1e-12)
-    assert b.cost == pytest.approx(a.cost, rel=1e-12)
-    assert held.cost >= free.cost - 1e-6 * abs(free.cost)  # the data and motion pay for it
-
-
-def test_heading_weights_give_the_heading_cost() -> None:
-    """``heading_cost`` is Σ w (1 − cos(azimuth − walk)) of ``heading_weights``."""
-    t, pos, ori = _walk(60, 1.1, 35.0)
-    ori = ori + np.linspace(-40.0, 25.0, t.size)[:, None] * np.array([1.0, 0.0, 0.0])
-    walk, w = r3.heading_weights(t, pos, 25.0, 1.0, 0.3)
-    want = float(np.sum(w * (1.0 - np.cos(np.deg2rad(ori[:, 0]) - walk))))
-    assert r3.heading_cost(t, pos, ori, 25.0, 1.0, 0.3) == pytest.approx(want, rel=1e-12)
+    assert seen == [None, (20.0, 2.0, 0.3)]

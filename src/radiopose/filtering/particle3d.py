@@ -283,11 +283,6 @@ class Pose3dConfig:
         for one carried sideways or pocketed (docs/pose3d.md, "Heading in
         the mode choice, 2026-11-28": tuning 8.41° → 6.36°, held-out
         7.84° → 7.79°).
-    refine_heading_in_solve
-        With ``refine_heading_deg`` > 0 (default off): every refinement also
-        carries that heading prior as residuals of its solve (the walking
-        direction of each start held fixed; docs/pose3d.md, "Heading in the
-        solve, 2026-11-28"), so it moves the tracks, not only the choice.
     """
 
     n_particles: int = 2000
@@ -335,7 +330,6 @@ class Pose3dConfig:
     refine_coarse_walk_deg: float = 9.0
     refine_coarse_paths: int = 1
     refine_heading_deg: float = 30.0
-    refine_heading_in_solve: bool = False
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing

@@ -346,7 +346,6 @@ def refine_track(
     max_nfev: int = 50,
     solver: str = "lm",
     presmooth_s: float = 0.0,
-    heading: tuple[float, float, float] | None = None,
 ) -> RefinedTrack:
     """Refine one device's track by batch MAP (see the module docstring).
 
@@ -384,14 +383,6 @@ def refine_track(
         this many seconds (angles unwrapped): a particle smoother's track
         jitters from packet to packet, which the motion prior at 5 ms spacing
         charges heavily and the solver would spend its iterations removing.
-    heading
-        ``(sd °, τ s, v0 m/s)``: the hand-held heading prior
-        (:func:`heading_cost`) as residuals of the solve, one per packet,
-        ``2 √w sin(Δ/2)`` (so ½ r² = w (1 − cos Δ)), with the walking
-        direction and weight of the *initial* track (after ``presmooth_s``)
-        held fixed (the residual then depends on the packet's azimuth only).
-        ``None`` (default): off. The returned ``cost`` and ``initial_cost``
-        leave this term out (docs/pose3d.md, "Heading in the solve").
 
     Raises
     ------
@@ -456,12 +447,6 @@ def refine_track(
     ub = np.concatenate([fd_hi, [np.inf]])
 
     pri = _Prior(t, prior, n_vars) if prior is not None else None
-    if heading is not None and heading[0] > 0 and n >= 2:
-        walk, w_head = heading_weights(t, X0[:, :3], *heading)
-        sqrt_w = np.sqrt(w_head)
-    else:
-        walk = sqrt_w = np.zeros(0)
-    head_cols = _POSE * np.arange(walk.size) + 3
     sig = float(sigma_db)
     c2 = float(robust_scale) ** 2
 
@@ -477,13 +462,7 @@ def refine_track(
         if pri is not None:
             parts.append(pri.residuals(np.concatenate([X.ravel(), [b]])))
         parts.append(np.array([(b - offset_prior_db) / offset_prior_sd_db]))
-        if walk.size:
-            parts.append(2.0 * sqrt_w * np.sin(0.5 * (X[:, 3] - walk)))
         return np.concatenate(parts)
-
-    def heading_part(f: FloatArray) -> float:
-        """The heading rows' share of the cost (plain squares, the last rows)."""
-        return 0.5 * float(np.sum(f[f.size - walk.size :] ** 2)) if walk.size else 0.0
 
     data_rows = np.repeat(np.arange(m), _POSE)
     data_cols = (_POSE * pkt[:, None] + np.arange(_POSE)[None, :]).ravel()
@@ -509,20 +488,12 @@ def refine_track(
         bcol = sp.csr_matrix(
             (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
         )
-        blocks = [data + bcol, prior_block, last]
-        if walk.size:
-            d_head = sqrt_w * np.cos(0.5 * (X[:, 3] - walk))
-            blocks.append(
-                sp.csr_matrix(
-                    (d_head, (np.arange(walk.size), head_cols)), shape=(walk.size, n_vars)
-                )
-            )
-        return sp.vstack(blocks, format="csr")
+        return sp.vstack([data + bcol, prior_block, last], format="csr")
 
     loss = soft_l1_head(m, c2)
 
     f0 = fun(x0)
-    initial_cost = 0.5 * float(loss(f0**2)[0].sum()) - heading_part(f0)
+    initial_cost = 0.5 * float(loss(f0**2)[0].sum())
     if solver == "trf":
         lb_free = np.where(np.concatenate([free, [True]]), lb, -np.inf)
         ub_free = np.where(np.concatenate([free, [True]]), ub, np.inf)
@@ -537,7 +508,6 @@ def refine_track(
         x_opt, cost, nfev = res.x, float(res.cost), int(res.nfev)
     else:
         x_opt, cost, nfev = _levenberg_marquardt(fun, jac, loss, x0, lb, ub, max_nfev)
-    cost -= heading_part(fun(x_opt))
     X, b = split(x_opt)
     out_ori = np.column_stack(
         [
@@ -682,23 +652,6 @@ def heading_cost(
     t = np.asarray(t_s, dtype=float)
     if t.size < 2 or not sd_deg > 0:
         return 0.0
-    walk, w = heading_weights(t, position_m, sd_deg, time_s, speed_mps, span_s)
-    delta = np.deg2rad(np.asarray(orientation_deg, dtype=float)[:, 0]) - walk
-    return float(np.sum(w * (1.0 - np.cos(delta))))
-
-
-def heading_weights(
-    t_s: FloatArray,
-    position_m: FloatArray,
-    sd_deg: float,
-    time_s: float,
-    speed_mps: float,
-    span_s: float = 0.5,
-) -> tuple[FloatArray, FloatArray]:
-    """:func:`heading_cost`'s per-packet parts: the walking direction (radians,
-    azimuth convention: ``atan2(vy, vx) − 90°``) and the weight
-    ``(dt / τ) κ g(v)`` (nats per unit of ``1 − cos Δ``), ``(n,)`` each."""
-    t = np.asarray(t_s, dtype=float)
     p = np.asarray(position_m, dtype=float)
     lo = np.maximum(t - 0.5 * span_s, t[0])
     hi = np.minimum(t + 0.5 * span_s, t[-1])
@@ -707,12 +660,13 @@ def heading_weights(
     vy = (np.interp(hi, t, p[:, 1]) - np.interp(lo, t, p[:, 1])) / dt_span
     v2 = vx * vx + vy * vy
     walk = np.arctan2(vy, vx) - 0.5 * math.pi
+    delta = np.deg2rad(np.asarray(orientation_deg, dtype=float)[:, 0]) - walk
     # each packet's share of the track's time: half the intervals either side
     edges = np.concatenate([[t[0]], 0.5 * (t[1:] + t[:-1]), [t[-1]]])
     share = np.diff(edges)
     kappa = 1.0 / math.radians(sd_deg) ** 2
     g = v2 / (v2 + speed_mps * speed_mps)
-    return walk, share / time_s * kappa * g
+    return float(np.sum(share / time_s * kappa * g * (1.0 - np.cos(delta))))
 
 
 CoarseStart = Callable[
@@ -748,7 +702,6 @@ def refine_smoothed(
     anneal_keep_direct: bool = False,
     coarse_start: CoarseStart | None = None,
     heading: tuple[float, float, float] | None = None,
-    heading_in_solve: bool = False,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -797,10 +750,7 @@ def refine_smoothed(
     ``heading`` = ``(sd °, τ s, v0 m/s)`` (``None``: off) adds each refined
     track's :func:`heading_cost` to its objective where the modes to polish
     are picked and where the kept one is chosen (the tracks are refined
-    without it; docs/pose3d.md, "Heading in the mode choice, 2026-11-28")
-    unless ``heading_in_solve``: then every solve also carries it as
-    residuals (:func:`refine_track`'s ``heading``; its cost stays out of the
-    objectives compared, which add :func:`heading_cost` as before).
+    without it; docs/pose3d.md, "Heading in the mode choice, 2026-11-28").
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -856,7 +806,6 @@ def refine_smoothed(
             return refine_track(
                 model, t_rows, h_rows, pos, ori, off, sigma * factor, pri, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
-                heading=heading if heading_in_solve else None,
             )  # fmt: skip
 
         def searched(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:

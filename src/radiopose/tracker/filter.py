@@ -624,7 +624,6 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
             (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
             if p3.refine_heading_deg > 0 else None
         ),
-        heading_in_solve=p3.refine_heading_in_solve,
     )  # fmt: skip
 
 
