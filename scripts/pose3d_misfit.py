@@ -12,6 +12,10 @@ whose track misses the truth's basin fits worse than the readings' noise; a
 tie between modes does not. One track per run is assumed (no gap longer than
 the filter's re-acquisition gap; the last track's term is printed otherwise).
 
+``--segment-s S`` adds a σ-free misfit: the data term per reading in segments
+of ``S`` seconds of the track, its largest over its median (a track wrong over
+part of its length fits worse there than elsewhere).
+
 ``--oracle`` adds the truth's basin: the refinement started at the true poses
 (offset 0 dB) with the kept track's σ and the constant-rate prior of the
 polish, and compares objectives (σ² units ≈ nats, each with the heading cost
@@ -60,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration-s", type=float, default=4.0)
     ap.add_argument("--pose3d-set", nargs="*", default=[], metavar="FIELD=VALUE")
     ap.add_argument("--oracle", action="store_true", help="compare with the truth's basin")
+    ap.add_argument(
+        "--segment-s", type=float, default=0.0,
+        help="also the largest over the median segment's data term per reading, segments "
+        "of this many seconds (σ-free: a track wrong over part of its length fits worse there)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     over = overrides_or_exit(ap, args.pose3d_set, "--pose3d-set", Pose3dConfig)
     kept: dict[str, Any] = {}
@@ -78,6 +87,9 @@ def main(argv: list[str] | None = None) -> int:
             np.array([e.orientation_deg for e in ests]), ests[0].offset_db, sigma,
         )  # fmt: skip
         kept.update(data=float(data.sum()), m=sum(h.n_heard for h in heard), sigma=sigma)
+        if args.segment_s > 0:
+            ratio = refine3d.segment_misfit_ratio(model, records, out, config, args.segment_s)
+            kept.update(segment_ratio=ratio)
         if args.oracle:
             kept.update(_versus_truth(model, rows, ests, sigma, config, a, kw, truth[0]))
         return out
@@ -88,6 +100,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.oracle:
         head += " kept objective | truth's basin | its rotation ° | kept − truth |"
         rule += "---|---|---|---|"
+    if args.segment_s > 0:
+        head += " segment ratio |"
+        rule += "---|"
     print(head)
     print(rule)
     refine3d.refine_smoothed = keeping  # the tracker imports it from the module when it runs
@@ -113,6 +128,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.oracle:
                 k, o = kept["kept_objective"], kept["truth_objective"]
                 row += f" {k:.1f} | {o:.1f} | {kept['truth_rotation_deg']:.1f} | {k - o:+.1f} |"
+            if args.segment_s > 0:
+                row += f" {kept['segment_ratio']:.3f} |"
             print(row, flush=True)
     finally:
         refine3d.refine_smoothed = original

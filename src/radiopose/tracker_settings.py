@@ -80,6 +80,8 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "max_table_entries": (1000, 1_000_000_000),
     "heading_prior_deg": (0.0, 180.0),
     "refine_heading_deg": (0.0, 180.0),
+    "refine_escalate_ratio": (0.0, 1000.0),
+    "refine_escalate_restarts": (1, 100),
     "mode_radius_deg": (0.0, 180.0),
     "offset_bank_db": (-60.0, 60.0),
     "refine_max_nfev": (1, 100_000),
@@ -104,6 +106,7 @@ POSE3D_ZERO_ALLOWED = frozenset(
     {
         "heading_prior_deg",
         "refine_heading_deg",
+        "refine_escalate_ratio",
         "refine_hybrid_segment_s",
         "refine_height_accel_noise_mps2",
         "refine_tilt_accel_noise_dps2",

@@ -283,6 +283,13 @@ class Pose3dConfig:
         for one carried sideways or pocketed (docs/pose3d.md, "Heading in
         the mode choice, 2026-11-28": tuning 8.41° → 6.36°, held-out
         7.84° → 7.79°).
+    refine_escalate_ratio, refine_escalate_restarts
+        Offline, with ``refine`` and without ``refine_restarts`` (0: off, the
+        default): when the refined file's
+        :func:`radiopose.filtering.refine3d.segment_misfit_ratio` (0.5 s
+        segments) is above this ratio, ``refine_escalate_restarts`` mid-track
+        restarts (:mod:`radiopose.filtering.restart3d`) are run and the file is
+        refined again with them as more starts (docs/pose3d.md, "Session 17").
     """
 
     n_particles: int = 2000
@@ -330,6 +337,8 @@ class Pose3dConfig:
     refine_coarse_walk_deg: float = 9.0
     refine_coarse_paths: int = 1
     refine_heading_deg: float = 30.0
+    refine_escalate_ratio: float = 0.0
+    refine_escalate_restarts: int = 2
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
@@ -402,6 +411,14 @@ class Pose3dConfig:
             raise InputError(
                 f"3-D filter setting refine_heading_deg = {self.refine_heading_deg!r} "
                 "must be in [0, 180]"
+            )
+        if not (0 <= self.refine_escalate_ratio < math.inf) or not (
+            1 <= self.refine_escalate_restarts <= 100
+        ):
+            raise InputError(
+                f"3-D filter settings refine_escalate_ratio = {self.refine_escalate_ratio!r} "
+                f"must be >= 0 and refine_escalate_restarts = {self.refine_escalate_restarts!r} "
+                "in [1, 100]"
             )
         if not (0 <= self.heading_prior_deg < math.inf):
             raise InputError(

@@ -669,6 +669,43 @@ def heading_cost(
     return float(np.sum(share / time_s * kappa * g * (1.0 - np.cos(delta))))
 
 
+def segment_misfit_ratio(
+    model: FilterModel3d,
+    records: Sequence[tuple[float, HeardRss, object]],
+    estimates: Sequence[tuple[object, FilterEstimate]],
+    config: FilterConfig,
+    segment_s: float = 0.5,
+) -> float:
+    """A σ-free misfit of refined estimates: the data term per reading
+    (:func:`packet_costs` at each estimate's pose and offset, σ the last
+    estimate's, floored at ``config.sigma_floor_db``) in segments of
+    ``segment_s`` seconds of the packets' time, the largest segment's over the
+    median segment's (≈ 1 for a track that fits everywhere alike; a track in
+    a wrong mode over part of its length fits worse there). 0 without a heard,
+    estimated packet. ``records`` as :func:`refine_smoothed`'s."""
+    got = dict(estimates)
+    rows = [r for r in records if r[2] in got and r[1].n_heard > 0]
+    if not rows:
+        return 0.0
+    ests = [got[r[2]] for r in rows]
+    sig = [e.sigma_db for e in ests if math.isfinite(e.sigma_db)]
+    sigma = max(sig[-1] if sig else config.sigma_prior_db, config.sigma_floor_db)
+    heard = [r[1] for r in rows]
+    pos = np.array([e.position_m for e in ests], dtype=float)
+    ori = np.array([e.orientation_deg for e in ests], dtype=float)
+    off = np.array([e.offset_db for e in ests], dtype=float)
+    off = np.where(np.isfinite(off), off, 0.0)
+    cost = np.zeros(len(rows))
+    for b in np.unique(off):  # one offset per refined track
+        idx = np.flatnonzero(off == b)
+        cost[idx] = packet_costs(model, [heard[i] for i in idx], pos[idx], ori[idx], b, sigma)
+    t = np.array([r[0] for r in rows])
+    seg = np.floor((t - t[0]) / segment_s).astype(np.int64)
+    reads = np.bincount(seg, weights=[h.n_heard for h in heard])
+    per = np.bincount(seg, weights=cost)[reads > 0] / reads[reads > 0]
+    return float(per.max() / np.median(per))
+
+
 CoarseStart = Callable[
     [FloatArray, Sequence[HeardRss], float], Sequence[tuple[FloatArray, FloatArray, float]]
 ]

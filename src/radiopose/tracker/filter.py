@@ -589,7 +589,7 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
     """Every smoothed estimate of the file, each track refined by batch MAP
     (:func:`radiopose.filtering.refine3d.refine_smoothed`); clears the record."""
     from radiopose.filtering.particle3d import FilterState3d, ParticleFilter3d
-    from radiopose.filtering.refine3d import refine_smoothed
+    from radiopose.filtering.refine3d import refine_smoothed, segment_misfit_ratio
 
     pf = device.engine
     assert isinstance(pf, ParticleFilter3d)
@@ -612,19 +612,35 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
         members = members + midtrack_tracks3d(
             pf, records, seed, p3.refine_restarts, p3.refine_restart_members
         )
-    return refine_smoothed(
-        pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
-        p3.refine_max_nfev, alternatives=members, hybrid_segment_s=p3.refine_hybrid_segment_s,
-        height_accel_noise_mps2=p3.refine_height_accel_noise_mps2,
-        tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
-        polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
-        polish_switch=p3.refine_polish_switch, anneal_sigma=p3.refine_anneal_sigma,
-        anneal_keep_direct=p3.refine_anneal_keep_direct, coarse_start=_coarse_start(pf),
-        heading=(
-            (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
-            if p3.refine_heading_deg > 0 else None
-        ),
-    )  # fmt: skip
+
+    def refined(
+        alternatives: list[list[tuple[object, FilterEstimate]]],
+    ) -> list[tuple[object, FilterEstimate]]:
+        return refine_smoothed(
+            pf.model3d, records, smoothed, pf.config, p3.height_noise_mps, p3.tilt_noise_dps,
+            p3.refine_max_nfev, alternatives=alternatives,
+            hybrid_segment_s=p3.refine_hybrid_segment_s,
+            height_accel_noise_mps2=p3.refine_height_accel_noise_mps2,
+            tilt_accel_noise_dps2=p3.refine_tilt_accel_noise_dps2,
+            polish_starts=p3.refine_polish_starts, polish_margin=p3.refine_polish_margin,
+            polish_switch=p3.refine_polish_switch, anneal_sigma=p3.refine_anneal_sigma,
+            anneal_keep_direct=p3.refine_anneal_keep_direct, coarse_start=_coarse_start(pf),
+            heading=(
+                (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
+                if p3.refine_heading_deg > 0 else None
+            ),
+        )  # fmt: skip
+
+    out = refined(members)
+    if p3.refine_escalate_ratio > 0 and records and not p3.refine_restarts:
+        # a poor fit over part of the file: mid-track restarts as more starts
+        # (docs/pose3d.md, "Session 17")
+        ratio = segment_misfit_ratio(pf.model3d, records, out, pf.config)
+        if ratio > p3.refine_escalate_ratio:
+            seed = (filter_seed(device.config.seed, device.key) + 2) % 2**63
+            more = midtrack_tracks3d(pf, records, seed, p3.refine_escalate_restarts, False)
+            out = refined(members + more)
+    return out
 
 
 def _coarse_start(pf: ParticleFilter3d) -> CoarseStart | None:
