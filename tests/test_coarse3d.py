@@ -276,8 +276,9 @@ def test_locate_reads_the_setting(monkeypatch):
     monkeypatch.setattr(r3, "refine_smoothed", spy)
     base = TrackerConfig()
     for on in (False, True):
+        # (no escalation: the spy's unrefined track would be refined a second time)
         p3 = replace(base.pose3d, refine_coarse_path=on, refine_coarse_walk_m=0.5,
-                     refine_reverse_pass=False)  # fmt: skip
+                     refine_reverse_pass=False, refine_escalate_ratio=0.0)  # fmt: skip
         cfg = replace(base, pose3d=p3)
         locate(sim.site, sim.packets, "filter", cfg)
     assert seen[0] is None

@@ -66,7 +66,7 @@ def test_the_ratio_is_near_one_on_the_truth_and_high_on_a_partly_wrong_track(sce
 
 
 def test_locate_escalates_only_above_the_ratio(monkeypatch):
-    """Off by default; with a ratio below the fit's (0.5: the ratio is at least 1,
+    """Off (0): nothing more runs; with a ratio below the fit's (0.5: the ratio is at least 1,
     and exactly 1 on this 0.3 s file's one segment), the restarts run (the
     setting's number) and the file is refined again with them as more starts;
     with a ratio above it, or causal, nothing more runs."""
@@ -93,7 +93,8 @@ def test_locate_escalates_only_above_the_ratio(monkeypatch):
     monkeypatch.setattr(r3, "segment_misfit_ratio", ratio_spy)
     monkeypatch.setattr(tf, "midtrack_tracks3d", mid_spy)
     base = TrackerConfig()
-    assert base.pose3d.refine_escalate_ratio == 0.0  # off by default
+    assert base.pose3d.refine_escalate_ratio == 1.3  # the default since 2026-11-28
+    base = replace(base, pose3d=replace(base.pose3d, refine_escalate_ratio=0.0))
     locate(sim.site, sim.packets, "filter", base)
     assert len(calls) == 1 and restarts == [] and ratios == []
     low = replace(base, pose3d=replace(base.pose3d, refine_escalate_ratio=0.5,

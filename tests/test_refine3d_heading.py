@@ -174,7 +174,9 @@ def test_locate_hands_the_heading_to_the_mode_choice(monkeypatch):
     monkeypatch.setattr(r3, "refine_smoothed", spy)
     base = TrackerConfig()
     for deg in (0.0, 20.0):
+        # (no escalation: the spy's unrefined track would be refined a second time)
         p3 = replace(base.pose3d, refine_heading_deg=deg, heading_prior_time_s=2.0,
-                     refine_reverse_pass=False, refine_coarse_path=False)  # fmt: skip
+                     refine_reverse_pass=False, refine_coarse_path=False,
+                     refine_escalate_ratio=0.0)  # fmt: skip
         locate(sim.site, sim.packets, "filter", replace(base, pose3d=p3))
     assert seen == [None, (20.0, 2.0, 0.3)]

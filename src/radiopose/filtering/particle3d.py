@@ -284,8 +284,8 @@ class Pose3dConfig:
         the mode choice, 2026-11-28": tuning 8.41° → 6.36°, held-out
         7.84° → 7.79°).
     refine_escalate_ratio, refine_escalate_restarts
-        Offline, with ``refine`` and without ``refine_restarts`` (0: off, the
-        default): when the refined file's
+        Offline, with ``refine`` and without ``refine_restarts`` (0: off;
+        default 1.3 since 2026-11-28): when the refined file's
         :func:`radiopose.filtering.refine3d.segment_misfit_ratio` (0.5 s
         segments) is above this ratio, ``refine_escalate_restarts`` mid-track
         restarts (:mod:`radiopose.filtering.restart3d`) are run and the file is
@@ -337,7 +337,7 @@ class Pose3dConfig:
     refine_coarse_walk_deg: float = 9.0
     refine_coarse_paths: int = 1
     refine_heading_deg: float = 30.0
-    refine_escalate_ratio: float = 0.0
+    refine_escalate_ratio: float = 1.3
     refine_escalate_restarts: int = 2
 
     def offline(self) -> Pose3dConfig:
