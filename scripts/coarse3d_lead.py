@@ -30,16 +30,9 @@ from radiopose.filtering import particle3d
 from radiopose.filtering.coarse3d import CoarseScorer, read_windows, window_path
 from radiopose.likelihood import candidate_space
 from radiopose.packets import group_packets
+from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, Simulation, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
-
-
-def _seeds(items: list[str]) -> list[int]:
-    out: list[int] = []
-    for item in items:
-        lo, _, hi = item.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
 
 
 def _azimuth_error_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -67,7 +60,10 @@ def coarse_path(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", nargs="+", default=["7104"], help="seeds or ranges A-B")
+    ap.add_argument(
+        "--seeds", type=seed_range, nargs="+", default=[range(7104, 7105)],
+        help="seeds or ranges FIRST-LAST",
+    )  # fmt: skip
     ap.add_argument("--receivers", type=int, default=6)
     ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
     ap.add_argument("--duration-s", type=float, default=4.0)
@@ -76,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     print("| seed | pipeline: position m / rotation ° (azimuth °) | coarse path: position m / "
           "azimuth ° (max) | CPU s (pipeline, path) |")  # fmt: skip
     print("|---|---|---|---|")
-    for seed in _seeds(args.seeds):
+    for seed in (s for r in args.seeds for s in r):
         cfg = replace(HandheldConfig(), n_receivers=args.receivers, noise_db=args.sigma,
                       duration_s=args.duration_s)  # fmt: skip
         sim = simulate_handheld(cfg, seed=seed)

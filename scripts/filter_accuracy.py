@@ -80,7 +80,7 @@ from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.packets import Packets
-from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, simulate
+from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, seed_range, simulate
 from radiopose.simulate.trajectories import RotationKind
 from radiopose.tracker import TrackerConfig
 
@@ -191,18 +191,6 @@ def _one(
     return sigma, seed, out
 
 
-def _seed_set(text: str) -> range:
-    """``"1000-1009"`` (inclusive) or ``"1000"``."""
-    lo, _, hi = text.partition("-")
-    try:
-        first, last = int(lo), int(hi or lo)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seed set {text!r} is not FIRST-LAST") from None
-    if last < first:
-        raise argparse.ArgumentTypeError(f"seed set {text!r} is empty")
-    return range(first, last + 1)
-
-
 def _table(done: list, sigmas: list[float], variants: list[str], seeds: range) -> list[str]:
     lines = [
         "| σ (dB) | variant | coverage | pos mean (m) | pos median | pos p95 | ori mean (°) "
@@ -229,7 +217,7 @@ def _table(done: list, sigmas: list[float], variants: list[str], seeds: range) -
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "--seed-sets", type=_seed_set, nargs="+", default=[range(1000, 1010), range(1010, 1030)],
+        "--seed-sets", type=seed_range, nargs="+", default=[range(1000, 1010), range(1010, 1030)],
         help="seed ranges FIRST-LAST, one table each (default 1000-1009 1010-1029)",
     )  # fmt: skip
     ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])

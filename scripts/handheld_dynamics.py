@@ -19,17 +19,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, handheld_path
-
-
-def _seeds(text: str) -> list[int]:
-    lo, _, hi = text.partition("-")
-    return list(range(int(lo), int(hi or lo) + 1))
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=_seeds, default=_seeds("9000-9009"), help="FIRST-LAST")
+    ap.add_argument("--seeds", type=seed_range, default=range(9000, 9010), help="FIRST-LAST")
     ap.add_argument("--duration-s", type=float, default=4.0)
     args = ap.parse_args(argv)
     cfg = replace(HandheldConfig(), duration_s=args.duration_s)

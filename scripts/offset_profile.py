@@ -29,16 +29,11 @@ from radiopose.filtering import FilterModel
 from radiopose.filtering.offset_profile import CoarseTable, offset_profile
 from radiopose.likelihood import Scorer, candidate_space
 from radiopose.packets import group_packets
-from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.simulate import ScenarioConfig, seed_range, simulate
 
 
 class _NoScorer:
     """A stand-in for the site's scorer: the profile never searches the fine grid."""
-
-
-def _seeds(text: str) -> list[int]:
-    lo, _, hi = text.partition("-")
-    return list(range(int(lo), int(hi or lo) + 1))
 
 
 def _grid(text: str) -> tuple[float, float]:
@@ -48,7 +43,9 @@ def _grid(text: str) -> tuple[float, float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=_seeds, default=[7300], help="FIRST-LAST (tuning seeds only)")
+    ap.add_argument(
+        "--seeds", type=seed_range, default=range(7300, 7301), help="FIRST-LAST (tuning seeds only)"
+    )
     ap.add_argument("--sigmas", type=float, nargs="+", default=[3.0])
     ap.add_argument("--loud", action="store_true", help="also the device 6 dB above its power")
     ap.add_argument("--grids", type=_grid, nargs="+", default=[(1.0, 15.0)], help="STEP_M:STEP_DEG")

@@ -44,21 +44,17 @@ import radiopose.filtering.refine3d as refine3d
 from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.particle3d import Pose3dConfig
+from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 
 
-def _seeds(items: list[str]) -> list[int]:
-    out: list[int] = []
-    for item in items:
-        lo, _, hi = item.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", nargs="+", default=["7104"], help="seeds or ranges A-B")
+    ap.add_argument(
+        "--seeds", type=seed_range, nargs="+", default=[range(7104, 7105)],
+        help="seeds or ranges FIRST-LAST",
+    )  # fmt: skip
     ap.add_argument("--receivers", type=int, default=6)
     ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
     ap.add_argument("--duration-s", type=float, default=4.0)
@@ -107,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     print(rule)
     refine3d.refine_smoothed = keeping  # the tracker imports it from the module when it runs
     try:
-        for seed in _seeds(args.seeds):
+        for seed in (s for r in args.seeds for s in r):
             cfg = replace(HandheldConfig(), n_receivers=args.receivers, noise_db=args.sigma,
                           duration_s=args.duration_s)  # fmt: skip
             sim = simulate_handheld(cfg, seed=seed)

@@ -118,6 +118,10 @@ def test_handheld_dynamics(capsys: pytest.CaptureFixture[str]) -> None:
     rows = _table_rows(printed)[2:]
     assert [row.split("|")[1].strip() for row in rows] == ["9000", "9001"]
     assert all(float(row.split("|")[2]) > 0 for row in rows)  # the walk turns
+    with pytest.raises(SystemExit) as exc:  # a bad seed set: the parser's usage error
+        _load(SCRIPTS / "handheld_dynamics.py").main(["--seeds", "9001-9000"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().endswith("seed set '9001-9000' is empty")
 
 
 def test_orientation_outliers(capsys: pytest.CaptureFixture[str]) -> None:

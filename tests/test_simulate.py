@@ -1,5 +1,6 @@
 """Simulator: determinism, contract conformance, motion options."""
 
+import argparse
 import csv
 import hashlib
 from dataclasses import replace
@@ -7,10 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from radiopose.errors import InputError
 from radiopose.packets import read_packets_csv, read_truth_csv
-from radiopose.simulate import MotionConfig, ScenarioConfig, simulate
+from radiopose.simulate import MotionConfig, ScenarioConfig, seed_range, simulate
 from radiopose.site import load_site
 from radiopose.units import angle_diff_deg
 
@@ -119,3 +122,21 @@ def test_noise_level():
 def test_bad_config(bad):
     with pytest.raises(InputError):
         simulate(replace(SMALL, **bad))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 10**6), st.integers(0, 1000))
+def test_seed_range_reads_first_last_and_one_seed(first: int, span: int) -> None:
+    """The scripts' ``--seeds`` type: ``FIRST-LAST`` inclusive, ``SEED`` alone."""
+    assert seed_range(f"{first}-{first + span}") == range(first, first + span + 1)
+    assert seed_range(str(first)) == range(first, first + 1)
+    if span:
+        with pytest.raises(argparse.ArgumentTypeError, match="is empty"):
+            seed_range(f"{first + span}-{first}")
+
+
+@pytest.mark.parametrize("bad", ["", "x", "1-x", "1-2-3", "1.5", "-"])
+def test_seed_range_refuses_what_is_not_a_seed_set(bad: str) -> None:
+    with pytest.raises(argparse.ArgumentTypeError, match="is not FIRST-LAST") as err:
+        seed_range(bad)
+    assert "\n" not in str(err.value)

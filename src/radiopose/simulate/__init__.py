@@ -1,7 +1,7 @@
 """Simulation: channel model, trajectories, scenarios and their writers."""
 
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
-from radiopose.simulate.scenario import ScenarioConfig, Simulation, simulate
+from radiopose.simulate.scenario import ScenarioConfig, Simulation, seed_range, simulate
 from radiopose.simulate.trajectories import MotionConfig
 
 __all__ = [
@@ -10,5 +10,6 @@ __all__ = [
     "ScenarioConfig",
     "Simulation",
     "link_rss_dbm",
+    "seed_range",
     "simulate",
 ]

@@ -18,6 +18,7 @@ same config and seed give byte-identical files.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
 from collections.abc import Sequence
@@ -222,6 +223,20 @@ def _receiver_positions(rng: np.random.Generator, cfg: ScenarioConfig) -> FloatA
             pts.append(p)
     xy = np.array(pts)
     return np.column_stack([xy, np.full(len(pts), cfg.z_m)])
+
+
+def seed_range(text: str) -> range:
+    """Simulation seeds ``"FIRST-LAST"`` (inclusive) or ``"SEED"``, as a range; the
+    scripts' ``--seeds`` type. A malformed or empty set is an
+    :class:`argparse.ArgumentTypeError` (the parser's one-line usage error)."""
+    lo, _, hi = text.partition("-")
+    try:
+        first, last = int(lo), int(hi or lo)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seed set {text!r} is not FIRST-LAST") from None
+    if last < first:
+        raise argparse.ArgumentTypeError(f"seed set {text!r} is empty")
+    return range(first, last + 1)
 
 
 def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
