@@ -127,3 +127,35 @@ def test_bad_settings_are_one_line_errors(field, value, tmp_path) -> None:
     assert "\n" not in str(err.value)
     path.write_text("[filter.pose3d]\nrefine_escalate_ratio = 0\n", encoding="utf-8")
     assert read_tracker_settings(path).pose3d_overrides["refine_escalate_ratio"] == 0.0
+
+
+def test_a_memo_shares_the_solves_between_calls(scene, monkeypatch):
+    """``refine_smoothed(memo=…)``: a second call on the same packets solves nothing
+    again and returns the same estimates; with one more start only what that
+    start adds is solved (the escalation's second refinement)."""
+    model, records, pos, ori = scene
+    calls: list[int] = []
+    real = r3.refine_track
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(r3, "refine_track", counting)
+    smoothed = _estimates(pos, ori)
+    bent = ori + np.array([25.0, 0.0, 0.0])
+    args = (model, records, smoothed, FilterConfig(), 0.2, 20.0, 5)
+    kw = {"height_accel_noise_mps2": 1.0, "tilt_accel_noise_dps2": 400.0, "polish_starts": 2,
+          "polish_margin": 1e9}  # fmt: skip
+    plain = r3.refine_smoothed(*args, **kw)
+    n_plain = len(calls)
+    memo: dict = {}
+    first = r3.refine_smoothed(*args, memo=memo, **kw)
+    assert len(calls) == 2 * n_plain and first == plain
+    again = r3.refine_smoothed(*args, memo=memo, **kw)
+    assert len(calls) == 2 * n_plain and again == plain  # nothing solved again
+    more = r3.refine_smoothed(*args, memo=memo, alternatives=[_estimates(pos, bent)], **kw)
+    added = len(calls) - 2 * n_plain
+    fresh = r3.refine_smoothed(*args, alternatives=[_estimates(pos, bent)], **kw)
+    assert 1 <= added < len(calls) - 2 * n_plain - added  # fewer than a call without it
+    assert more == fresh

@@ -50,7 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -739,6 +739,7 @@ def refine_smoothed(
     anneal_keep_direct: bool = False,
     coarse_start: CoarseStart | None = None,
     heading: tuple[float, float, float] | None = None,
+    memo: dict[tuple[object, ...], object] | None = None,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -788,6 +789,10 @@ def refine_smoothed(
     track's :func:`heading_cost` to its objective where the modes to polish
     are picked and where the kept one is chosen (the tracks are refined
     without it; docs/pose3d.md, "Heading in the mode choice, 2026-11-28").
+    ``memo`` (optional, a dict the caller keeps): each solve and each coarse
+    start is stored by its inputs and reused by a later call on the same
+    packets (the escalation refines a file again with more starts; the solves
+    are deterministic, so the result is the same as solving again).
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -830,8 +835,18 @@ def refine_smoothed(
         t_rows = np.array([r[0] for r in rows])
         h_rows = [r[1] for r in rows]
         sigma = max(s_db, config.sigma_floor_db)
+        track_key = (t_rows.tobytes(), float(sigma))
+
+        def remembered(key: tuple[object, ...], make: Callable[[], Any]) -> Any:
+            if memo is None:
+                return make()
+            if key not in memo:
+                memo[key] = make()
+            return memo[key]
+
         if coarse_start is not None:
-            inits += coarse_start(t_rows, h_rows, sigma)
+            cs = coarse_start
+            inits += remembered(("coarse", *track_key), lambda: cs(t_rows, h_rows, sigma))
 
         def solve(
             pos: FloatArray,
@@ -840,10 +855,12 @@ def refine_smoothed(
             pri: MotionPrior = search,
             factor: float = 1.0,
         ) -> RefinedTrack:
-            return refine_track(
+            key = ("solve", *track_key, np.asarray(pos).tobytes(), np.asarray(ori).tobytes(),
+                   float(off), pri, float(factor))  # fmt: skip
+            return remembered(key, lambda: refine_track(
                 model, t_rows, h_rows, pos, ori, off, sigma * factor, pri, offset_prior_db=0.0,
                 offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
-            )  # fmt: skip
+            ))  # fmt: skip
 
         def searched(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:
             """A start refined at σ, first at σ × each ``anneal_sigma`` factor."""

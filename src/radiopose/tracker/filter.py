@@ -613,6 +613,8 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
             pf, records, seed, p3.refine_restarts, p3.refine_restart_members
         )
 
+    memo: dict[tuple[object, ...], object] = {}  # solves shared by an escalation's second call
+
     def refined(
         alternatives: list[list[tuple[object, FilterEstimate]]],
     ) -> list[tuple[object, FilterEstimate]]:
@@ -629,6 +631,7 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
                 (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
                 if p3.refine_heading_deg > 0 else None
             ),
+            memo=memo,
         )  # fmt: skip
 
     out = refined(members)
