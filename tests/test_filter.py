@@ -442,11 +442,11 @@ def test_accuracy_script_tables_each_seed_set_and_counts_bad_runs():
     import argparse
 
     fa = _accuracy_script()
-    assert fa._seed_set("1010-1029") == range(1010, 1030)
-    assert fa._seed_set("7") == range(7, 8)
+    assert fa.seed_range("1010-1029") == range(1010, 1030)
+    assert fa.seed_range("7") == range(7, 8)
     for bad in ("x", "5-3", "1-b"):
         with pytest.raises(argparse.ArgumentTypeError, match="seed set"):
-            fa._seed_set(bad)
+            fa.seed_range(bad)
 
     def run(ori_deg: float) -> object:
         return fa.RunResult(np.full(4, 0.5), np.full(4, ori_deg), 4, 4, 1.0)
