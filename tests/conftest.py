@@ -39,6 +39,7 @@ TIERS: dict[str, str] = {
     "test_pose3d_site": "property",
     "test_patterns_importers": "property",
     "test_refine3d_escalate": "e2e",
+    "test_orientation_path": "e2e",
     "test_patterns_io": "property",
     "test_site": "property",
     "test_site_toml_keys": "property",

@@ -111,19 +111,24 @@ def test_refinement_runs_offline_only(monkeypatch):
     # the chosen track, each member's (a member's track equal to the chosen one
     # is refined once), the reversed pass's track, the coarse HMM's path, at
     # most one hybrid start spliced from them, then up to three distinct
-    # refined tracks polished with the constant-rate prior
+    # refined tracks polished with the constant-rate prior, then the orientation
+    # path's start and its polish
     assert calls and set(calls) == {n}
-    assert 3 + n_members <= len(calls) <= 4 + n_members + polish
+    assert 3 + n_members + 2 <= len(calls) <= 4 + n_members + polish + 2
     assert np.all(off.estimates.position_m == 1.234)
     calls.clear()
     one = TrackerConfig()
     one = replace(
         one,
         pose3d=replace(one.pose3d, refine_from_members=False, refine_reverse_pass=False,
-                       refine_coarse_path=False),
+                       refine_coarse_path=False, refine_orientation_path=False),
     )  # fmt: skip
     locate(sim.site, sim.packets, "filter", one)
     assert calls == [n, n]  # the chosen track, then its polish
+    calls.clear()
+    locate(sim.site, sim.packets, "filter",
+           replace(one, pose3d=replace(one.pose3d, refine_orientation_path=True)))  # fmt: skip
+    assert calls == [n, n, n, n]  # … then the orientation path's start and its polish
     calls.clear()
     locate(sim.site, sim.packets, "filter",
            replace(one, pose3d=replace(one.pose3d, refine_coarse_path=True)))  # fmt: skip
@@ -285,8 +290,10 @@ def test_locate_hands_the_refinement_prior_to_the_solve(monkeypatch):
 
     monkeypatch.setattr(r3, "refine_track", spy)
     cfg = TrackerConfig()
+    # (the orientation path's start, refined after the mode choice, is off here:
+    # tests/test_orientation_path.py)
     p3 = replace(cfg.pose3d, refine_height_accel_noise_mps2=1.5, refine_tilt_accel_noise_dps2=300.0,
-                 refine_polish_starts=1)  # fmt: skip
+                 refine_polish_starts=1, refine_orientation_path=False)  # fmt: skip
     out = locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
     rates = [(p.height_accel_noise_mps2, p.tilt_accel_noise_dps2) for p in seen]
     n_starts = len(seen) - 1

@@ -290,6 +290,13 @@ class Pose3dConfig:
         segments) is above this ratio, ``refine_escalate_restarts`` mid-track
         restarts (:mod:`radiopose.filtering.restart3d`) are run and the file is
         refined again with them as more starts (docs/pose3d.md, "Session 17").
+    refine_orientation_path
+        Offline, with ``refine``: after the mode choice, a Viterbi search over a
+        fine orientation grid along the kept track's positions
+        (:mod:`radiopose.filtering.orientation_path`) gives one more start,
+        refined and polished; it replaces the kept track when its objective is
+        lower by more than ``refine_polish_switch`` (docs/pose3d.md, "An
+        orientation path, 2026-11-28").
     """
 
     n_particles: int = 2000
@@ -339,6 +346,7 @@ class Pose3dConfig:
     refine_heading_deg: float = 30.0
     refine_escalate_ratio: float = 1.3
     refine_escalate_restarts: int = 2
+    refine_orientation_path: bool = True
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing

@@ -740,6 +740,7 @@ def refine_smoothed(
     coarse_start: CoarseStart | None = None,
     heading: tuple[float, float, float] | None = None,
     memo: dict[tuple[object, ...], object] | None = None,
+    orientation_path: bool = False,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -793,6 +794,13 @@ def refine_smoothed(
     start is stored by its inputs and reused by a later call on the same
     packets (the escalation refines a file again with more starts; the solves
     are deterministic, so the result is the same as solving again).
+    ``orientation_path``: after the mode choice, the most likely orientation
+    path along the kept track's positions
+    (:func:`radiopose.filtering.orientation_path.orientation_path`, a Viterbi
+    search over a fine orientation grid) is refined like a start (and
+    polished) and replaces the kept track when its objective (with the
+    heading cost) is lower by more than ``polish_switch``
+    (docs/pose3d.md, "An orientation path, 2026-11-28").
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -914,6 +922,19 @@ def refine_smoothed(
             # the search's own choice (done[0]) stays unless another mode is clearly lower
             score[0] -= polish_switch
         best = done[int(np.argmin(score))]
+        if orientation_path:
+            from radiopose.filtering.orientation_path import orientation_path as o_path
+
+            kept = best
+            path = remembered(
+                ("orientation-path", *track_key, kept.position_m.tobytes(), kept.offset_db),
+                lambda: o_path(model, t_rows, h_rows, kept.position_m, kept.offset_db, sigma),
+            )
+            found = searched(kept.position_m, path, kept.offset_db)
+            if polish:
+                found = solve(found.position_m, found.orientation_deg, found.offset_db, prior)
+            if found.cost + extra(found) < kept.cost + extra(kept) - polish_switch:
+                best = found
         for i, (r, e) in enumerate(zip(rows, ests, strict=True)):
             p, o = best.position_m[i], best.orientation_deg[i]
             out[r[2]] = replace(
