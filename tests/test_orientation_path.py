@@ -187,7 +187,7 @@ def _refine(scene, start_ori, **kwargs):
 def test_a_half_turned_track_is_recovered_only_with_the_path(scene):
     """The start turned 180° in azimuth over its second second: the refinement keeps a
     wrong track (measured 76.5° mean), the orientation path's start takes it back
-    (12.8°)."""
+    (12.5°)."""
     *_, ori = scene
     bent = ori.copy()
     half = len(bent) // 2
