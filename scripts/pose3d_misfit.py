@@ -75,8 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         got = dict(out)
         rows = [r for r in records if r[2] in got and r[1].n_heard > 0]
         ests = [got[r[2]] for r in rows]
-        sig = [e.sigma_db for e in ests if math.isfinite(e.sigma_db)]
-        sigma = max(sig[-1] if sig else config.sigma_prior_db, config.sigma_floor_db)
+        sigma = refine3d.track_sigma_db(ests, config)
         heard = [r[1] for r in rows]
         data = refine3d.packet_costs(
             model, heard, np.array([e.position_m for e in ests]),

@@ -44,6 +44,7 @@ import numpy as np
 
 from radiopose.errors import InputError
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.filtering.refine3d import checked_track
 from radiopose.likelihood import HeardRss
 from radiopose.units import FloatArray
 
@@ -100,15 +101,7 @@ def orientation_path(
         Arrays of different lengths, an empty track, times going backwards,
         non-finite positions, offset or σ.
     """
-    t = np.asarray(times_s, dtype=float)
-    pos = np.asarray(position_m, dtype=float)
-    n = t.size
-    if n == 0 or pos.shape != (n, 3) or len(heard) != n:
-        raise InputError("orientation_path: times, readings and (n, 3) positions must match")
-    if not (np.isfinite(t).all() and np.isfinite(pos).all()) or np.any(np.diff(t) < 0):
-        raise InputError(
-            "orientation_path: times must be finite and non-decreasing, positions finite"
-        )
+    t, pos, _ = checked_track("orientation_path", times_s, position_m, None, heard)
     if not (math.isfinite(offset_db) and math.isfinite(sigma_db) and sigma_db > 0):
         raise InputError("orientation_path: the offset must be finite and σ positive")
 

@@ -306,18 +306,20 @@ def checked_track(
     where: str,
     times_s: Sequence[float] | FloatArray,
     position_m: FloatArray,
-    orientation_deg: FloatArray,
+    orientation_deg: FloatArray | None,
     heard: Sequence[HeardRss],
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
     """A track to refine as float arrays ``(times s (n,), positions m (n, 3),
     orientations ° (n, 3))``, checked: one row per packet, finite, times not
-    going backwards; otherwise a one-line :class:`InputError` naming ``where``."""
+    going backwards; otherwise a one-line :class:`InputError` naming ``where``.
+    ``orientation_deg = None``: a track of positions only (the orientations
+    returned are zeros)."""
     t = np.asarray(times_s, dtype=float).reshape(-1)
     n = t.size
     if n == 0:
         raise InputError(f"{where}: the track is empty (no packet to refine)")
     pos = np.asarray(position_m, dtype=float)
-    ori = np.asarray(orientation_deg, dtype=float)
+    ori = np.zeros((n, 3)) if orientation_deg is None else np.asarray(orientation_deg, dtype=float)
     if pos.shape != (n, 3) or ori.shape != (n, 3) or len(heard) != n:
         raise InputError(
             f"{where}: {n} times, {len(heard)} packets, positions {pos.shape} and "
@@ -669,6 +671,14 @@ def heading_cost(
     return float(np.sum(share / time_s * kappa * g * (1.0 - np.cos(delta))))
 
 
+def track_sigma_db(estimates: Sequence[FilterEstimate], config: FilterConfig) -> float:
+    """The σ (dB) a track of filter estimates is refined and scored at: the last
+    finite online σ estimate (``config.sigma_prior_db`` without one), floored at
+    ``config.sigma_floor_db``."""
+    sig = [e.sigma_db for e in estimates if math.isfinite(e.sigma_db)]
+    return max(sig[-1] if sig else config.sigma_prior_db, config.sigma_floor_db)
+
+
 def segment_misfit_ratio(
     model: FilterModel3d,
     records: Sequence[tuple[float, HeardRss, object]],
@@ -677,8 +687,8 @@ def segment_misfit_ratio(
     segment_s: float = 0.5,
 ) -> float:
     """A σ-free misfit of refined estimates: the data term per reading
-    (:func:`packet_costs` at each estimate's pose and offset, σ the last
-    estimate's, floored at ``config.sigma_floor_db``) in segments of
+    (:func:`packet_costs` at each estimate's pose and offset, σ
+    :func:`track_sigma_db`) in segments of
     ``segment_s`` seconds of the packets' time, the largest segment's over the
     median segment's (≈ 1 for a track that fits everywhere alike; a track in
     a wrong mode over part of its length fits worse there). 0 without a heard,
@@ -688,8 +698,7 @@ def segment_misfit_ratio(
     if not rows:
         return 0.0
     ests = [got[r[2]] for r in rows]
-    sig = [e.sigma_db for e in ests if math.isfinite(e.sigma_db)]
-    sigma = max(sig[-1] if sig else config.sigma_prior_db, config.sigma_floor_db)
+    sigma = track_sigma_db(ests, config)
     heard = [r[1] for r in rows]
     pos = np.array([e.position_m for e in ests], dtype=float)
     ori = np.array([e.orientation_deg for e in ests], dtype=float)
@@ -831,8 +840,6 @@ def refine_smoothed(
         if not rows:
             return
         ests = [by_key[r[2]] for r in rows]
-        sig = np.array([e.sigma_db for e in ests], dtype=float)
-        s_db = float(sig[np.isfinite(sig)][-1]) if np.isfinite(sig).any() else config.sigma_prior_db
         inits = [start(ests)]
         for alt in alt_keys:
             if all(r[2] in alt for r in rows):
@@ -842,7 +849,7 @@ def refine_smoothed(
                     inits.append(init)
         t_rows = np.array([r[0] for r in rows])
         h_rows = [r[1] for r in rows]
-        sigma = max(s_db, config.sigma_floor_db)
+        sigma = track_sigma_db(ests, config)
         track_key = (t_rows.tobytes(), float(sigma))
 
         def remembered(key: tuple[object, ...], make: Callable[[], Any]) -> Any:
