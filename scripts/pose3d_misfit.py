@@ -19,7 +19,8 @@ part of its length fits worse there than elsewhere).
 ``--oracle`` adds the truth's basin: the refinement started at the true poses
 (offset 0 dB) with the kept track's σ and the constant-rate prior of the
 polish, and compares objectives (σ² units ≈ nats, each with the heading cost
-of the mode choice when ``refine_heading_deg`` > 0): ``kept − truth`` > 0 means
+of the mode choice when ``refine_heading_deg`` > 0 and the hand-held band's
+when it is set): ``kept − truth`` > 0 means
 the truth's basin is lower and no start reached it (a *search* failure); ≤ 0
 means the kept track is at least as likely as the truth's (an *objective* tie
 or error, which no search fixes). The kept track's objective is evaluated at
@@ -59,6 +60,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
     ap.add_argument("--duration-s", type=float, default=4.0)
     ap.add_argument("--pose3d-set", nargs="*", default=[], metavar="FIELD=VALUE")
+    ap.add_argument(
+        "--sim-set", nargs="*", default=[], metavar="FIELD=VALUE",
+        help="HandheldConfig overrides of the simulated scenario (e.g. a truth outside the "
+        "hand-held ranges: pitch_range_deg=(0,85))",
+    )  # fmt: skip
     ap.add_argument("--oracle", action="store_true", help="compare with the truth's basin")
     ap.add_argument(
         "--segment-s", type=float, default=0.0,
@@ -67,6 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     args = ap.parse_args(argv)
     over = overrides_or_exit(ap, args.pose3d_set, "--pose3d-set", Pose3dConfig)
+    sim_over = overrides_or_exit(ap, args.sim_set, "--sim-set", HandheldConfig)
     kept: dict[str, Any] = {}
     original = refine3d.refine_smoothed
 
@@ -104,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for seed in (s for r in args.seeds for s in r):
             cfg = replace(HandheldConfig(), n_receivers=args.receivers, noise_db=args.sigma,
-                          duration_s=args.duration_s)  # fmt: skip
+                          duration_s=args.duration_s, **sim_over)  # fmt: skip
             sim = simulate_handheld(cfg, seed=seed)
             tcfg = TrackerConfig()
             tcfg = replace(tcfg, pose3d=replace(tcfg.pose3d, **over))
@@ -143,7 +150,8 @@ def _versus_truth(model, rows, ests, sigma, config, a, kw, truth) -> dict[str, f
     heard = [r[1] for r in rows]
     pos = np.array([e.position_m for e in ests])
     ori = np.array([e.orientation_deg for e in ests])
-    common = {"offset_prior_db": 0.0, "offset_prior_sd_db": config.offset_prior_sd_db}
+    common = {"offset_prior_db": 0.0, "offset_prior_sd_db": config.offset_prior_sd_db,
+              "band": kw.get("band")}  # fmt: skip
     at_kept = refine3d.refine_track(
         model, t, heard, pos, ori, ests[0].offset_db, sigma, prior, max_nfev=1, **common
     )

@@ -84,6 +84,7 @@ TIERS: dict[str, str] = {
     "test_restart3d": "e2e",
     "test_offline_particles3d": "e2e",
     "test_refine3d_anneal": "e2e",
+    "test_refine3d_band": "e2e",
     "test_coarse3d": "e2e",
     "test_realdata": "e2e",
     "test_scripts_smoke": "e2e",

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -72,6 +72,9 @@ from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site
 from radiopose.survey_height import HeightModel, build_height_model
 from radiopose.units import FloatArray
+
+if TYPE_CHECKING:
+    from radiopose.filtering.refine3d import PoseBand
 
 ESTIMATES = ("mode", "mean")
 """The values of :attr:`Pose3dConfig.estimate`."""
@@ -297,6 +300,22 @@ class Pose3dConfig:
         refined and polished; it replaces the kept track when its objective is
         lower by more than ``refine_polish_switch`` (docs/pose3d.md, "An
         orientation path, 2026-11-28").
+    hand_height_m, hand_pitch_deg
+        A hand-held band prior (empty: off;
+        :class:`radiopose.filtering.refine3d.PoseBand`): flat for a height
+        inside ``[low, high]`` metres and a pitch inside ``[low, high]``
+        degrees, ``½ (dt/τ) (d/sd)²`` nats per packet outside (``τ =
+        heading_prior_time_s``, ``d`` the distance to the band). It enters
+        every offline refinement solve (with ``refine``) and, with
+        ``hand_band_filter``, the particle filter's weights at each packet
+        (every pass: causal, live and offline). A modelling assumption about a
+        phone held in the hand, not about radio: wrong for a phone on a table
+        or in a pocket (docs/pose3d.md, "A hand-held band, 2026-11-28").
+    hand_height_sd_m, hand_pitch_sd_deg
+        The band prior's spread outside the band: metres and degrees.
+    hand_band_filter
+        Whether the particle filter weighs the band too (the refinement always
+        does when a band is set).
     """
 
     n_particles: int = 2000
@@ -347,6 +366,26 @@ class Pose3dConfig:
     refine_escalate_ratio: float = 1.3
     refine_escalate_restarts: int = 2
     refine_orientation_path: bool = True
+    hand_height_m: tuple[float, ...] = ()
+    hand_height_sd_m: float = 0.1
+    hand_pitch_deg: tuple[float, ...] = ()
+    hand_pitch_sd_deg: float = 10.0
+    hand_band_filter: bool = False
+
+    def hand_band(self) -> PoseBand | None:
+        """The refinement's hand-held band prior (``None``: both bands off)."""
+        from radiopose.filtering.refine3d import PoseBand
+
+        h, pt = self.hand_height_m, self.hand_pitch_deg
+        if not h and not pt:
+            return None
+        return PoseBand(
+            height_m=(float(h[0]), float(h[1])) if h else None,
+            height_sd_m=self.hand_height_sd_m,
+            pitch_deg=(float(pt[0]), float(pt[1])) if pt else None,
+            pitch_sd_deg=self.hand_pitch_sd_deg,
+            time_s=self.heading_prior_time_s,
+        )
 
     def offline(self) -> Pose3dConfig:
         """These settings for an offline pass (batch ``locate`` with a smoothing
@@ -360,7 +399,8 @@ class Pose3dConfig:
             "angular_accel_noise_dps2", "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
             "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
             "heading_prior_time_s", "heading_prior_speed_mps", "offset_bank_sd_db",
-            "refine_coarse_walk_m", "refine_coarse_walk_deg",
+            "refine_coarse_walk_m", "refine_coarse_walk_deg", "hand_height_sd_m",
+            "hand_pitch_sd_deg",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
@@ -442,6 +482,20 @@ class Pose3dConfig:
                 f"3-D filter setting offset_bank_db = {self.offset_bank_db!r}: finite offsets, "
                 "at least 10 particles each"
             )
+        for name, lo, hi in (
+            ("hand_height_m", -1e6, 1e6),
+            ("hand_pitch_deg", -90.0, 90.0),
+        ):
+            b = getattr(self, name)
+            if b and not (
+                len(b) == 2
+                and all(isinstance(v, int | float) and lo <= v <= hi for v in b)
+                and b[0] <= b[1]
+            ):
+                raise InputError(
+                    f"3-D filter setting {name} = {list(b)!r} must be empty (off) or "
+                    f"[low, high] with {lo:g} <= low <= high <= {hi:g}"
+                )
         if not (0 < self.mode_radius_deg <= 180 and self.mode_centres >= 1):
             raise InputError("3-D filter settings: mode_radius_deg in (0, 180], mode_centres >= 1")
 
@@ -617,6 +671,15 @@ class FilterState3d(FilterState):
     bank_smoothed: list[list[tuple[object, FilterEstimate]]] | None = None
 
 
+def _band_prior(S: FloatArray, logw: FloatArray, band: PoseBand, dt_s: float) -> None:
+    """Add the hand-held band prior's ``−½ (dt/τ) (d/sd)²`` to ``logw`` in place."""
+    w = dt_s / band.time_s
+    for c, lo, hi, sd in band.axes():
+        x = S[:, K.Z_M if c == 2 else K.PITCH_RAD]
+        d = x - np.clip(x, lo, hi)
+        logw -= 0.5 * w * (d / sd) ** 2
+
+
 class ParticleFilter3d(ParticleFilter):
     """The 3-D filter for one device (see the module docstring).
 
@@ -661,6 +724,7 @@ class ParticleFilter3d(ParticleFilter):
                 self.pose3d.height_noise_mps,
             ]
         )
+        self._band = self.pose3d.hand_band() if self.pose3d.hand_band_filter else None
         bank = self.pose3d.offset_bank_db
         member = replace(
             self.pose3d, offset_bank_db=(), n_particles=self.pose3d.n_particles // max(len(bank), 1)
@@ -846,6 +910,9 @@ class ParticleFilter3d(ParticleFilter):
                 S, logw, dt / p3.heading_prior_time_s,
                 1.0 / math.radians(p3.heading_prior_deg) ** 2, p3.heading_prior_speed_mps,
             )  # fmt: skip
+        band = self._band
+        if band is not None and dt > 0:
+            _band_prior(S, logw, band, dt)
         lse0, lse1 = packet_update3d(
             S, logw, work.noise, noise_z, dt, self._motion, mod.box_m, mod.tilt_rad, mod.z_box_m,
             np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.arrays3d(),

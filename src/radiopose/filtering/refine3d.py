@@ -141,6 +141,69 @@ class MotionPrior:
 
 
 @dataclass(frozen=True)
+class PoseBand:
+    """A hand-held pose prior for the refinement: height and pitch inside bands.
+
+    Inside ``height_m`` (m) and ``pitch_deg`` (°) the prior is flat; outside, each
+    packet costs ``½ (dt / τ) (d / sd)²`` nats, ``d`` the distance to the band
+    (metres or degrees), ``dt`` the packet's share of the track's time and
+    ``τ = time_s``, so the prior counts once per ``τ`` of data, not once per
+    packet (as :func:`heading_cost`). ``None`` leaves that axis free. A
+    modelling assumption about a phone held in the hand (issue 18: 0.8–1.6 m,
+    pitched 20–70°), not about radio: wrong for a phone on a table or in a
+    pocket (docs/pose3d.md, "A hand-held band, 2026-11-28").
+    """
+
+    height_m: tuple[float, float] | None = None
+    height_sd_m: float = 0.1
+    pitch_deg: tuple[float, float] | None = None
+    pitch_sd_deg: float = 10.0
+    time_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name, b in (("height_m", self.height_m), ("pitch_deg", self.pitch_deg)):
+            if b is not None and not (
+                len(b) == 2 and all(math.isfinite(v) for v in b) and b[0] <= b[1]
+            ):
+                raise InputError(f"hand-held band {name} = {b!r} must be [low, high], low <= high")
+        for name in ("height_sd_m", "pitch_sd_deg", "time_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v > 0):
+                raise InputError(f"hand-held band {name} = {v!r} must be a positive number")
+
+    def axes(self) -> list[tuple[int, float, float, float]]:
+        """``(pose column, low, high, sd)`` per banded axis, in the refinement's
+        units (metres; radians)."""
+        out = []
+        if self.height_m is not None:
+            out.append((2, float(self.height_m[0]), float(self.height_m[1]), self.height_sd_m))
+        if self.pitch_deg is not None:
+            lo, hi = (math.radians(v) for v in self.pitch_deg)
+            out.append((4, lo, hi, math.radians(self.pitch_sd_deg)))
+        return out
+
+    def cost(self, t_s: FloatArray, position_m: FloatArray, orientation_deg: FloatArray) -> float:
+        """This prior's cost of a whole track, nats (``t_s`` ascending seconds;
+        ``(n, 3)`` positions, m, and orientations, °)."""
+        t = np.asarray(t_s, dtype=float)
+        X = np.column_stack([np.asarray(position_m, float), np.deg2rad(orientation_deg)])
+        w = _time_share(t) / self.time_s
+        total = 0.0
+        for c, lo, hi, sd in self.axes():
+            d = X[:, c] - np.clip(X[:, c], lo, hi)
+            total += 0.5 * float(np.sum(w * (d / sd) ** 2))
+        return total
+
+
+def _time_share(t: FloatArray) -> FloatArray:
+    """Each packet's share of the track's time, s: half the intervals either side."""
+    if t.size < 2:
+        return np.zeros(t.size)
+    edges = np.concatenate([[t[0]], 0.5 * (t[1:] + t[:-1]), [t[-1]]])
+    return np.diff(edges)
+
+
+@dataclass(frozen=True)
 class RefinedTrack:
     """The result of :func:`refine_track`.
 
@@ -348,6 +411,7 @@ def refine_track(
     max_nfev: int = 50,
     solver: str = "lm",
     presmooth_s: float = 0.0,
+    band: PoseBand | None = None,
 ) -> RefinedTrack:
     """Refine one device's track by batch MAP (see the module docstring).
 
@@ -385,6 +449,10 @@ def refine_track(
         this many seconds (angles unwrapped): a particle smoother's track
         jitters from packet to packet, which the motion prior at 5 ms spacing
         charges heavily and the solver would spend its iterations removing.
+    band
+        Optional hand-held band prior (:class:`PoseBand`) on height and
+        pitch: plain squared residuals beside the motion prior's, so the
+        objective (``cost``) includes its cost.
 
     Raises
     ------
@@ -449,7 +517,27 @@ def refine_track(
     ub = np.concatenate([fd_hi, [np.inf]])
 
     pri = _Prior(t, prior, n_vars) if prior is not None else None
+    # the band's rows: per banded (free) axis, √(share/τ)/sd · (x − clip(x, lo, hi))
+    bands = [a for a in (band.axes() if band is not None else []) if not frozen[a[0]]]
+    band_w = np.sqrt(_time_share(t) / band.time_s) if band is not None else np.zeros(0)
     sig = float(sigma_db)
+
+    def band_residuals(X: FloatArray) -> list[FloatArray]:
+        return [band_w / sd * (X[:, c] - np.clip(X[:, c], lo, hi)) for c, lo, hi, sd in bands]
+
+    def band_jac(X: FloatArray) -> sp.csr_matrix:
+        if not bands:
+            return sp.csr_matrix((0, n_vars))
+        rows, cols, vals = [], [], []
+        for k, (c, lo, hi, sd) in enumerate(bands):
+            out = np.flatnonzero((X[:, c] < lo) | (X[:, c] > hi))
+            rows.append(k * n + out)
+            cols.append(_POSE * out + c)
+            vals.append(band_w[out] / sd)
+        return sp.csr_matrix(
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(len(bands) * n, n_vars),
+        )
     c2 = float(robust_scale) ** 2
 
     def split(x: FloatArray) -> tuple[FloatArray, float]:
@@ -463,6 +551,7 @@ def refine_track(
         parts = [data]
         if pri is not None:
             parts.append(pri.residuals(np.concatenate([X.ravel(), [b]])))
+        parts += band_residuals(X)
         parts.append(np.array([(b - offset_prior_db) / offset_prior_sd_db]))
         return np.concatenate(parts)
 
@@ -490,7 +579,7 @@ def refine_track(
         bcol = sp.csr_matrix(
             (np.full(m, -1.0 / sig), (np.arange(m), np.full(m, n_vars - 1))), shape=(m, n_vars)
         )
-        return sp.vstack([data + bcol, prior_block, last], format="csr")
+        return sp.vstack([data + bcol, prior_block, band_jac(X), last], format="csr")
 
     loss = soft_l1_head(m, c2)
 
@@ -663,9 +752,7 @@ def heading_cost(
     v2 = vx * vx + vy * vy
     walk = np.arctan2(vy, vx) - 0.5 * math.pi
     delta = np.deg2rad(np.asarray(orientation_deg, dtype=float)[:, 0]) - walk
-    # each packet's share of the track's time: half the intervals either side
-    edges = np.concatenate([[t[0]], 0.5 * (t[1:] + t[:-1]), [t[-1]]])
-    share = np.diff(edges)
+    share = _time_share(t)
     kappa = 1.0 / math.radians(sd_deg) ** 2
     g = v2 / (v2 + speed_mps * speed_mps)
     return float(np.sum(share / time_s * kappa * g * (1.0 - np.cos(delta))))
@@ -750,6 +837,7 @@ def refine_smoothed(
     heading: tuple[float, float, float] | None = None,
     memo: dict[tuple[object, ...], object] | None = None,
     orientation_path: bool = False,
+    band: PoseBand | None = None,
 ) -> list[tuple[object, FilterEstimate]]:
     """The 3-D filter's smoothed estimates refined by :func:`refine_track`.
 
@@ -810,6 +898,8 @@ def refine_smoothed(
     polished) and replaces the kept track when its objective (with the
     heading cost) is lower by more than ``polish_switch``
     (docs/pose3d.md, "An orientation path, 2026-11-28").
+    ``band`` (optional, :class:`PoseBand`): the hand-held band prior in every
+    solve (so in every objective the mode choice compares).
     Returns every
     smoothed estimate, those of the refined tracks with their pose and offset
     replaced (spread and σ kept).
@@ -871,10 +961,10 @@ def refine_smoothed(
             factor: float = 1.0,
         ) -> RefinedTrack:
             key = ("solve", *track_key, np.asarray(pos).tobytes(), np.asarray(ori).tobytes(),
-                   float(off), pri, float(factor))  # fmt: skip
+                   float(off), pri, float(factor), band)  # fmt: skip
             return remembered(key, lambda: refine_track(
                 model, t_rows, h_rows, pos, ori, off, sigma * factor, pri, offset_prior_db=0.0,
-                offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev,
+                offset_prior_sd_db=config.offset_prior_sd_db, max_nfev=max_nfev, band=band,
             ))  # fmt: skip
 
         def searched(pos: FloatArray, ori: FloatArray, off: float) -> RefinedTrack:

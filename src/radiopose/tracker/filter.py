@@ -631,7 +631,7 @@ def _refine(device: Device, state: FilterState) -> list[tuple[object, FilterEsti
                 (p3.refine_heading_deg, p3.heading_prior_time_s, p3.heading_prior_speed_mps)
                 if p3.refine_heading_deg > 0 else None
             ),
-            memo=memo, orientation_path=p3.refine_orientation_path,
+            memo=memo, orientation_path=p3.refine_orientation_path, band=p3.hand_band(),
         )  # fmt: skip
 
     out = refined(members)
