@@ -26,10 +26,15 @@ means the kept track is at least as likely as the truth's (an *objective* tie
 or error, which no search fixes). The kept track's objective is evaluated at
 its poses and offset without moving them.
 
+``--sim-set`` overrides the simulated scenario's
+:class:`~radiopose.simulate.handheld.HandheldConfig` (e.g. a truth outside the
+hand-held ranges, to measure what a hand-held prior costs when its assumption
+is wrong: docs/pose3d.md, "A hand-held band, 2026-11-28").
+
 Usage (tuning seeds only, or seeds already spent, for diagnosis)::
 
     python scripts/pose3d_misfit.py --seeds 7104-7124 9100-9139 [--oracle]
-        [--pose3d-set FIELD=VALUE ...]
+        [--pose3d-set FIELD=VALUE ...] [--sim-set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ from typing import Any
 import numpy as np
 
 import radiopose.filtering.refine3d as refine3d
+from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.particle3d import Pose3dConfig
@@ -74,6 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     over = overrides_or_exit(ap, args.pose3d_set, "--pose3d-set", Pose3dConfig)
     sim_over = overrides_or_exit(ap, args.sim_set, "--sim-set", HandheldConfig)
+    try:
+        replace(HandheldConfig(), **sim_over).validate()
+    except InputError as exc:
+        ap.error(f"--sim-set {exc}")
     kept: dict[str, Any] = {}
     original = refine3d.refine_smoothed
 

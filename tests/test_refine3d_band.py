@@ -109,8 +109,8 @@ def test_locate_hands_the_band_to_every_solve(monkeypatch):
     cfg = TrackerConfig()
     cheap = replace(cfg.pose3d, refine_orientation_path=False, refine_reverse_pass=False,
                     refine_coarse_path=False, refine_escalate_ratio=0.0)  # fmt: skip
-    p3 = replace(cheap, hand_height_m=(0.8, 1.6), hand_pitch_deg=(20, 70),
-                 hand_pitch_sd_deg=7.0, heading_prior_time_s=2.0, hand_band_filter=True)  # fmt: skip
+    p3 = replace(cheap, hand_height_m=(0.8, 1.6), hand_pitch_deg=(20, 70), hand_pitch_sd_deg=7.0,
+                 heading_prior_time_s=2.0, hand_band_filter=True)  # fmt: skip
     locate(sim.site, sim.packets, "filter", replace(cfg, pose3d=p3))
     want = PoseBand(height_m=(0.8, 1.6), height_sd_m=0.1, pitch_deg=(20.0, 70.0),
                     pitch_sd_deg=7.0, time_s=2.0)  # fmt: skip

@@ -288,6 +288,9 @@ def test_pose3d_misfit(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:
         _load(SCRIPTS / "pose3d_misfit.py").main(["--pose3d-set", "no_such_field=1"])
     assert exc.value.code == 2
+    with pytest.raises(SystemExit) as exc:  # the scenario's overrides are checked too
+        _load(SCRIPTS / "pose3d_misfit.py").main(["--sim-set", "pitch_range_deg=(70.0,20.0)"])
+    assert exc.value.code == 2
 
 
 SCRIPT_TESTS: dict[str, Callable[..., None]] = {

@@ -538,6 +538,7 @@ def refine_track(
             (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
             shape=(len(bands) * n, n_vars),
         )
+
     c2 = float(robust_scale) ** 2
 
     def split(x: FloatArray) -> tuple[FloatArray, float]:
