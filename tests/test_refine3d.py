@@ -107,10 +107,10 @@ def test_refinement_runs_offline_only(monkeypatch):
     n_members = len(Pose3dConfig().offset_bank_db)
     n = len(group_packets(sim.packets))
     polish = Pose3dConfig().refine_polish_starts  # the constant-rate prior's polish (default on)
-    assert polish == 3
+    assert polish == 5
     # the chosen track, each member's (a member's track equal to the chosen one
     # is refined once), the reversed pass's track, the coarse HMM's path, at
-    # most one hybrid start spliced from them, then up to three distinct
+    # most one hybrid start spliced from them, then up to five distinct
     # refined tracks polished with the constant-rate prior, then the orientation
     # path's start and its polish
     assert calls and set(calls) == {n}
