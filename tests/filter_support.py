@@ -180,6 +180,19 @@ def scene_3d_records() -> tuple[Simulation, FilterModel3d, Pose3dConfig, list]:
     return sim, model, p3, records
 
 
+def refine_scene_3d() -> tuple[Simulation, FilterModel3d, FloatArray, list[HeardRss], object]:
+    """:func:`scene_3d` as :func:`radiopose.filtering.refine3d.refine_track` takes
+    it: the simulation, the 3-D model, the packet times (s), their readings and
+    the filter's random-walk motion prior."""
+    from radiopose.filtering.refine3d import MotionPrior
+
+    sim, space, p3, model, obs = scene_3d()
+    heard = [space.heard(o) for o in obs]
+    t = np.array([o.timestamp_s for o in obs])
+    prior = MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)
+    return sim, model, t, heard, prior
+
+
 def track_axis_errors(track: list, sim: Simulation):  # -> evaluate.pose3d.AxisErrors
     """Per-packet errors of a smoothed track ``[((packet_id, t_s), estimate), …]``
     against the simulation's truth at the packets' own times."""

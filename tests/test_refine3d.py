@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from filter_support import SCENE_3D, SEED_3D, scene_3d
+from filter_support import SCENE_3D, SEED_3D, refine_scene_3d
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors_of
 from radiopose.filtering import FilterConfig
@@ -26,11 +26,7 @@ SCENE, SEED = SCENE_3D, SEED_3D  # filter_support's noise-free 3-D scene
 
 @pytest.fixture(scope="module")
 def scene():
-    sim, space, p3, model, obs = scene_3d()
-    heard = [space.heard(o) for o in obs]
-    t = np.array([o.timestamp_s for o in obs])
-    prior = MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)
-    return sim, model, t, heard, prior
+    return refine_scene_3d()
 
 
 def _errors(res, sim):

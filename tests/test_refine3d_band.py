@@ -12,11 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from filter_support import SCENE_3D, SEED_3D, scene_3d
+from filter_support import SCENE_3D, SEED_3D, refine_scene_3d
 from radiopose.errors import InputError
-from radiopose.filtering import FilterConfig
 from radiopose.filtering.particle3d import Pose3dConfig
-from radiopose.filtering.refine3d import MotionPrior, PoseBand, refine_track
+from radiopose.filtering.refine3d import PoseBand, refine_track
 from radiopose.simulate.handheld import simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 from radiopose.tracker_settings import read_tracker_settings
@@ -24,11 +23,7 @@ from radiopose.tracker_settings import read_tracker_settings
 
 @pytest.fixture(scope="module")
 def scene():
-    sim, space, p3, model, obs = scene_3d()
-    heard = [space.heard(o) for o in obs]
-    t = np.array([o.timestamp_s for o in obs])
-    prior = MotionPrior.of_filter(FilterConfig(), p3.height_noise_mps, p3.tilt_noise_dps)
-    return sim, model, t, heard, prior
+    return refine_scene_3d()
 
 
 def test_the_band_costs_its_formula_inside_the_objective(scene):
