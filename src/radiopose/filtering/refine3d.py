@@ -142,7 +142,9 @@ class MotionPrior:
 
 @dataclass(frozen=True)
 class PoseBand:
-    """A hand-held pose prior for the refinement: height and pitch inside bands.
+    """A hand-held pose prior: height and pitch inside bands (the refinement's
+    residuals, and the 3-D particle filter's weights with
+    ``Pose3dConfig.hand_band_filter``).
 
     Inside ``height_m`` (m) and ``pitch_deg`` (°) the prior is flat; outside, each
     packet costs ``½ (dt / τ) (d / sd)²`` nats, ``d`` the distance to the band
