@@ -376,7 +376,8 @@ class Pose3dConfig:
     hand_band_filter: bool = False
 
     def hand_band(self) -> PoseBand | None:
-        """The refinement's hand-held band prior (``None``: both bands off)."""
+        """The hand-held band prior of the refinement and, with
+        ``hand_band_filter``, of the filter's weights (``None``: both bands off)."""
         from radiopose.filtering.refine3d import PoseBand
 
         h, pt = self.hand_height_m, self.hand_pitch_deg
@@ -676,11 +677,7 @@ class FilterState3d(FilterState):
 
 def _band_prior(S: FloatArray, logw: FloatArray, band: PoseBand, dt_s: float) -> None:
     """Add the hand-held band prior's ``−½ (dt/τ) (d/sd)²`` to ``logw`` in place."""
-    w = dt_s / band.time_s
-    for c, lo, hi, sd in band.axes():
-        x = S[:, K.Z_M if c == 2 else K.PITCH_RAD]
-        d = x - np.clip(x, lo, hi)
-        logw -= 0.5 * w * (d / sd) ** 2
+    logw -= 0.5 * dt_s / band.time_s * band.excess_sq(S[:, K.Z_M], S[:, K.PITCH_RAD])
 
 
 class ParticleFilter3d(ParticleFilter):

@@ -184,17 +184,21 @@ class PoseBand:
             out.append((4, lo, hi, math.radians(self.pitch_sd_deg)))
         return out
 
+    def excess_sq(self, height_m: FloatArray, pitch_rad: FloatArray) -> FloatArray:
+        """Per pose, ``Σ (d / sd)²`` over the banded axes (``d`` the distance
+        outside the band; 0 inside): heights in metres, pitches in radians."""
+        out = np.zeros(np.shape(height_m))
+        for c, lo, hi, sd in self.axes():
+            x = np.asarray(height_m if c == 2 else pitch_rad, dtype=float)
+            out += ((x - np.clip(x, lo, hi)) / sd) ** 2
+        return out
+
     def cost(self, t_s: FloatArray, position_m: FloatArray, orientation_deg: FloatArray) -> float:
         """This prior's cost of a whole track, nats (``t_s`` ascending seconds;
         ``(n, 3)`` positions, m, and orientations, °)."""
-        t = np.asarray(t_s, dtype=float)
-        X = np.column_stack([np.asarray(position_m, float), np.deg2rad(orientation_deg)])
-        w = _time_share(t) / self.time_s
-        total = 0.0
-        for c, lo, hi, sd in self.axes():
-            d = X[:, c] - np.clip(X[:, c], lo, hi)
-            total += 0.5 * float(np.sum(w * (d / sd) ** 2))
-        return total
+        w = _time_share(np.asarray(t_s, dtype=float)) / self.time_s
+        pitch = np.deg2rad(np.asarray(orientation_deg, dtype=float)[:, 1])
+        return 0.5 * float(np.sum(w * self.excess_sq(np.asarray(position_m)[:, 2], pitch)))
 
 
 def _time_share(t: FloatArray) -> FloatArray:
