@@ -14,6 +14,16 @@ one intercept per receiver. With several surveyed heights, each height has
 its own map and a height between two surveyed ones blends the two corrected
 values linearly in ``z``; outside them the nearest surveyed height is used.
 
+Detrended maps (``build_height_model(..., detrend=True)``): the survey is
+interpolated onto the candidate grid with its path loss removed —
+``R_r(x, y) = M_r(x, y; z_s) + 10 n log10(max(d(z_s), d0))`` at each surveyed
+point — and the path loss is added back at the device's exact 3-D distance,
+``M_r(x, y, z) = R_r(x, y) − 10 n log10(max(d(z), d0))``. Near a receiver the
+log-distance law bends faster than a survey grid of a metre or so can follow,
+and interpolating ``M`` itself flattens its peak (docs/pose3d.md, "Detrended
+survey maps"); ``R`` is what remains after the law (the receiver's pattern,
+the room), smoother wherever the law dominates.
+
 What the model assumes (and a real survey must check): the receiver's own
 pattern and the room change little with the device's height — true for a
 receiver whose pattern depends only on the horizontal direction (a vertical
@@ -53,6 +63,9 @@ class HeightModel:
         Grid axes of the maps, metres.
     receivers_m
         ``(n_rx, 3)`` receiver positions, metres.
+    detrended
+        ``maps_db`` hold ``R_r`` (the survey with its path loss in 3-D distance
+        removed) rather than ``M_r`` (module docstring).
     """
 
     exponent: float
@@ -61,6 +74,7 @@ class HeightModel:
     x_m: FloatArray
     y_m: FloatArray
     receivers_m: FloatArray
+    detrended: bool = False
 
     def channel_db(self, xyz_m: FloatArray) -> FloatArray:
         """``M_r(x, y, z)`` ``(n, n_rx)`` dB at points ``(n, 3)`` (bilinear in x, y)."""
@@ -85,13 +99,16 @@ class HeightModel:
 
     def correction_db(self, xyz_m: FloatArray, from_z_m: FloatArray | float) -> FloatArray:
         """``−10 n log10(max(d(z), d0) / max(d(z_s), d0))`` ``(n, n_rx)`` dB from height
-        ``from_z_m`` (scalar or ``(n,)``) to each point's own height."""
+        ``from_z_m`` (scalar or ``(n,)``) to each point's own height; for detrended
+        maps the whole law ``−10 n log10(max(d(z), d0))`` (``from_z_m`` unused)."""
         p = np.asarray(xyz_m, float).reshape(-1, 3)
         zs = np.broadcast_to(np.asarray(from_z_m, float), (p.shape[0],))
         horiz2 = np.sum((p[:, None, :2] - self.receivers_m[None, :, :2]) ** 2, axis=-1)
         d = np.sqrt(horiz2 + (p[:, None, 2] - self.receivers_m[None, :, 2]) ** 2)
-        ds = np.sqrt(horiz2 + (zs[:, None] - self.receivers_m[None, :, 2]) ** 2)
         d0 = REFERENCE_DISTANCE_M
+        if self.detrended:
+            return -10.0 * self.exponent * np.log10(np.maximum(d, d0))
+        ds = np.sqrt(horiz2 + (zs[:, None] - self.receivers_m[None, :, 2]) ** 2)
         return -10.0 * self.exponent * np.log10(np.maximum(d, d0) / np.maximum(ds, d0))
 
 
@@ -112,23 +129,33 @@ def _bilinear_all(maps: FloatArray, x: FloatArray, y: FloatArray, p: FloatArray)
     return a * (1 - fu) + b * fu
 
 
+def _corrected_survey(site: Site) -> FloatArray:
+    """The survey's channel values ``M = R − P_tx − D_st`` per survey row, dB."""
+    cfg = site.survey_config
+    return correct_survey(site.survey_rows, cfg.tx_power_dbm, site.patterns[cfg.pattern],
+                          site.receivers)  # fmt: skip
+
+
+def _survey_log_distance(site: Site) -> tuple[np.ndarray, FloatArray]:
+    """Per survey row: its receiver's index and ``10 log10(max(d, d0))``, ``d`` the
+    3-D distance from the surveyed point to that receiver (m)."""
+    rows = site.survey_rows
+    ids = list(site.receiver_ids)
+    idx = np.array([ids.index(r) for r in rows.receiver_id], dtype=np.int64)
+    d = np.linalg.norm(rows.xyz_m - site.receiver_positions_m()[idx], axis=1)
+    return idx, 10.0 * np.log10(np.maximum(d, REFERENCE_DISTANCE_M))
+
+
 def fit_exponent(site: Site) -> float:
     """Least-squares path-loss exponent of the corrected survey in 3-D distance.
 
     ``M = a_r − n · 10 log10(max(d, d0))`` with one intercept ``a_r`` per
     receiver; ``n`` clipped to :data:`EXPONENT_RANGE`.
     """
-    rows = site.survey_rows
-    m_db = correct_survey(
-        rows, site.survey_config.tx_power_dbm, site.patterns[site.survey_config.pattern],
-        site.receivers,
-    )  # fmt: skip
-    ids = list(site.receiver_ids)
-    idx = np.array([ids.index(r) for r in rows.receiver_id], dtype=np.int64)
-    d = np.linalg.norm(rows.xyz_m - site.receiver_positions_m()[idx], axis=1)
-    ell = 10.0 * np.log10(np.maximum(d, REFERENCE_DISTANCE_M))
+    m_db = _corrected_survey(site)
+    idx, ell = _survey_log_distance(site)
     num = den = 0.0
-    for r in range(len(ids)):
+    for r in range(len(site.receiver_ids)):
         sel = idx == r
         if sel.sum() < 2:
             continue
@@ -139,20 +166,22 @@ def fit_exponent(site: Site) -> float:
     return float(np.clip(n, *EXPONENT_RANGE))
 
 
-def build_height_model(site: Site, decimals: int = 3) -> HeightModel:
+def build_height_model(site: Site, decimals: int = 3, detrend: bool = False) -> HeightModel:
     """The site's :class:`HeightModel`: one map per surveyed height (heights rounded
-    to ``decimals``), the site's own survey map where only one height was surveyed."""
+    to ``decimals``), the site's own survey map where only one height was surveyed;
+    ``detrend``: maps of the survey with its fitted path loss removed (module
+    docstring), interpolated with the site's own interpolation settings."""
     rows = site.survey_rows
     z = np.round(rows.xyz_m[:, 2], decimals)
     layers = np.unique(z)
     x, y = np.asarray(site.survey_map.x_m, float), np.asarray(site.survey_map.y_m, float)
-    if layers.size == 1:
+    exponent = fit_exponent(site)
+    if layers.size == 1 and not detrend:
         maps = np.asarray(site.survey_map.m_db, float)[None]
     else:
-        m_db = correct_survey(
-            rows, site.survey_config.tx_power_dbm, site.patterns[site.survey_config.pattern],
-            site.receivers,
-        )  # fmt: skip
+        m_db = _corrected_survey(site)
+        if detrend:
+            m_db = m_db + exponent * _survey_log_distance(site)[1]
         out = []
         for h in layers:
             sel = z == h
@@ -167,6 +196,6 @@ def build_height_model(site: Site, decimals: int = 3) -> HeightModel:
             out.append(np.asarray(smap.m_db, float))
         maps = np.stack(out)
     return HeightModel(
-        fit_exponent(site), layers.astype(float), np.ascontiguousarray(maps), x, y,
-        site.receiver_positions_m(),
+        exponent, layers.astype(float), np.ascontiguousarray(maps), x, y,
+        site.receiver_positions_m(), detrend,
     )  # fmt: skip

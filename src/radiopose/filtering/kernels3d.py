@@ -23,8 +23,11 @@ _RAD_TO_DEG = 180.0 / math.pi
 
 
 @numba.njit(cache=True, inline="always")
-def _channel_db(maps, layers_z, exponent, r, x, y, z, horiz2, rz, g):  # pragma: no cover
-    """``M_r(x, y, z)``: the surveyed maps moved along 3-D distance (survey_height)."""
+def _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, horiz2, rz, g):  # pragma: no cover
+    """``M_r(x, y, z)``: the surveyed maps moved along 3-D distance (survey_height);
+    ``detrended``: the maps hold the survey with its path loss removed
+    (:attr:`radiopose.survey_height.HeightModel.detrended`), which is added back
+    here at the exact 3-D distance."""
     x0, dx, nx, y0, dy, ny = g[0], g[1], int(g[2]), g[3], g[4], int(g[5])
     d = math.sqrt(horiz2 + (rz - z) ** 2)
     ld = math.log10(max(d, 1.0))
@@ -36,13 +39,13 @@ def _channel_db(maps, layers_z, exponent, r, x, y, z, horiz2, rz, g):  # pragma:
             lo += 1
         frac = min(max((z - layers_z[lo]) / (layers_z[lo + 1] - layers_z[lo]), 0.0), 1.0)
     zl = layers_z[lo]
-    ds = math.sqrt(horiz2 + (rz - zl) ** 2)
+    ds = 1.0 if detrended else math.sqrt(horiz2 + (rz - zl) ** 2)
     m = K._map_db(maps[lo], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (
         ld - math.log10(max(ds, 1.0))
     )
     if frac > 0.0:
         zh = layers_z[lo + 1]
-        ds = math.sqrt(horiz2 + (rz - zh) ** 2)
+        ds = 1.0 if detrended else math.sqrt(horiz2 + (rz - zh) ** 2)
         mh = K._map_db(maps[lo + 1], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (
             ld - math.log10(max(ds, 1.0))
         )
@@ -52,7 +55,7 @@ def _channel_db(maps, layers_z, exponent, r, x, y, z, horiz2, rz, g):  # pragma:
 
 @numba.njit(cache=True)
 def expected3d_into(
-    S, heard, rx, maps, layers_z, exponent, grid, tx_dbm, d, pat, out
+    S, heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat, out
 ):  # pragma: no cover
     """Expected RSS ``(n, h)`` dBm without the offset into ``out``: the height
     model's channel + ``tx_dbm`` + the full-sphere pattern toward each receiver
@@ -83,7 +86,7 @@ def expected3d_into(
             else:
                 phi = math.atan2(vy, vx) * _RAD_TO_DEG
                 theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
-            m = _channel_db(maps, layers_z, exponent, r, x, y, z, ddx * ddx + ddy * ddy,
+            m = _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, ddx * ddx + ddy * ddy,
                             rx[r, 2], grid)  # fmt: skip
             out[i, q] = m + tx_dbm + K._pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
 
@@ -144,7 +147,7 @@ def tilt_height_step(S, noise_tilt, noise_z, dt_s, q_tilt, q_z, tilt, z_box):  #
 @numba.njit(cache=True)
 def packet_update3d(  # pragma: no cover - compiled
     S, logw, noise, noise_z, dt_s, motion, box, tilt, z_box,
-    heard, rx, maps, layers_z, exponent, grid, tx_dbm, d, pat,
+    heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat,
     rss, sigma_db, log_eps, pred, w,
 ):  # fmt: skip
     """One packet: predict (the 2-D :func:`kernels.predict` for x, y, azimuth,
@@ -156,7 +159,7 @@ def packet_update3d(  # pragma: no cover - compiled
         K.predict(S, noise, dt_s, motion[0], motion[1], 0.0, motion[3], motion[4], box, frozen)
         tilt_height_step(S, noise[:, 3:5], noise_z, dt_s, motion[2], motion[5], tilt, z_box)
     lse0 = K.log_sum_exp(logw)
-    expected3d_into(S, heard, rx, maps, layers_z, exponent, grid, tx_dbm, d, pat, pred)
+    expected3d_into(S, heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat, pred)
     K.measurement_update(S, pred, rss, sigma_db, log_eps, logw)
     return lse0, K.normalise_into(logw, w)
 

@@ -319,6 +319,12 @@ class Pose3dConfig:
     hand_band_filter
         Whether the particle filter weighs the band too (the refinement always
         does when a band is set).
+    survey_detrend
+        The height model's maps interpolate the survey with its fitted path
+        loss removed and add the path loss back at each pose's exact 3-D
+        distance (:func:`radiopose.survey_height.build_height_model`); off:
+        the survey's own map, moved along 3-D distance (docs/pose3d.md,
+        "Detrended survey maps").
     """
 
     n_particles: int = 2000
@@ -374,6 +380,7 @@ class Pose3dConfig:
     hand_pitch_deg: tuple[float, ...] = ()
     hand_pitch_sd_deg: float = 10.0
     hand_band_filter: bool = False
+    survey_detrend: bool = False
 
     def hand_band(self) -> PoseBand | None:
         """The hand-held band prior of the refinement and, with
@@ -617,6 +624,7 @@ class FilterModel3d(FilterModel):
     maps_db: FloatArray = field(default_factory=lambda: np.zeros((1, 1, 1, 1)))
     layers_z_m: FloatArray = field(default_factory=lambda: np.zeros(1))
     exponent: float = 2.0
+    detrended: bool = False
     coarse: CoarseGrid | None = None
     tilt_rad: FloatArray = field(default_factory=lambda: np.zeros(4))
     z_box_m: FloatArray = field(default_factory=lambda: np.zeros(2))
@@ -625,7 +633,7 @@ class FilterModel3d(FilterModel):
     def build3d(cls, site: Site, space: CandidateSpace, cfg: Pose3dConfig) -> FilterModel3d:
         """The device's arrays (``space`` names the device: pattern, power, receivers)."""
         base = FilterModel.build(site, space, _NoScorer())  # type: ignore[arg-type]
-        height = build_height_model(site)
+        height = build_height_model(site, detrend=cfg.survey_detrend)
         coarse = CoarseGrid.build(site, height, float(space.tx_power_dbm), space.pattern, cfg)
         o = site.orientations
         p_lo, p_hi = _support(o.pitch_deg, -90.0, 90.0)
@@ -637,6 +645,7 @@ class FilterModel3d(FilterModel):
             maps_db=np.ascontiguousarray(height.maps_db, dtype=np.float64),
             layers_z_m=np.ascontiguousarray(height.layers_z_m, dtype=np.float64),
             exponent=float(height.exponent),
+            detrended=bool(height.detrended),
             coarse=coarse,
             tilt_rad=np.deg2rad([p_lo, p_hi, r_c, r_w]),
             z_box_m=np.array([z.min(), z.max()], float),
@@ -650,9 +659,11 @@ class FilterModel3d(FilterModel):
         return out
 
     def arrays3d(self) -> tuple[Any, ...]:
-        """``(rx, maps, layers_z, exponent, grid, tx_dbm, d, pat)`` of the kernels."""
+        """``(rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat)`` of the
+        kernels."""
         return (
-            self.receivers_m, self.maps_db, self.layers_z_m, self.exponent, self.grid,
+            self.receivers_m, self.maps_db, self.layers_z_m, self.exponent, self.detrended,
+            self.grid,
             self.tx_power_dbm, self.pattern_dbi, self.pattern_axes,
         )  # fmt: skip
 
