@@ -202,8 +202,8 @@ def test_detrended_maps_follow_the_channel_near_a_receiver(clean_sim):
     site = clean_sim.site
     space = candidate_space(site, site.devices[0].transmitter)
     cfg = Pose3dConfig(acquisition_step_m=5.0, acquisition_tilts=2)
-    plain = FilterModel3d.build3d(site, space, cfg)
-    det = FilterModel3d.build3d(site, space, replace(cfg, survey_detrend=True))
+    plain = FilterModel3d.build3d(site, space, replace(cfg, survey_detrend=False))
+    det = FilterModel3d.build3d(site, space, cfg)  # the default
     assert det.detrended and not plain.detrended
     rx = site.receiver_positions_m()
     rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
@@ -542,8 +542,8 @@ def test_survey_detrend_read_from_tracker_toml(tmp_path):
     from radiopose.tracker_settings import read_tracker_settings
 
     p = tmp_path / "tracker.toml"
-    p.write_text("[filter.pose3d]\nsurvey_detrend = true\n")
-    assert read_tracker_settings(p).pose3d().survey_detrend is True
+    p.write_text("[filter.pose3d]\nsurvey_detrend = false\n")
+    assert read_tracker_settings(p).pose3d().survey_detrend is False
     p.write_text('[filter.pose3d]\nsurvey_detrend = "yes"\n')
     with pytest.raises(InputError, match="survey_detrend") as err:
         read_tracker_settings(p)

@@ -322,9 +322,9 @@ class Pose3dConfig:
     survey_detrend
         The height model's maps interpolate the survey with its fitted path
         loss removed and add the path loss back at each pose's exact 3-D
-        distance (:func:`radiopose.survey_height.build_height_model`); off:
-        the survey's own map, moved along 3-D distance (docs/pose3d.md,
-        "Detrended survey maps").
+        distance (:func:`radiopose.survey_height.build_height_model`; the
+        default since 2026-11-28); off: the survey's own map, moved along 3-D
+        distance (docs/pose3d.md, "Detrended survey maps").
     """
 
     n_particles: int = 2000
@@ -380,7 +380,7 @@ class Pose3dConfig:
     hand_pitch_deg: tuple[float, ...] = ()
     hand_pitch_sd_deg: float = 10.0
     hand_band_filter: bool = False
-    survey_detrend: bool = False
+    survey_detrend: bool = True
 
     def hand_band(self) -> PoseBand | None:
         """The hand-held band prior of the refinement and, with
