@@ -619,7 +619,8 @@ class FilterModel3d(FilterModel):
     """:class:`FilterModel` with height: the height model's maps, the coarse grid
     and the tilt and height supports. ``channel_db``/``grid`` are the 2-D map
     (unused by the 3-D kernels); ``maps_db`` ``(L, n_rx, nx, ny)`` at
-    ``layers_z_m``."""
+    ``layers_z_m``, with the survey's path loss removed when ``detrended``
+    (:class:`radiopose.survey_height.HeightModel`)."""
 
     maps_db: FloatArray = field(default_factory=lambda: np.zeros((1, 1, 1, 1)))
     layers_z_m: FloatArray = field(default_factory=lambda: np.zeros(1))
