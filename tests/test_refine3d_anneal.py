@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from filter_support import require_wrong_mode
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors
 from radiopose.filtering import FilterConfig, refine3d
@@ -108,7 +109,10 @@ def test_annealed_starts_leave_a_flipped_mode():
     base = TrackerConfig()
     on = replace(base, pose3d=replace(base.pose3d, refine_anneal_sigma=(3.0,)))
     e_off = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", base).estimates)
+    # the later default stages (coarse path, orientation path, detrended maps)
+    # leave this flip by themselves on some hosts (12.5° seen 2026-11-28)
+    require_wrong_mode(float(e_off.rotation_deg.mean()), 90.0, f"seed {SEED_FIXED} by default")
+    assert e_off.position_m.mean() > 0.6
     e_on = axis_errors(sim.truth, locate(sim.site, sim.packets, "filter", on).estimates)
-    assert e_off.rotation_deg.mean() > 90.0 and e_off.position_m.mean() > 0.6
     assert e_on.rotation_deg.mean() < 20.0 and e_on.position_m.mean() < 0.3
     assert e_on.coverage == 1.0
