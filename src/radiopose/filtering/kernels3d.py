@@ -38,17 +38,14 @@ def _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, horiz2, rz, g):
         while lo < n_layer - 2 and z >= layers_z[lo + 1]:
             lo += 1
         frac = min(max((z - layers_z[lo]) / (layers_z[lo + 1] - layers_z[lo]), 0.0), 1.0)
+    # the law at the surveyed height, which detrended maps have already removed
     zl = layers_z[lo]
-    ds = 1.0 if detrended else math.sqrt(horiz2 + (rz - zl) ** 2)
-    m = K._map_db(maps[lo], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (
-        ld - math.log10(max(ds, 1.0))
-    )
+    lds = 0.0 if detrended else math.log10(max(math.sqrt(horiz2 + (rz - zl) ** 2), 1.0))
+    m = K._map_db(maps[lo], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (ld - lds)
     if frac > 0.0:
         zh = layers_z[lo + 1]
-        ds = 1.0 if detrended else math.sqrt(horiz2 + (rz - zh) ** 2)
-        mh = K._map_db(maps[lo + 1], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (
-            ld - math.log10(max(ds, 1.0))
-        )
+        lds = 0.0 if detrended else math.log10(max(math.sqrt(horiz2 + (rz - zh) ** 2), 1.0))
+        mh = K._map_db(maps[lo + 1], r, x, y, x0, dx, nx, y0, dy, ny) - 10.0 * exponent * (ld - lds)
         m = (1.0 - frac) * m + frac * mh
     return m
 
