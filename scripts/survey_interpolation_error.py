@@ -3,8 +3,16 @@
 Compares the interpolated channel map ``M_r`` (1 m survey → 0.1 m grid) with
 the noise-free channel model at every candidate point, for both interpolation
 methods, over several seeds; prints RMS / p95 / max error in dB, overall and
-more than 2 m from any receiver. Usage:
-``python scripts/survey_interpolation_error.py [--seeds 5] [--first-seed 100] [--quick]``.
+more than 2 m from any receiver.
+
+``--pose 3d``: the 3-D filter's channel (:mod:`radiopose.survey_height`: the
+survey at 1.2 m moved along 3-D distance) on the hand-held scenario's sites, at
+every candidate position at heights 0.8, 1.2 and 1.6 m, for the survey's own
+map and the detrended maps (docs/pose3d.md, "Detrended survey maps"); error
+(model − channel, dB) of each receiver's channel by the 3-D distance to that
+receiver. Usage:
+``python scripts/survey_interpolation_error.py [--seeds 5] [--first-seed 100] [--quick]
+[--pose 2d|3d]``.
 """
 
 from __future__ import annotations
@@ -16,7 +24,9 @@ import numpy as np
 
 from radiopose.patterns import isotropic
 from radiopose.simulate import ScenarioConfig, link_rss_dbm, simulate
+from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.site import assemble_site
+from radiopose.survey_height import build_height_model
 
 QUICK = {"size_m": 10.0, "min_receiver_spacing_m": 3.0}
 """``--quick``: a small site, to check that the script runs (its numbers mean nothing)."""
@@ -64,13 +74,63 @@ def interpolation_error(seeds: range = range(100, 105), quick: bool = False) -> 
             )
 
 
+HEIGHTS_M = (0.8, 1.2, 1.6)
+"""``--pose 3d``: the device heights scored (the hand-held range and the survey's)."""
+BANDS_M = ((0.0, 1.0), (1.0, 2.0), (2.0, 4.0), (4.0, np.inf))
+"""``--pose 3d``: bands of the 3-D distance to the receiver, metres."""
+
+
+def height_model_error(seeds: range, quick: bool = False) -> None:
+    """Print the Markdown table of the 3-D channel's errors over ``seeds``."""
+    base = replace(HandheldConfig(), duration_s=0.01, **(QUICK if quick else {}))
+    print("| maps | distance to the receiver | points | RMS (dB) | mean (dB) | max (dB) |")
+    print("|---|---|---|---|---|---|")
+    errs: dict[bool, list[np.ndarray]] = {False: [], True: []}
+    dists: list[np.ndarray] = []
+    for seed in seeds:
+        site = simulate_handheld(base, seed=seed).site
+        xy = site.area.points_m()[:, :2]
+        pts = np.concatenate([np.column_stack([xy, np.full(len(xy), z)]) for z in HEIGHTS_M])
+        rx = site.receiver_positions_m()
+        rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
+        pats = tuple(site.patterns[r.pattern] for r in site.receivers)
+        truth = link_rss_dbm(
+            base.channel, pts, np.zeros((len(pts), 3)), isotropic(), 0.0, rx, rx_o, pats
+        )
+        dists.append(np.linalg.norm(pts[:, None] - rx[None], axis=-1).ravel())
+        for detrend in errs:
+            hm = build_height_model(site, detrend=detrend)
+            errs[detrend].append((hm.channel_db(pts) - truth).ravel())
+    d = np.concatenate(dists)
+    for detrend, parts in errs.items():
+        e = np.concatenate(parts)
+        for lo, hi in BANDS_M:
+            sel = (d >= lo) & (d < hi)
+            if not sel.any():
+                continue
+            band = f"{lo:g}–{hi:g} m" if np.isfinite(hi) else f"≥ {lo:g} m"
+            x = e[sel]
+            print(
+                f"| {'detrended' if detrend else 'survey'} | {band} | {sel.sum()} | "
+                f"{np.sqrt(np.mean(x**2)):.3f} | {x.mean():+.3f} | {np.abs(x).max():.2f} |"
+            )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=100)
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
+    ap.add_argument(
+        "--pose", choices=("2d", "3d"), default="2d",
+        help="3d: the 3-D filter's channel, the survey's map against detrended maps",
+    )  # fmt: skip
     args = ap.parse_args(argv)
-    interpolation_error(range(args.first_seed, args.first_seed + args.seeds), args.quick)
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    if args.pose == "3d":
+        height_model_error(seeds, args.quick)
+    else:
+        interpolation_error(seeds, args.quick)
     return 0
 
 

@@ -137,6 +137,12 @@ def test_survey_interpolation_error(capsys: pytest.CaptureFixture[str]) -> None:
     )
     assert len(rows) == 2 + 4  # header, rule; cubic and linear × all and far
     assert {row.split("|")[1].strip() for row in rows[2:]} == {"cubic", "linear"}
+    rows = _table_rows(
+        _run(SCRIPTS / "survey_interpolation_error.py", ["--quick", "--seeds", "1", "--pose", "3d"],
+             capsys)
+    )  # fmt: skip
+    assert {row.split("|")[1].strip() for row in rows[2:]} == {"survey", "detrended"}
+    assert len(rows) > 2 + 2  # both maps, at least two distance bands each
 
 
 @pytest.mark.skipif(not MITLL.is_dir(), reason=f"MIT LL captures not found at {MITLL}")
