@@ -24,6 +24,7 @@ from radiopose.filtering.particle3d import (
 from radiopose.geometry import relative_rotation_angle_deg
 from radiopose.likelihood import HeardRss, candidate_space
 from radiopose.packets import Packets, Truth, group_packets
+from radiopose.patterns import isotropic
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.simulate.channel import link_rss_dbm
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
@@ -248,6 +249,60 @@ def test_detrended_maps_follow_the_channel_near_a_receiver(clean_sim):
     gain_det = det.expected(S, heard) - hm.channel_db(pts)  # tx power + pattern
     gain_plain = plain.expected(S, heard) - build_height_model(site).channel_db(pts)
     assert np.allclose(gain_det, gain_plain, atol=1e-6)
+
+
+def test_receiver_gain_follows_the_channel_next_to_a_receiver(clean_sim):
+    """Within 1.5 m of a receiver mounted above the phone the direction from the
+    receiver turns fast with position and height, and the survey map at one
+    height (detrended or not) carries the receiver's pattern only as surveyed:
+    the maps with the receiver's enrolled gain removed before interpolating and
+    added back toward each point follow the channel to a few hundredths of a
+    dB; the kernel and ``HeightModel.channel_db`` compute the same gain term;
+    a site whose receivers all have constant patterns gets no term."""
+    site = clean_sim.site
+    space = candidate_space(site, site.devices[0].transmitter)
+    cfg = Pose3dConfig(acquisition_step_m=5.0, acquisition_tilts=2)
+    det = FilterModel3d.build3d(site, space, cfg)
+    rxg = FilterModel3d.build3d(site, space, replace(cfg, survey_receiver_gain=True))
+    assert rxg.receiver_gain[0].shape == (len(site.receivers), 9)
+    assert det.receiver_gain[0].shape[0] == 0
+    rx = site.receiver_positions_m()
+    rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
+    pats = tuple(site.patterns[r.pattern] for r in site.receivers)
+    rng = np.random.default_rng(11)
+    pts, own = [], []
+    for r, (x, y, _) in enumerate(rx):
+        ang = rng.uniform(0, 2 * np.pi, 40)
+        d = rng.uniform(0.2, 1.5, ang.size)
+        p = np.column_stack([x + d * np.cos(ang), y + d * np.sin(ang), rng.uniform(0.8, 1.6, 40)])
+        keep = (p[:, :2] >= 0).all(axis=1) & (p[:, :2] <= SMALL.size_m).all(axis=1)
+        pts.append(p[keep])
+        own.append(np.full(keep.sum(), r))
+    p, o = np.concatenate(pts), np.concatenate(own)
+    ori = np.column_stack([rng.uniform(0, 360, len(p)), rng.uniform(20, 70, len(p)),
+                           rng.uniform(-25, 25, len(p))])  # fmt: skip
+    true = link_rss_dbm(
+        SMALL.channel, p, ori, site.device_pattern(clean_sim.truth.transmitter[0]),
+        SMALL.tx_power_dbm, rx, rx_o, pats,
+    )  # fmt: skip
+    S = _particles(*ori.T)
+    S[:, :3] = p
+    heard = np.arange(len(site.receivers))
+    at = np.arange(len(p))
+    e_det = np.abs(det.expected(S, heard) - true)[at, o]
+    e_rxg = np.abs(rxg.expected(S, heard) - true)[at, o]
+    assert e_det.mean() > 0.3  # the receiver's pattern as surveyed, at another height
+    assert e_rxg.mean() < 0.1 and e_rxg.mean() < 0.2 * e_det.mean()
+    # the kernel's gain term is the height model's (numpy) one
+    hm = build_height_model(site, detrend=True, receiver_gain=True)
+    S0 = _particles(*np.zeros((len(p), 3)).T)
+    S0[:, :3] = p
+    base = det.expected(S0, heard) - build_height_model(site, detrend=True).channel_db(p)
+    assert np.allclose(rxg.expected(S0, heard) - hm.channel_db(p), base, atol=1e-6)
+    # constant receiver patterns: no term (nothing to remove or add back)
+    flat = {r.pattern: isotropic(r.pattern) for r in site.receivers}
+    iso = replace(site, patterns={**site.patterns, **flat})
+    assert build_height_model(iso, detrend=True, receiver_gain=True).receiver_gain is None
 
 
 # ----------------------------------------------------------------------------- the filter
@@ -538,13 +593,15 @@ def test_bad_pose3d_settings_are_one_line_errors(changes, match):
         Pose3dConfig(**changes)
 
 
-def test_survey_detrend_read_from_tracker_toml(tmp_path):
+@pytest.mark.parametrize("key", ["survey_detrend", "survey_receiver_gain"])
+def test_survey_switches_read_from_tracker_toml(tmp_path, key):
     from radiopose.tracker_settings import read_tracker_settings
 
     p = tmp_path / "tracker.toml"
-    p.write_text("[filter.pose3d]\nsurvey_detrend = false\n")
-    assert read_tracker_settings(p).pose3d().survey_detrend is False
-    p.write_text('[filter.pose3d]\nsurvey_detrend = "yes"\n')
-    with pytest.raises(InputError, match="survey_detrend") as err:
+    for value in (False, True):
+        p.write_text(f"[filter.pose3d]\n{key} = {str(value).lower()}\n")
+        assert getattr(read_tracker_settings(p).pose3d(), key) is value
+    p.write_text(f'[filter.pose3d]\n{key} = "yes"\n')
+    with pytest.raises(InputError, match=key) as err:
         read_tracker_settings(p)
     assert "\n" not in str(err.value)

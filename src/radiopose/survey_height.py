@@ -24,11 +24,22 @@ and interpolating ``M`` itself flattens its peak (docs/pose3d.md, "Detrended
 survey maps"); ``R`` is what remains after the law (the receiver's pattern,
 the room), smoother wherever the law dominates.
 
+The receiver's own gain (``build_height_model(..., receiver_gain=True)``):
+each receiver's pattern and orientation are in the site (``receivers.csv``),
+so the survey is interpolated with the receiver's directivity toward each
+surveyed point removed, ``− G_r(r → (x, y, z_s))``, and the directivity is
+added back toward the device's exact position, ``+ G_r(r → (x, y, z))``.
+Near a receiver mounted above the device the direction from the receiver
+changes fast with position and height; a map at one surveyed height cannot
+follow that (docs/pose3d.md, "The receiver's gain in the height model").
+Receivers with a constant pattern add nothing and are skipped.
+
 What the model assumes (and a real survey must check): the receiver's own
 pattern and the room change little with the device's height — true for a
 receiver whose pattern depends only on the horizontal direction (a vertical
-dipole, a slice pattern mounted level or upside down), not for a tilted
-directional antenna, for which a survey at two or more heights is needed.
+dipole, a slice pattern mounted level or upside down), or whose enrolled
+pattern and orientation are known (``receiver_gain``); otherwise a survey at
+two or more heights is needed.
 """
 
 from __future__ import annotations
@@ -37,6 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiopose.geometry import orientation_matrices, pattern_angles_deg
+from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site, correct_survey, survey_points_by_receiver
 from radiopose.survey import build_survey_map
 from radiopose.units import FloatArray
@@ -66,6 +79,10 @@ class HeightModel:
     detrended
         ``maps_db`` hold ``R_r`` (the survey with its path loss in 3-D distance
         removed) rather than ``M_r`` (module docstring).
+    receiver_gain
+        The receivers' own patterns, removed from ``maps_db`` and added back
+        toward each point (module docstring): one :class:`ReceiverGain`, or
+        ``None`` (the maps hold the receivers' gain as surveyed).
     """
 
     exponent: float
@@ -75,6 +92,7 @@ class HeightModel:
     y_m: FloatArray
     receivers_m: FloatArray
     detrended: bool = False
+    receiver_gain: ReceiverGain | None = None
 
     def channel_db(self, xyz_m: FloatArray) -> FloatArray:
         """``M_r(x, y, z)`` ``(n, n_rx)`` dB at points ``(n, 3)`` (bilinear in x, y)."""
@@ -95,6 +113,8 @@ class HeightModel:
                 sel = k == layer
                 m[sel] = _bilinear_all(self.maps_db[layer], self.x_m, self.y_m, p[sel])
             out += wgt[:, None] * (m + self.correction_db(p, zl))
+        if self.receiver_gain is not None:
+            out += self.receiver_gain.gain_dbi(p)
         return out
 
     def correction_db(self, xyz_m: FloatArray, from_z_m: FloatArray | float) -> FloatArray:
@@ -110,6 +130,68 @@ class HeightModel:
             return -10.0 * self.exponent * np.log10(np.maximum(d, d0))
         ds = np.sqrt(horiz2 + (zs[:, None] - self.receivers_m[None, :, 2]) ** 2)
         return -10.0 * self.exponent * np.log10(np.maximum(d, d0) / np.maximum(ds, d0))
+
+
+@dataclass(frozen=True, eq=False)
+class ReceiverGain:
+    """The receivers' directivity toward points, for the height model.
+
+    Attributes
+    ----------
+    receivers_m
+        ``(n_rx, 3)`` receiver positions, metres.
+    rotations
+        ``(n_rx, 3, 3)`` body-to-world rotations of the receivers' orientations
+        (``receivers.csv``'s azimuth, pitch, roll).
+    patterns
+        One pattern per receiver (dBi).
+    """
+
+    receivers_m: FloatArray
+    rotations: FloatArray
+    patterns: tuple[Pattern, ...]
+
+    @classmethod
+    def of_site(cls, site: Site) -> ReceiverGain | None:
+        """The site's receivers' gain, ``None`` if every receiver's pattern is constant."""
+        pats = tuple(site.patterns[r.pattern] for r in site.receivers)
+        if all(float(np.ptp(p.directivity_dbi)) == 0.0 for p in pats):
+            return None
+        rot = np.stack([orientation_matrices(r.azimuth_deg, r.pitch_deg, r.roll_deg)[0]
+                        for r in site.receivers])  # fmt: skip
+        return cls(site.receiver_positions_m(), rot, pats)
+
+    def gain_dbi(self, xyz_m: FloatArray) -> FloatArray:
+        """``G_r(r → p)`` ``(n, n_rx)`` dBi: each receiver's directivity toward points
+        ``(n, 3)``."""
+        p = np.asarray(xyz_m, float).reshape(-1, 3)
+        out = np.empty((p.shape[0], len(self.patterns)))
+        for j, pat in enumerate(self.patterns):
+            phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p)
+            out[:, j] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
+        return out
+
+    def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """``(rot, d, ax)`` of :func:`radiopose.filtering.kernels3d.receiver_gain_dbi`:
+        ``rot`` ``(n_rx, 9)`` the rotations row-major, ``d`` ``(n_rx, A, P)`` the
+        patterns padded to the largest, ``ax`` ``(n_rx, 5)`` per receiver
+        ``[az0, az_step, polar_step, n_az, n_pol]`` (degrees; ``polar_step`` 1
+        for a slice)."""
+        n_az = max(p.azimuth_deg.size for p in self.patterns)
+        n_pol = max(p.polar_deg.size for p in self.patterns)
+        d = np.zeros((len(self.patterns), n_az, n_pol))
+        ax = np.empty((len(self.patterns), 5))
+        for j, p in enumerate(self.patterns):
+            a, b = p.directivity_dbi.shape
+            d[j, :a, :b] = p.directivity_dbi
+            ax[j] = [p.azimuth_deg[0], p.azimuth_step_deg,
+                     1.0 if p.is_slice else p.polar_step_deg, a, b]  # fmt: skip
+        return np.ascontiguousarray(self.rotations.reshape(-1, 9)), d, ax
+
+
+def no_receiver_gain() -> tuple[FloatArray, FloatArray, FloatArray]:
+    """:meth:`ReceiverGain.kernel_arrays` for no gain term (zero receivers)."""
+    return np.zeros((0, 9)), np.zeros((0, 1, 1)), np.zeros((0, 5))
 
 
 def _bilinear_all(maps: FloatArray, x: FloatArray, y: FloatArray, p: FloatArray) -> FloatArray:
@@ -166,22 +248,29 @@ def fit_exponent(site: Site) -> float:
     return float(np.clip(n, *EXPONENT_RANGE))
 
 
-def build_height_model(site: Site, decimals: int = 3, detrend: bool = False) -> HeightModel:
+def build_height_model(
+    site: Site, decimals: int = 3, detrend: bool = False, receiver_gain: bool = False
+) -> HeightModel:
     """The site's :class:`HeightModel`: one map per surveyed height (heights rounded
     to ``decimals``), the site's own survey map where only one height was surveyed;
-    ``detrend``: maps of the survey with its fitted path loss removed (module
-    docstring), interpolated with the site's own interpolation settings."""
+    ``detrend``: maps of the survey with its fitted path loss removed,
+    ``receiver_gain``: with the receivers' own directivity removed (module
+    docstring); either interpolated with the site's own interpolation settings."""
     rows = site.survey_rows
     z = np.round(rows.xyz_m[:, 2], decimals)
     layers = np.unique(z)
     x, y = np.asarray(site.survey_map.x_m, float), np.asarray(site.survey_map.y_m, float)
     exponent = fit_exponent(site)
-    if layers.size == 1 and not detrend:
+    gain = ReceiverGain.of_site(site) if receiver_gain else None
+    if layers.size == 1 and not detrend and gain is None:
         maps = np.asarray(site.survey_map.m_db, float)[None]
     else:
         m_db = _corrected_survey(site)
+        idx, ell = _survey_log_distance(site)
         if detrend:
-            m_db = m_db + exponent * _survey_log_distance(site)[1]
+            m_db = m_db + exponent * ell
+        if gain is not None:
+            m_db = m_db - gain.gain_dbi(rows.xyz_m)[np.arange(idx.size), idx]
         out = []
         for h in layers:
             sel = z == h
@@ -197,5 +286,5 @@ def build_height_model(site: Site, decimals: int = 3, detrend: bool = False) -> 
         maps = np.stack(out)
     return HeightModel(
         exponent, layers.astype(float), np.ascontiguousarray(maps), x, y,
-        site.receiver_positions_m(), detrend,
+        site.receiver_positions_m(), detrend, gain,
     )  # fmt: skip

@@ -50,13 +50,51 @@ def _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, horiz2, rz, g):
     return m
 
 
+@numba.njit(cache=True, inline="always")
+def receiver_gain_dbi(rot, d, ax, r, wx, wy, wz):  # pragma: no cover - compiled
+    """Receiver ``r``'s directivity (dBi) toward the world direction ``w`` (receiver
+    → device): its pattern at the angles of ``v = Rᵀ w``, ``R = rot[r]`` row-major
+    (:meth:`radiopose.survey_height.ReceiverGain.kernel_arrays`; the bilinear
+    lookup of :meth:`radiopose.patterns.pattern.Pattern.lookup_dbi`)."""
+    vx = wx * rot[r, 0] + wy * rot[r, 3] + wz * rot[r, 6]
+    vy = wx * rot[r, 1] + wy * rot[r, 4] + wz * rot[r, 7]
+    vz = wx * rot[r, 2] + wy * rot[r, 5] + wz * rot[r, 8]
+    nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if nrm == 0.0:
+        phi = 0.0
+        theta = 90.0
+    else:
+        phi = math.atan2(vy, vx) * _RAD_TO_DEG
+        theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+    n_az = int(ax[r, 3])
+    n_pol = int(ax[r, 4])
+    a = phi - ax[r, 0]
+    a = a % 360.0
+    u = a / ax[r, 1]
+    w = 0.0 if n_pol == 1 else min(max(theta, 0.0), 180.0) / ax[r, 2]
+    fi0 = math.floor(u)
+    fu = u - fi0
+    i0 = int(fi0) % n_az
+    i1 = i0 + 1 if i0 + 1 < n_az else 0
+    j0 = min(int(w), n_pol - 1)
+    fw = w - j0
+    j1 = min(j0 + 1, n_pol - 1)
+    top = d[r, i0, j0] * (1.0 - fu) + d[r, i1, j0] * fu
+    bot = d[r, i0, j1] * (1.0 - fu) + d[r, i1, j1] * fu
+    return top * (1.0 - fw) + bot * fw
+
+
 @numba.njit(cache=True)
 def expected3d_into(
-    S, heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat, out
-):  # pragma: no cover
+    S, heard, rx, maps, layers_z, exponent, detrended, rg_rot, rg_d, rg_ax, grid, tx_dbm, d, pat,
+    out,
+):  # pragma: no cover  # fmt: skip
     """Expected RSS ``(n, h)`` dBm without the offset into ``out``: the height
     model's channel + ``tx_dbm`` + the full-sphere pattern toward each receiver
-    in the body frame of ``R = Rz(az)·Rx(pitch)·Ry(roll)``."""
+    in the body frame of ``R = Rz(az)·Rx(pitch)·Ry(roll)``; with ``rg_*`` of
+    :meth:`~radiopose.survey_height.ReceiverGain.kernel_arrays` (zero rows: no
+    term) the receiver's own directivity toward the particle as well."""
+    gain = rg_rot.shape[0] > 0
     for i in range(S.shape[0]):
         x = S[i, K.X_M]
         y = S[i, K.Y_M]
@@ -85,6 +123,8 @@ def expected3d_into(
                 theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
             m = _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, ddx * ddx + ddy * ddy,
                             rx[r, 2], grid)  # fmt: skip
+            if gain:
+                m += receiver_gain_dbi(rg_rot, rg_d, rg_ax, r, -ddx, -ddy, -ddz)
             out[i, q] = m + tx_dbm + K._pattern_dbi(d, phi, theta, pat[0], pat[1], pat[2])
 
 
@@ -144,7 +184,7 @@ def tilt_height_step(S, noise_tilt, noise_z, dt_s, q_tilt, q_z, tilt, z_box):  #
 @numba.njit(cache=True)
 def packet_update3d(  # pragma: no cover - compiled
     S, logw, noise, noise_z, dt_s, motion, box, tilt, z_box,
-    heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat,
+    heard, rx, maps, layers_z, exponent, detrended, rg_rot, rg_d, rg_ax, grid, tx_dbm, d, pat,
     rss, sigma_db, log_eps, pred, w,
 ):  # fmt: skip
     """One packet: predict (the 2-D :func:`kernels.predict` for x, y, azimuth,
@@ -156,7 +196,10 @@ def packet_update3d(  # pragma: no cover - compiled
         K.predict(S, noise, dt_s, motion[0], motion[1], 0.0, motion[3], motion[4], box, frozen)
         tilt_height_step(S, noise[:, 3:5], noise_z, dt_s, motion[2], motion[5], tilt, z_box)
     lse0 = K.log_sum_exp(logw)
-    expected3d_into(S, heard, rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat, pred)
+    expected3d_into(
+        S, heard, rx, maps, layers_z, exponent, detrended, rg_rot, rg_d, rg_ax, grid, tx_dbm, d,
+        pat, pred,
+    )  # fmt: skip
     K.measurement_update(S, pred, rss, sigma_db, log_eps, logw)
     return lse0, K.normalise_into(logw, w)
 

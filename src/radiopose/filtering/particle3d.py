@@ -70,7 +70,7 @@ from radiopose.geometry import orientation_matrices, pattern_angles_deg
 from radiopose.likelihood import CandidateSpace, HeardRss, profile_offset_db
 from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site
-from radiopose.survey_height import HeightModel, build_height_model
+from radiopose.survey_height import HeightModel, build_height_model, no_receiver_gain
 from radiopose.units import FloatArray
 
 if TYPE_CHECKING:
@@ -325,6 +325,12 @@ class Pose3dConfig:
         distance (:func:`radiopose.survey_height.build_height_model`; the
         default since 2026-11-28); off: the survey's own map, moved along 3-D
         distance (docs/pose3d.md, "Detrended survey maps").
+    survey_receiver_gain
+        The height model removes each receiver's own directivity (its pattern
+        and orientation from ``receivers.csv``) from the survey before
+        interpolating and adds it back toward each pose's exact position
+        (:class:`radiopose.survey_height.ReceiverGain`; docs/pose3d.md, "The
+        receiver's gain in the height model").
     """
 
     n_particles: int = 2000
@@ -381,6 +387,7 @@ class Pose3dConfig:
     hand_pitch_sd_deg: float = 10.0
     hand_band_filter: bool = False
     survey_detrend: bool = True
+    survey_receiver_gain: bool = False
 
     def hand_band(self) -> PoseBand | None:
         """The hand-held band prior of the refinement and, with
@@ -620,12 +627,17 @@ class FilterModel3d(FilterModel):
     and the tilt and height supports. ``channel_db``/``grid`` are the 2-D map
     (unused by the 3-D kernels); ``maps_db`` ``(L, n_rx, nx, ny)`` at
     ``layers_z_m``, with the survey's path loss removed when ``detrended``
-    (:class:`radiopose.survey_height.HeightModel`)."""
+    and the receivers' directivity when ``receiver_gain`` has rows
+    (:class:`radiopose.survey_height.HeightModel`, :meth:`ReceiverGain.kernel_arrays
+    <radiopose.survey_height.ReceiverGain.kernel_arrays>`)."""
 
     maps_db: FloatArray = field(default_factory=lambda: np.zeros((1, 1, 1, 1)))
     layers_z_m: FloatArray = field(default_factory=lambda: np.zeros(1))
     exponent: float = 2.0
     detrended: bool = False
+    receiver_gain: tuple[FloatArray, FloatArray, FloatArray] = field(
+        default_factory=no_receiver_gain
+    )
     coarse: CoarseGrid | None = None
     tilt_rad: FloatArray = field(default_factory=lambda: np.zeros(4))
     z_box_m: FloatArray = field(default_factory=lambda: np.zeros(2))
@@ -634,7 +646,9 @@ class FilterModel3d(FilterModel):
     def build3d(cls, site: Site, space: CandidateSpace, cfg: Pose3dConfig) -> FilterModel3d:
         """The device's arrays (``space`` names the device: pattern, power, receivers)."""
         base = FilterModel.build(site, space, _NoScorer())  # type: ignore[arg-type]
-        height = build_height_model(site, detrend=cfg.survey_detrend)
+        height = build_height_model(
+            site, detrend=cfg.survey_detrend, receiver_gain=cfg.survey_receiver_gain
+        )
         coarse = CoarseGrid.build(site, height, float(space.tx_power_dbm), space.pattern, cfg)
         o = site.orientations
         p_lo, p_hi = _support(o.pitch_deg, -90.0, 90.0)
@@ -647,6 +661,11 @@ class FilterModel3d(FilterModel):
             layers_z_m=np.ascontiguousarray(height.layers_z_m, dtype=np.float64),
             exponent=float(height.exponent),
             detrended=bool(height.detrended),
+            receiver_gain=(
+                no_receiver_gain()
+                if height.receiver_gain is None
+                else height.receiver_gain.kernel_arrays()
+            ),
             coarse=coarse,
             tilt_rad=np.deg2rad([p_lo, p_hi, r_c, r_w]),
             z_box_m=np.array([z.min(), z.max()], float),
@@ -660,11 +679,11 @@ class FilterModel3d(FilterModel):
         return out
 
     def arrays3d(self) -> tuple[Any, ...]:
-        """``(rx, maps, layers_z, exponent, detrended, grid, tx_dbm, d, pat)`` of the
-        kernels."""
+        """``(rx, maps, layers_z, exponent, detrended, rg_rot, rg_d, rg_ax, grid,
+        tx_dbm, d, pat)`` of the kernels."""
         return (
             self.receivers_m, self.maps_db, self.layers_z_m, self.exponent, self.detrended,
-            self.grid,
+            *self.receiver_gain, self.grid,
             self.tx_power_dbm, self.pattern_dbi, self.pattern_axes,
         )  # fmt: skip
 
