@@ -141,8 +141,18 @@ def test_survey_interpolation_error(capsys: pytest.CaptureFixture[str]) -> None:
         _run(SCRIPTS / "survey_interpolation_error.py", ["--quick", "--seeds", "1", "--pose", "3d"],
              capsys)
     )  # fmt: skip
-    assert {row.split("|")[1].strip() for row in rows[2:]} == {"survey", "detrended"}
-    assert len(rows) > 2 + 2  # both maps, at least two distance bands each
+    maps = {"survey", "detrended", "detrended + receiver gain"}
+    assert {row.split("|")[1].strip() for row in rows[2:]} == maps
+    assert len(rows) > 2 + 3  # every map, at least two distance bands each
+    wrong = _table_rows(
+        _run(SCRIPTS / "survey_interpolation_error.py",
+             ["--quick", "--seeds", "1", "--pose", "3d", "--rx-pattern-error-db", "2",
+              "--rx-orientation-error-deg", "5"], capsys)
+    )  # fmt: skip
+    # the receivers' enrolment errors move only the gain term's rows
+    gain = [r for r in rows[2:] if "gain" in r]
+    assert [r for r in wrong[2:] if "gain" not in r] == [r for r in rows[2:] if "gain" not in r]
+    assert [r for r in wrong[2:] if "gain" in r] != gain
 
 
 @pytest.mark.skipif(not MITLL.is_dir(), reason=f"MIT LL captures not found at {MITLL}")
