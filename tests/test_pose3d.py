@@ -193,6 +193,23 @@ def test_height_model_reproduces_the_channel(clean_sim):
         assert np.abs(flat.expected(S, heard) - true).mean() > 3 * moved
 
 
+def _true_rss_random_tilt(sim, points: np.ndarray, rng: np.random.Generator):
+    """Particles at ``points`` in random hand-held orientations and the noise-free
+    simulated RSS ``(n, n_rx)`` of the device there."""
+    site = sim.site
+    ori = np.column_stack([rng.uniform(0, 360, len(points)), rng.uniform(20, 70, len(points)),
+                           rng.uniform(-25, 25, len(points))])  # fmt: skip
+    rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
+    true = link_rss_dbm(
+        SMALL.channel, points, ori, site.device_pattern(sim.truth.transmitter[0]),
+        SMALL.tx_power_dbm, site.receiver_positions_m(), rx_o,
+        tuple(site.patterns[r.pattern] for r in site.receivers),
+    )  # fmt: skip
+    S = _particles(*ori.T)
+    S[:, :3] = points
+    return S, true
+
+
 def test_detrended_maps_follow_the_channel_near_a_receiver(clean_sim):
     """Within 1–2 m of a receiver the log-distance law bends faster than the 1 m
     survey grid follows: the survey's own map misses the channel there by tenths
@@ -207,20 +224,11 @@ def test_detrended_maps_follow_the_channel_near_a_receiver(clean_sim):
     det = FilterModel3d.build3d(site, space, cfg)  # the default
     assert det.detrended and not plain.detrended
     rx = site.receiver_positions_m()
-    rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
-    pats = tuple(site.patterns[r.pattern] for r in site.receivers)
     rng = np.random.default_rng(5)
     heard = np.arange(len(site.receivers))
 
     def errors(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        ori = np.column_stack([rng.uniform(0, 360, len(points)), rng.uniform(20, 70, len(points)),
-                               rng.uniform(-25, 25, len(points))])  # fmt: skip
-        true = link_rss_dbm(
-            SMALL.channel, points, ori, site.device_pattern(clean_sim.truth.transmitter[0]),
-            SMALL.tx_power_dbm, rx, rx_o, pats,
-        )  # fmt: skip
-        S = _particles(*ori.T)
-        S[:, :3] = points
+        S, true = _true_rss_random_tilt(clean_sim, points, rng)
         return np.abs(plain.expected(S, heard) - true), np.abs(det.expected(S, heard) - true)
 
     # rings 1.2–2 m around each receiver, at the surveyed height and off it
@@ -267,8 +275,6 @@ def test_receiver_gain_follows_the_channel_next_to_a_receiver(clean_sim):
     assert rxg.receiver_gain[0].shape == (len(site.receivers), 9)
     assert det.receiver_gain[0].shape[0] == 0
     rx = site.receiver_positions_m()
-    rx_o = np.array([[r.azimuth_deg, r.pitch_deg, r.roll_deg] for r in site.receivers])
-    pats = tuple(site.patterns[r.pattern] for r in site.receivers)
     rng = np.random.default_rng(11)
     pts, own = [], []
     for r, (x, y, _) in enumerate(rx):
@@ -279,14 +285,7 @@ def test_receiver_gain_follows_the_channel_next_to_a_receiver(clean_sim):
         pts.append(p[keep])
         own.append(np.full(keep.sum(), r))
     p, o = np.concatenate(pts), np.concatenate(own)
-    ori = np.column_stack([rng.uniform(0, 360, len(p)), rng.uniform(20, 70, len(p)),
-                           rng.uniform(-25, 25, len(p))])  # fmt: skip
-    true = link_rss_dbm(
-        SMALL.channel, p, ori, site.device_pattern(clean_sim.truth.transmitter[0]),
-        SMALL.tx_power_dbm, rx, rx_o, pats,
-    )  # fmt: skip
-    S = _particles(*ori.T)
-    S[:, :3] = p
+    S, true = _true_rss_random_tilt(clean_sim, p, rng)
     heard = np.arange(len(site.receivers))
     at = np.arange(len(p))
     e_det = np.abs(det.expected(S, heard) - true)[at, o]

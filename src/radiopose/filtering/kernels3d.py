@@ -51,37 +51,32 @@ def _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, horiz2, rz, g):
 
 
 @numba.njit(cache=True, inline="always")
+def _pattern_angles_deg(vx, vy, vz):  # pragma: no cover - compiled
+    """``(phi, theta)`` degrees of a body-frame direction, as
+    :func:`radiopose.geometry.direction_to_pattern_angles_deg` (``(0, 90)`` for
+    zero; ``phi`` in ``(−180, 180]``, which the pattern lookups wrap)."""
+    nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if nrm == 0.0:
+        return 0.0, 90.0
+    return (
+        math.atan2(vy, vx) * _RAD_TO_DEG,
+        math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG,
+    )
+
+
+@numba.njit(cache=True, inline="always")
 def receiver_gain_dbi(rot, d, ax, r, wx, wy, wz):  # pragma: no cover - compiled
     """Receiver ``r``'s directivity (dBi) toward the world direction ``w`` (receiver
     → device): its pattern at the angles of ``v = Rᵀ w``, ``R = rot[r]`` row-major
     (:meth:`radiopose.survey_height.ReceiverGain.kernel_arrays`; the bilinear
     lookup of :meth:`radiopose.patterns.pattern.Pattern.lookup_dbi`)."""
-    vx = wx * rot[r, 0] + wy * rot[r, 3] + wz * rot[r, 6]
-    vy = wx * rot[r, 1] + wy * rot[r, 4] + wz * rot[r, 7]
-    vz = wx * rot[r, 2] + wy * rot[r, 5] + wz * rot[r, 8]
-    nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
-    if nrm == 0.0:
-        phi = 0.0
-        theta = 90.0
-    else:
-        phi = math.atan2(vy, vx) * _RAD_TO_DEG
-        theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
-    n_az = int(ax[r, 3])
-    n_pol = int(ax[r, 4])
-    a = phi - ax[r, 0]
-    a = a % 360.0
-    u = a / ax[r, 1]
-    w = 0.0 if n_pol == 1 else min(max(theta, 0.0), 180.0) / ax[r, 2]
-    fi0 = math.floor(u)
-    fu = u - fi0
-    i0 = int(fi0) % n_az
-    i1 = i0 + 1 if i0 + 1 < n_az else 0
-    j0 = min(int(w), n_pol - 1)
-    fw = w - j0
-    j1 = min(j0 + 1, n_pol - 1)
-    top = d[r, i0, j0] * (1.0 - fu) + d[r, i1, j0] * fu
-    bot = d[r, i0, j1] * (1.0 - fu) + d[r, i1, j1] * fu
-    return top * (1.0 - fw) + bot * fw
+    phi, theta = _pattern_angles_deg(
+        wx * rot[r, 0] + wy * rot[r, 3] + wz * rot[r, 6],
+        wx * rot[r, 1] + wy * rot[r, 4] + wz * rot[r, 7],
+        wx * rot[r, 2] + wy * rot[r, 5] + wz * rot[r, 8],
+    )
+    table = d[r, : int(ax[r, 3]), : int(ax[r, 4])]
+    return K._pattern_dbi(table, phi, theta, ax[r, 0], ax[r, 1], ax[r, 2])
 
 
 @numba.njit(cache=True)
@@ -111,16 +106,11 @@ def expected3d_into(
             ddx = rx[r, 0] - x
             ddy = rx[r, 1] - y
             ddz = rx[r, 2] - z
-            vx = ddx * r00 + ddy * r10 + ddz * r20
-            vy = ddx * r01 + ddy * r11 + ddz * r21
-            vz = ddx * r02 + ddy * r12 + ddz * r22
-            nrm = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if nrm == 0.0:
-                phi = 0.0
-                theta = 90.0
-            else:
-                phi = math.atan2(vy, vx) * _RAD_TO_DEG
-                theta = math.acos(min(max(vz / nrm, -1.0), 1.0)) * _RAD_TO_DEG
+            phi, theta = _pattern_angles_deg(
+                ddx * r00 + ddy * r10 + ddz * r20,
+                ddx * r01 + ddy * r11 + ddz * r21,
+                ddx * r02 + ddy * r12 + ddz * r22,
+            )
             m = _channel_db(maps, layers_z, exponent, detrended, r, x, y, z, ddx * ddx + ddy * ddy,
                             rx[r, 2], grid)  # fmt: skip
             if gain:
