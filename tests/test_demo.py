@@ -229,3 +229,74 @@ def test_calibration_counts_errors_within_twice_the_stated_std() -> None:
         4,
     )
     assert calibration(no_std) is None
+
+
+# ----------------------------------------------------------------------------- --pose 3d
+def test_demo_3d_tracks_a_hand_held_walk(tmp_path: Path, capsys) -> None:
+    """``radiopose demo --pose 3d`` on a 1 s walk: both filter runs answer every
+    packet with a 3-D pose (height, pitch and roll move), the table has a row
+    for each, the figures are drawn, and the offline track is closer to the
+    truth than a fixed guess at the area's centre."""
+    out = tmp_path / "d3"
+    code, printed, err = _run(
+        ["demo", "--pose", "3d", "-o", str(out), "--duration-s", "1", "--seed", "11"], capsys
+    )
+    assert code == 0, err
+    rows = re.findall(r"^\| (offline|causal) \| ([\d.]+) % \| ([\d.]+) / ", printed, re.M)
+    assert [r[0] for r in rows] == ["offline", "causal"]
+    assert all(float(r[1]) == 100.0 for r in rows)
+    assert len((out / "errors.md").read_text().strip().splitlines()) == 4  # head, rule, rows
+    for name in ("offline", "causal"):
+        assert (out / f"pose3d_{name}.png").stat().st_size > 50_000
+        est = read_estimates_csv(out / f"estimates_{name}.csv")
+        assert len(est) == 50
+        assert np.ptp(est.position_m[:, 2]) > 0.01 and np.ptp(est.orientation_deg[:, 1]) > 1.0
+    truth = np.loadtxt(out / "scenario" / "truth.csv", delimiter=",", skiprows=1,
+                       usecols=(2, 3, 4))  # fmt: skip
+    est = read_estimates_csv(out / "estimates_offline.csv")
+    err_m = np.linalg.norm(est.position_m - truth, axis=1).mean()
+    centre = np.linalg.norm(truth - np.array([10.0, 10.0, 1.2]), axis=1).mean()
+    assert err_m < 0.25 * centre
+
+
+@pytest.mark.parametrize(
+    ("extra", "needle"),
+    [
+        (["--pose", "4d"], "--pose must be 2d or 3d"),
+        (["--pose", "3d", "--live"], "--pose 3d runs the offline demo only"),
+        (["--pose", "3d", "--duration-s", "-1"], "duration_s"),
+    ],
+)
+def test_demo_3d_bad_options_are_one_line_errors(tmp_path: Path, capsys, extra, needle) -> None:
+    code, _, err = _run(["demo", "-o", str(tmp_path / "d"), *extra], capsys)
+    assert code == 2 and needle in err and err.count("\n") == 1
+    assert not (tmp_path / "d").exists()
+
+
+def test_pose3d_figure_draws_roll_in_one_range_and_the_errors() -> None:
+    """The roll panel draws truth and track in (−180, 180] (a truth stored as
+    350° is drawn at −10°, not across the panel), and the error panel's
+    legend carries both means."""
+    n = 40
+    t = np.linspace(0.0, 2.0, n)
+    pos = np.column_stack([np.linspace(1, 3, n), np.full(n, 2.0), np.linspace(1.0, 1.4, n)])
+    ori = np.column_stack([np.full(n, 90.0), np.full(n, 45.0), np.full(n, 350.0)])
+    track = Estimates(
+        t, np.array(["phone"] * n), np.array([str(i) for i in range(n)]), pos + 0.1,
+        ori - np.array([0.0, 0.0, 355.0]), np.array(["filter"] * n),
+        position_std_m=np.full(n, 0.2), azimuth_std_deg=np.full(n, 5.0),
+    )  # fmt: skip
+    fig = plots.pose3d_figure(
+        t, pos, ori, track, (np.full(n, 0.17), np.full(n, 5.0)), n_packets=n,
+        receivers_m=np.array([[0.0, 0.0, 2.5], [5.0, 5.0, 1.0]]),
+    )  # fmt: skip
+    axes = fig.get_axes()
+    roll = next(a for a in axes if a.get_ylabel() == "roll (°)")
+    truth_line, est_line = roll.get_lines()[:2]
+    np.testing.assert_allclose(truth_line.get_ydata(), -10.0)
+    np.testing.assert_allclose(est_line.get_ydata(), -5.0)
+    height = next(a for a in axes if a.get_ylabel() == "height (m)")
+    np.testing.assert_allclose(height.get_lines()[1].get_ydata(), pos[:, 2] + 0.1)
+    labels = [x.get_text() for ax in axes if ax.get_legend() for x in ax.get_legend().get_texts()]
+    assert "position, mean 0.17 m" in labels and "rotation, mean 5.0°" in labels
+    plt.close(fig)

@@ -16,7 +16,10 @@ except :func:`mse_map_figure`, which lays out several Axes and returns the Figur
 * :func:`plot_error_over_time` — one error (position or orientation) over
   time per method, coverage in the legend, a tracker's stated σ dashed;
 * :func:`track_figure` — the four above in one figure (``radiopose demo``'s
-  ``filter_track.png``).
+  ``filter_track.png``);
+* :func:`pose3d_figure` — a 3-D track: the top view with its uncertainty,
+  height, azimuth, pitch and roll over time against the truth, and the
+  position and rotation-angle errors (``radiopose demo --pose 3d``).
 """
 
 from __future__ import annotations
@@ -500,6 +503,105 @@ def track_figure(
     ax_pos.tick_params(labelbottom=False)
     ax_az.set_xlabel("")
     ax_pos.set_xlabel("")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def pose3d_figure(
+    truth_t_s: FloatArray,
+    truth_position_m: FloatArray,
+    truth_orientation_deg: FloatArray,
+    track: Estimates,
+    errors: tuple[FloatArray, FloatArray],
+    *,
+    n_packets: int,
+    receivers_m: FloatArray | None = None,
+    title: str | None = None,
+) -> Figure:
+    """A 3-D track against the truth (``radiopose demo --pose 3d``).
+
+    Left: the top view (:func:`plot_track_uncertainty`), each receiver
+    labelled with its height. Right, over time: height (m), azimuth, pitch and
+    roll (degrees; truth black, the track coloured, azimuth with its
+    ± ``azimuth_std_deg`` band), then the position error (m) and the
+    rotation-angle error (the angle of the relative rotation, degrees).
+    ``errors`` is ``(position_error_m, rotation_error_deg)`` per estimate.
+    """
+    fig = plt.figure(figsize=(16, 10), layout="constrained")
+    grid = fig.add_gridspec(5, 2, width_ratios=(1.0, 1.15))
+    ax_map = fig.add_subplot(grid[:, 0])
+    rx = None if receivers_m is None else np.asarray(receivers_m, float).reshape(-1, 3)
+    plot_track_uncertainty(
+        truth_t_s, truth_position_m, np.asarray(truth_orientation_deg)[:, 0], track,
+        n_packets=n_packets, receivers_xy_m=None if rx is None else rx[:, :2], ax=ax_map,
+    )  # fmt: skip
+    if rx is not None:
+        for x, y, z in rx:
+            ax_map.annotate(f"{z:.1f} m", (x, y), textcoords="offset points", xytext=(6, 6),
+                            fontsize="small")  # fmt: skip
+    t_est = track.timestamp_s
+    tt = np.asarray(truth_t_s, float)
+    tp = np.asarray(truth_position_m, float)
+    to = np.asarray(truth_orientation_deg, float)
+    first = fig.add_subplot(grid[0, 1])
+    axes = [first] + [fig.add_subplot(grid[i, 1], sharex=first) for i in range(1, 5)]
+    axes[0].plot(tt, tp[:, 2], "-", color="k", lw=1.2, label="truth")
+    axes[0].plot(t_est, track.position_m[:, 2], "-", color=_TRACK_COLOUR, lw=1.0,
+                 label=track_name(track))  # fmt: skip
+    axes[0].set_ylabel("height (m)")
+    axes[0].legend(loc="upper right", fontsize="small")
+    # orientation: azimuth unwrapped against the truth so a wrap does not draw a jump
+    ax_o = axes[1]
+    colours = {"azimuth": _TRACK_COLOUR, "pitch": "tab:green", "roll": "tab:purple"}
+    az_true = np.rad2deg(np.unwrap(np.deg2rad(to[:, 0])))
+    ti = np.clip(np.searchsorted(tt, t_est), 0, tt.size - 1)
+    az_est = az_true[ti] + angle_diff_deg(track.orientation_deg[:, 0], to[ti, 0])
+    shift = 360.0 * np.round(np.median(az_true) / 360.0)
+    ax_o.plot(tt, az_true - shift, "-", color="k", lw=1.2)
+    ax_o.plot(t_est, az_est - shift, "-", color=colours["azimuth"], lw=1.0, label="azimuth")
+    if track.azimuth_std_deg is not None:
+        sd = np.minimum(track.azimuth_std_deg, 180.0)
+        ax_o.fill_between(t_est, az_est - shift - sd, az_est - shift + sd,
+                          color=colours["azimuth"], alpha=0.2, lw=0,
+                          label="± azimuth_std_deg")  # fmt: skip
+    ax_o.set_ylabel("azimuth (°)")
+    ax_o.legend(loc="upper right", fontsize="small")
+    for ax, col, name in ((axes[2], 1, "pitch"), (axes[3], 2, "roll")):
+        true_deg, est_deg = to[:, col], track.orientation_deg[:, col]
+        if name == "roll":  # both in (−180, 180]: the stored truth may be in [0, 360)
+            true_deg, est_deg = angle_diff_deg(true_deg, 0.0), angle_diff_deg(est_deg, 0.0)
+        ax.plot(tt, true_deg, "-", color="k", lw=1.2)
+        ax.plot(t_est, est_deg, "-", color=colours[name], lw=1.0)
+        ax.set_ylabel(f"{name} (°)")
+    pos_err, rot_err = (np.asarray(e, float) for e in errors)
+    ax_e = axes[4]
+    ax_e.plot(
+        t_est,
+        pos_err,
+        "-",
+        color=_TRACK_COLOUR,
+        lw=1.0,
+        label=f"position, mean {pos_err.mean():.2f} m" if pos_err.size else "position",
+    )
+    ax_e.set_ylabel("position error (m)")
+    ax_e.set_ylim(bottom=0)
+    ax_r = ax_e.twinx()
+    ax_r.plot(
+        t_est,
+        rot_err,
+        "-",
+        color="tab:red",
+        lw=0.8,
+        label=f"rotation, mean {rot_err.mean():.1f}°" if rot_err.size else "rotation",
+    )
+    ax_r.set_ylabel("rotation error (°)")
+    ax_r.set_ylim(bottom=0)
+    handles = ax_e.get_legend_handles_labels()[0] + ax_r.get_legend_handles_labels()[0]
+    ax_e.legend(handles=handles, loc="upper left", fontsize="small")
+    ax_e.set_xlabel("time (s)")
+    for ax in axes[:-1]:
+        ax.tick_params(labelbottom=False)
     if title:
         fig.suptitle(title)
     return fig

@@ -252,6 +252,15 @@ def demo(
             "localised and drawn against its camera truth (docs/real-data.md).",
         ),
     ] = False,
+    pose: Annotated[
+        str,
+        typer.Option(
+            "--pose",
+            help="3d: a hand-held phone (height, pitch, roll) at 6 receivers at mixed heights, "
+            "tracked by the filter offline and causal (a 10 s walk, a packet every 20 ms; "
+            "docs/pose3d.md).",
+        ),
+    ] = "2d",
 ) -> None:
     """Simulate a 30 s walk on the paper's standard site, localise it with the paper's five
     methods and the filter, and write a table and figures."""
@@ -259,6 +268,43 @@ def demo(
 
     if not 0 <= seed < 2**63:
         raise InputError(f"--seed must be a non-negative integer below 2**63, got {seed}")
+    if pose not in ("2d", "3d"):
+        raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
+    if pose == "3d":
+        if live or real:
+            raise InputError("--pose 3d runs the offline demo only (not with --live or --real)")
+        if method != "filter":
+            raise InputError("--method applies to --live (the 3-D demo runs the filter)")
+        import sys
+        from contextlib import nullcontext
+        from functools import partial
+
+        from radiopose.cli import count_progress
+        from radiopose.demo3d import DEMO3D_DURATION_S, DEMO3D_INTERVAL_MS, run_demo3d
+
+        run = partial(
+            run_demo3d,
+            out,
+            seed=seed,
+            noise_db=noise_db,
+            duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
+            interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
+        )
+        show = sys.stderr.isatty()
+        with count_progress("filter, offline", elapsed=False) if show else nullcontext() as bar:
+            if bar is None:
+                run(echo=print)
+                return
+            task = bar.add_task("packets", total=None)
+
+            def progress(done: int, total: int) -> None:
+                bar.update(task, completed=done, total=total)
+
+            run(
+                echo=partial(bar.console.print, markup=False, highlight=False),
+                progress=progress,
+            )
+        return
     if real:
         from radiopose.realdata.demo import run_real_demo
 
