@@ -233,20 +233,21 @@ def test_calibration_counts_errors_within_twice_the_stated_std() -> None:
 
 # ----------------------------------------------------------------------------- --pose 3d
 def test_demo_3d_tracks_a_hand_held_walk(tmp_path: Path, capsys) -> None:
-    """``radiopose demo --pose 3d`` on a 1 s walk: both filter runs answer every
-    packet with a 3-D pose (height, pitch and roll move), the table has a row
-    for each, the figures are drawn, and the offline track is closer to the
-    truth than a fixed guess at the area's centre."""
+    """``radiopose demo --pose 3d`` on a 1 s walk: the three filter runs
+    (offline, live, causal) answer every packet with a 3-D pose (height, pitch
+    and roll move), the table has a row for each, the figures are drawn, and
+    the offline track is closer to the truth than a fixed guess at the area's
+    centre."""
     out = tmp_path / "d3"
     code, printed, err = _run(
         ["demo", "--pose", "3d", "-o", str(out), "--duration-s", "1", "--seed", "11"], capsys
     )
     assert code == 0, err
-    rows = re.findall(r"^\| (offline|causal) \| ([\d.]+) % \| ([\d.]+) / ", printed, re.M)
-    assert [r[0] for r in rows] == ["offline", "causal"]
+    rows = re.findall(r"^\| (offline|live|causal) \| ([\d.]+) % \| ([\d.]+) / ", printed, re.M)
+    assert [r[0] for r in rows] == ["offline", "live", "causal"]
     assert all(float(r[1]) == 100.0 for r in rows)
-    assert len((out / "errors.md").read_text().strip().splitlines()) == 4  # head, rule, rows
-    for name in ("offline", "causal"):
+    assert len((out / "errors.md").read_text().strip().splitlines()) == 5  # head, rule, rows
+    for name in ("offline", "live", "causal"):
         assert (out / f"pose3d_{name}.png").stat().st_size > 50_000
         est = read_estimates_csv(out / f"estimates_{name}.csv")
         assert len(est) == 50

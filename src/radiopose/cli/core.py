@@ -257,7 +257,7 @@ def demo(
         typer.Option(
             "--pose",
             help="3d: a hand-held phone (height, pitch, roll) at 6 receivers at mixed heights, "
-            "tracked by the filter offline and causal (a 10 s walk, a packet every 20 ms; "
+            "tracked by the filter offline, live and causal (a 10 s walk, a packet every 20 ms; "
             "docs/pose3d.md).",
         ),
     ] = "2d",
