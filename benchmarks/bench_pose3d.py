@@ -9,7 +9,9 @@ the paper's 2-D standard scenario (4 receivers), ``N`` packets each (default
 height model and coarse acquisition table; the 2-D filter's scorer and model)
 before timing; then the streaming causal ``Tracker.update`` of ``filter`` over
 each trace, alternating, ``R`` repeats, median. Ratio: 3-D over 2-D in rate
-terms (> 1: the 3-D filter is faster). The first packet (the track's coarse
+terms (> 1: the 3-D filter is faster). A third row runs the 3-D filter with
+the receivers' own gain in its height model (``survey_receiver_gain``, an
+option) on the same trace. The first packet (the track's coarse
 acquisition) is timed apart, and the 3-D model's build time is reported.
 
 Every number is measured in this run on this machine; only the ratio compares
@@ -40,19 +42,30 @@ def trace_3d(n_packets: int, seed: int = 302):  # type: ignore[no-untyped-def]
     return simulate_handheld(replace(HandheldConfig(), duration_s=n_packets * 0.005), seed=seed)
 
 
+GAIN = "3-D filter, receiver gain"
+"""The row of the 3-D filter with ``Pose3dConfig.survey_receiver_gain`` (an option,
+off by default; docs/pose3d.md, "The receiver's gain in the height model")."""
+
+
 def section_warm(n_packets: int, repeat: int) -> tuple[list[dict], dict]:
     cfg = TrackerConfig(kernel="numba")
-    sims = {"2-D filter (standard)": standard_trace(n_packets), "3-D filter": trace_3d(n_packets)}
+    gain_cfg = replace(cfg, pose3d=replace(cfg.pose3d, survey_receiver_gain=True))
+    trace = trace_3d(n_packets)
+    sims = {"2-D filter (standard)": standard_trace(n_packets), "3-D filter": trace, GAIN: trace}
+    configs = {name: gain_cfg if name == GAIN else cfg for name in sims}
     scorer2d = ShiftScorer(candidate_space(sims["2-D filter (standard)"].site, TX))
-    scorers = {"2-D filter (standard)": {TX: scorer2d}, "3-D filter": None}
-    # warm-up: compile (or load) every kernel of both on a short trace
+    scorers = {"2-D filter (standard)": {TX: scorer2d}, "3-D filter": None, GAIN: None}
+    # warm-up: compile (or load) every kernel of each on a short trace
+    short3d = trace_3d(100, 303)
     for name, sim in (
         ("2-D filter (standard)", standard_trace(100, 203)),
-        ("3-D filter", trace_3d(100, 303)),
+        ("3-D filter", short3d),
+        (GAIN, short3d),
     ):
         tr = Tracker(
-            sim.site, "filter", cfg, scorers=scorers[name] if name.startswith("2") else None
-        )
+            sim.site, "filter", configs[name],
+            scorers=scorers[name] if name.startswith("2") else None,
+        )  # fmt: skip
         for o in group_packets(sim.packets):
             tr.update(o)
     extra: dict = {}
@@ -61,7 +74,7 @@ def section_warm(n_packets: int, repeat: int) -> tuple[list[dict], dict]:
         sim = sims[name]
         obs = group_packets(sim.packets)
         t0 = time.perf_counter()
-        tracker = Tracker(sim.site, "filter", cfg, scorers=scorers[name])
+        tracker = Tracker(sim.site, "filter", configs[name], scorers=scorers[name])
         tracker._device(TX)  # site preparation outside the timing
         t1 = time.perf_counter()
         tracker.update(obs[0])  # the track's acquisition
