@@ -4,7 +4,8 @@ The 3-D hand-held scenario (``radiopose simulate --pose 3d``: 20 m × 20 m,
 receivers at mixed heights, every other one on the ceiling, a full-sphere
 phone pattern, a packet every 5 ms), the registry's ``filter`` method through
 ``radiopose.tracker.locate`` (offline: the fixed-lag smoother, 1 s lag;
-``--causal`` for the causal filter), σ told to nobody. Held-out seeds that no
+``--causal`` for the causal filter, ``--live-lag-s L`` for the live server's:
+lag ``L``, no refinement), σ told to nobody. Held-out seeds that no
 test uses and that were not used for tuning (default 1100–1109; tuning used
 7100–7119).
 
@@ -24,7 +25,7 @@ simulation's exact power.
 Usage::
 
     python scripts/pose3d_accuracy.py [--seeds 10] [--first-seed 1100] [--receivers 4 6 8]
-        [--sigmas 1.0] [--duration-s 4] [--causal] [--offset-prior-sd-db 6]
+        [--sigmas 1.0] [--duration-s 4] [--causal | --live-lag-s 0.25] [--offset-prior-sd-db 6]
         [--heading-prior-deg 30] [--power-error-db 4] [--no-refine] [--refine-chosen-only]
         [--oracle] [--polish-modes K MARGIN SWITCH] [--reverse-pass] [--reverse-members]
         [--restarts N ...] [--offline-particles N ...] [--angular-noise Q ...]
@@ -70,10 +71,14 @@ def run_one(
     offset_sd_db: float,
     pose3d: dict[str, Any] | None = None,
     power_error_db: float = 0.0,
+    live_lag_s: float | None = None,
 ) -> AxisErrors:
     """One run's errors; ``pose3d`` overrides :class:`Pose3dConfig`'s defaults
     (a variant row) for the registry's ``filter`` method; ``power_error_db``
-    lowers the site's enrolled transmit power below the simulated one."""
+    lowers the site's enrolled transmit power below the simulated one;
+    ``live_lag_s``: the live server's filter (that smoothing lag, the batch
+    refinement off: what the streaming ``Tracker`` with that lag gives,
+    ``tests/test_pose3d.py::test_live_lag_at_a_3d_site_replays_in_batch``)."""
     cfg = replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma_db, duration_s=duration_s)
     sim = simulate_handheld(cfg, seed=seed)
     if power_error_db:
@@ -82,6 +87,9 @@ def run_one(
                         for d in site.devices)  # fmt: skip
         sim = replace(sim, site=replace(site, devices=devices))
     tcfg = TrackerConfig(smoothing_lag_s=None) if causal else TrackerConfig()
+    if live_lag_s is not None:
+        tcfg = TrackerConfig(smoothing_lag_s=live_lag_s)
+        pose3d = {**(pose3d or {}), "refine": False}
     tcfg = replace(tcfg, filter=replace(tcfg.filter, offset_prior_sd_db=offset_sd_db))
     # (the override goes into TrackerConfig.pose3d, which the filter reads; patching
     # particle3d.Pose3dConfig, as this script did before, did not reach it)
@@ -135,7 +143,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--receivers", type=int, nargs="+", default=[4, 6, 8])
     ap.add_argument("--sigmas", type=float, nargs="+", default=[1.0])
     ap.add_argument("--duration-s", type=float, default=4.0)
-    ap.add_argument("--causal", action="store_true", help="causal filter (no smoother)")
+    mode_group = ap.add_mutually_exclusive_group()
+    mode_group.add_argument("--causal", action="store_true", help="causal filter (no smoother)")
+    mode_group.add_argument(
+        "--live-lag-s", type=float, default=None,
+        help="the live server's filter: this smoothing lag (at most 0.25 s), no refinement",
+    )  # fmt: skip
     ap.add_argument(
         "--offset-prior-sd-db",
         type=float,
@@ -266,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="smoke run: 1 seed, 6 receivers, 0.5 s")
     ap.add_argument("--out", help="also write the Markdown table to this file")
     args = ap.parse_args(argv)
+    if args.live_lag_s is not None and not 0.0 <= args.live_lag_s <= 0.25:
+        ap.error(f"--live-lag-s must lie in [0, 0.25] s (the live server's), got {args.live_lag_s}")
     if args.quick:
         args.seeds, args.receivers, args.duration_s = 1, [6], 0.5
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -329,7 +344,8 @@ def main(argv: list[str] | None = None) -> int:
     for n_rx in args.receivers:
         for sigma in args.sigmas:
             for label, p3, err in variants:
-                args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err)
+                args_one = (args.duration_s, args.causal, args.offset_prior_sd_db, p3, err,
+                            args.live_lag_s)  # fmt: skip
                 runs, cpus = [], []
                 for s in seeds:
                     c0 = time.process_time()
@@ -356,6 +372,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
                 print(lines[-1], flush=True)
     mode = "causal filter" if args.causal else "offline (fixed-lag smoother, 1 s)"
+    if args.live_lag_s is not None:
+        mode = f"live (lag {args.live_lag_s:g} s, no refinement)"
     mode += f", offset prior σ {args.offset_prior_sd_db:g} dB"
     text = "\n".join(
         [

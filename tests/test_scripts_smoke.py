@@ -254,6 +254,20 @@ def test_pose3d_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
         assert any(r.startswith(f"| 6 | 1 | {label} |") for r in rows)
 
 
+def test_pose3d_accuracy_live_lag(capsys: pytest.CaptureFixture[str]) -> None:
+    """``--live-lag-s``: the live server's 3-D filter (no refinement); a lag
+    beyond the server's 0.25 s is refused."""
+    argv = ["--seeds", "1", "--first-seed", "5", "--receivers", "6", "--sigmas", "1",
+            "--duration-s", "0.3", "--live-lag-s", "0.25"]  # fmt: skip
+    printed = _run(SCRIPTS / "pose3d_accuracy.py", argv, capsys)
+    assert "live (lag 0.25 s, no refinement)" in printed
+    assert any(r.startswith("| 6 | 1 | standard |") for r in _table_rows(printed))
+    with pytest.raises(SystemExit) as exc:
+        _load(SCRIPTS / "pose3d_accuracy.py").main([*argv[:-1], "0.5"])
+    assert exc.value.code == 2
+    assert "--live-lag-s must lie in [0, 0.25]" in capsys.readouterr().err
+
+
 def test_live_pose3d(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--duration-s", "1.5", "--size-m", "6", "--receivers", "4", "--seed", "5"]
     printed = _run(SCRIPTS / "live_pose3d.py", argv, capsys)
