@@ -234,10 +234,15 @@ def fit_exponent(site: Site) -> float:
     ``M = a_r − n · 10 log10(max(d, d0))`` with one intercept ``a_r`` per
     receiver; ``n`` clipped to :data:`EXPONENT_RANGE`.
     """
-    m_db = _corrected_survey(site)
-    idx, ell = _survey_log_distance(site)
+    return _fitted_exponent(_corrected_survey(site), *_survey_log_distance(site),
+                            len(site.receiver_ids))  # fmt: skip
+
+
+def _fitted_exponent(m_db: FloatArray, idx: np.ndarray, ell: FloatArray, n_rx: int) -> float:
+    """:func:`fit_exponent` of the corrected survey values ``m_db``, their
+    receivers ``idx`` and ``ell = 10 log10(max(d, d0))`` per survey row."""
     num = den = 0.0
-    for r in range(len(site.receiver_ids)):
+    for r in range(n_rx):
         sel = idx == r
         if sel.sum() < 2:
             continue
@@ -260,13 +265,13 @@ def build_height_model(
     z = np.round(rows.xyz_m[:, 2], decimals)
     layers = np.unique(z)
     x, y = np.asarray(site.survey_map.x_m, float), np.asarray(site.survey_map.y_m, float)
-    exponent = fit_exponent(site)
+    m_db = _corrected_survey(site)
+    idx, ell = _survey_log_distance(site)
+    exponent = _fitted_exponent(m_db, idx, ell, len(site.receiver_ids))
     gain = ReceiverGain.of_site(site) if receiver_gain else None
     if layers.size == 1 and not detrend and gain is None:
         maps = np.asarray(site.survey_map.m_db, float)[None]
     else:
-        m_db = _corrected_survey(site)
-        idx, ell = _survey_log_distance(site)
         if detrend:
             m_db = m_db + exponent * ell
         if gain is not None:
