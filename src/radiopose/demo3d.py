@@ -26,10 +26,9 @@ from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import AxisErrors
+from radiopose.evaluate.scoring import error_stats
 from radiopose.units import FloatArray
 
 DEMO3D_DURATION_S = 10.0
@@ -168,10 +167,12 @@ def run_demo3d(
 
 
 def _stats(x: FloatArray, decimals: int) -> str:
-    """``mean / median / p95`` of errors, or a dash for none."""
-    if not x.size:
+    """``mean / median / p95`` of errors (:func:`~radiopose.evaluate.scoring.error_stats`),
+    or a dash for none."""
+    s = error_stats(x)
+    if s.n == 0:
         return "–"
-    return " / ".join(f"{v:.{decimals}f}" for v in (x.mean(), np.median(x), np.percentile(x, 95)))
+    return " / ".join(f"{v:.{decimals}f}" for v in (s.mean, s.median, s.p95))
 
 
 def _error_table(rows: list[tuple[str, AxisErrors, float]]) -> str:

@@ -551,22 +551,11 @@ def pose3d_figure(
                  label=track_name(track))  # fmt: skip
     axes[0].set_ylabel("height (m)")
     axes[0].legend(loc="upper right", fontsize="small")
-    # orientation: azimuth unwrapped against the truth so a wrap does not draw a jump
-    ax_o = axes[1]
-    colours = {"azimuth": _TRACK_COLOUR, "pitch": "tab:green", "roll": "tab:purple"}
-    az_true = np.rad2deg(np.unwrap(np.deg2rad(to[:, 0])))
-    ti = np.clip(np.searchsorted(tt, t_est), 0, tt.size - 1)
-    az_est = az_true[ti] + angle_diff_deg(track.orientation_deg[:, 0], to[ti, 0])
-    shift = 360.0 * np.round(np.median(az_true) / 360.0)
-    ax_o.plot(tt, az_true - shift, "-", color="k", lw=1.2)
-    ax_o.plot(t_est, az_est - shift, "-", color=colours["azimuth"], lw=1.0, label="azimuth")
-    if track.azimuth_std_deg is not None:
-        sd = np.minimum(track.azimuth_std_deg, 180.0)
-        ax_o.fill_between(t_est, az_est - shift - sd, az_est - shift + sd,
-                          color=colours["azimuth"], alpha=0.2, lw=0,
-                          label="± azimuth_std_deg")  # fmt: skip
-    ax_o.set_ylabel("azimuth (°)")
-    ax_o.legend(loc="upper right", fontsize="small")
+    # azimuth unwrapped along the truth, with its ± azimuth_std_deg band
+    plot_azimuth_over_time(tt, to[:, 0], track, ax=axes[1])
+    axes[1].set_title("")
+    axes[1].set_xlabel("")
+    colours = {"pitch": "tab:green", "roll": "tab:purple"}
     for ax, col, name in ((axes[2], 1, "pitch"), (axes[3], 2, "roll")):
         true_deg, est_deg = to[:, col], track.orientation_deg[:, col]
         if name == "roll":  # both in (−180, 180]: the stored truth may be in [0, 360)
