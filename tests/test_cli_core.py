@@ -183,3 +183,17 @@ def test_demo_failure_leaves_no_partial_output(tmp_path, capsys):
     assert code == 2 and "mse_map.png: is a directory" in err
     assert [p.name for p in out.iterdir()] == ["mse_map.png"]
     assert not list(tmp_path.glob(".d.*"))
+
+
+def test_packet_progress_shown_and_not(capsys):
+    from radiopose.cli import packet_progress
+
+    with packet_progress("locate", False) as (progress, say):
+        assert progress is None
+        say("plain")
+    assert capsys.readouterr().out == "plain\n"
+    with packet_progress("locate", True) as (progress, say):
+        assert progress is not None
+        progress(3, 10)
+        say("[b]not markup[/b]")
+    assert "[b]not markup[/b]" in capsys.readouterr().out

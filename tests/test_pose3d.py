@@ -298,6 +298,10 @@ def test_receiver_gain_follows_the_channel_next_to_a_receiver(clean_sim):
     S0[:, :3] = p
     base = det.expected(S0, heard) - build_height_model(site, detrend=True).channel_db(p)
     assert np.allclose(rxg.expected(S0, heard) - hm.channel_db(p), base, atol=1e-6)
+    # each point's own receiver's gain is that receiver's column of the full table
+    assert hm.receiver_gain is not None
+    full = hm.receiver_gain.gain_dbi(p)
+    assert np.array_equal(hm.receiver_gain.gain_dbi(p, o), full[at, o])
     # constant receiver patterns: no term (nothing to remove or add back)
     flat = {r.pattern: isotropic(r.pattern) for r in site.receivers}
     iso = replace(site, patterns={**site.patterns, **flat})

@@ -125,3 +125,16 @@ def test_round_trip(tmp_path, rows):
     t = read_table(p, COLS)
     assert t["name"].tolist() == [r[1] for r in rows]
     assert np.allclose(t["x_m"], [r[0] for r in rows], atol=1e-6)
+
+
+def test_staged_echo_names_the_target_not_the_stage(tmp_path):
+    from radiopose.tables import staged_directory, staged_echo
+
+    lines: list[str] = []
+    out = tmp_path / "out"
+    with staged_directory(out) as stage:
+        say = staged_echo(lines.append, stage, out)
+        (stage / "a.txt").write_text("x")
+        say(f"wrote {stage / 'a.txt'}")
+    assert lines == [f"wrote {out / 'a.txt'}"]
+    assert (out / "a.txt").read_text() == "x"

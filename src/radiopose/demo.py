@@ -93,14 +93,12 @@ def run_demo(
     out = Path(out_dir)
     cfg = demo_scenario(noise_db=noise_db, duration_s=duration_s, interval_ms=interval_ms)
     sim = simulate(cfg, seed=seed)
-    from radiopose.tables import staged_directory
+    from radiopose.tables import staged_directory, staged_echo
 
     # Everything is written to a staging directory beside OUT and moved into
     # OUT only when the whole demo succeeded: a failure leaves no partial output.
     with staged_directory(out) as stage:
-
-        def say(line: str, stage: Path = stage) -> None:
-            echo(line.replace(str(stage), str(out)))
+        say = staged_echo(echo, stage, out)
 
         written = sim.write(stage / "scenario")
         say(

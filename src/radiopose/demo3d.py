@@ -85,7 +85,7 @@ def run_demo3d(
     from radiopose.evaluate.scoring import match_truth
     from radiopose.plots import pose3d_figure
     from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
-    from radiopose.tables import staged_directory
+    from radiopose.tables import staged_directory, staged_echo
     from radiopose.tracker import TrackerConfig, locate
 
     t0 = time.perf_counter()
@@ -100,9 +100,7 @@ def run_demo3d(
     out = Path(out_dir)
     rx = sim.site.receiver_positions_m()
     with staged_directory(out) as stage:
-
-        def say(line: str, stage: Path = stage) -> None:
-            echo(line.replace(str(stage), str(out)))
+        say = staged_echo(echo, stage, out)
 
         written = sim.write(stage / "scenario")
         n_pk = len(sim.truth)

@@ -47,6 +47,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from radiopose.geometry import orientation_matrices, pattern_angles_deg
 from radiopose.patterns.pattern import Pattern
@@ -161,15 +162,25 @@ class ReceiverGain:
                         for r in site.receivers])  # fmt: skip
         return cls(site.receiver_positions_m(), rot, pats)
 
-    def gain_dbi(self, xyz_m: FloatArray) -> FloatArray:
-        """``G_r(r → p)`` ``(n, n_rx)`` dBi: each receiver's directivity toward points
-        ``(n, 3)``."""
+    def gain_dbi(
+        self, xyz_m: FloatArray, receiver_index: NDArray[np.int64] | None = None
+    ) -> FloatArray:
+        """``G_r(r → p)`` dBi: each receiver's directivity toward points ``(n, 3)``,
+        ``(n, n_rx)``; with ``receiver_index`` ``(n,)`` (indices into the
+        receivers), only each point's own receiver's, ``(n,)``."""
         p = np.asarray(xyz_m, float).reshape(-1, 3)
-        out = np.empty((p.shape[0], len(self.patterns)))
+        if receiver_index is None:
+            out = np.empty((p.shape[0], len(self.patterns)))
+            for j, pat in enumerate(self.patterns):
+                phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p)
+                out[:, j] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
+            return out
+        own = np.empty(p.shape[0])
         for j, pat in enumerate(self.patterns):
-            phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p)
-            out[:, j] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
-        return out
+            sel = receiver_index == j
+            phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p[sel])
+            own[sel] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
+        return own
 
     def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(rot, d, ax)`` of :func:`radiopose.filtering.kernels3d.receiver_gain_dbi`:
@@ -218,7 +229,7 @@ def _corrected_survey(site: Site) -> FloatArray:
                           site.receivers)  # fmt: skip
 
 
-def _survey_log_distance(site: Site) -> tuple[np.ndarray, FloatArray]:
+def _survey_log_distance(site: Site) -> tuple[NDArray[np.int64], FloatArray]:
     """Per survey row: its receiver's index and ``10 log10(max(d, d0))``, ``d`` the
     3-D distance from the surveyed point to that receiver (m)."""
     rows = site.survey_rows
@@ -275,7 +286,7 @@ def build_height_model(
         if detrend:
             m_db = m_db + exponent * ell
         if gain is not None:
-            m_db = m_db - gain.gain_dbi(rows.xyz_m)[np.arange(idx.size), idx]
+            m_db = m_db - gain.gain_dbi(rows.xyz_m, idx)
         out = []
         for h in layers:
             sel = z == h

@@ -21,7 +21,7 @@ import os
 import re
 import shutil
 import tempfile
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, Literal
@@ -342,6 +342,19 @@ def staged_directory(target: str | os.PathLike[str]) -> Iterator[Path]:
                 shutil.rmtree(old, ignore_errors=True)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def staged_echo(
+    echo: Callable[[str], None], stage: Path, target: str | os.PathLike[str]
+) -> Callable[[str], None]:
+    """``echo`` for lines written inside :func:`staged_directory`: the staging
+    directory's path in a line is shown as ``target``'s, where the files end up."""
+    stage_s, target_s = str(stage), str(Path(target))
+
+    def say(line: str) -> None:
+        echo(line.replace(stage_s, target_s))
+
+    return say
 
 
 def write_table(

@@ -10,6 +10,9 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from functools import partial
 from typing import Any
 
 import typer
@@ -56,6 +59,26 @@ def count_progress(label: str, *, elapsed: bool = True, description: bool = Fals
     if description:
         columns.append(TextColumn("{task.description}"))
     return Progress(*columns, transient=True)
+
+
+@contextmanager
+def packet_progress(
+    label: str, show: bool
+) -> Iterator[tuple[Callable[[int, int], None] | None, Callable[[str], None]]]:
+    """A transient bar over packets (:func:`count_progress`) while the block runs,
+    when ``show``. Yields ``(progress, echo)``: the ``progress(done, total)``
+    callback :func:`radiopose.tracker.locate` takes, and a print that does not
+    break the bar; ``(None, print)`` when not shown."""
+    if not show:
+        yield None, print
+        return
+    with count_progress(label, elapsed=False) as bar:
+        task = bar.add_task("packets", total=None)
+
+        def progress(done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total)
+
+        yield progress, partial(bar.console.print, markup=False, highlight=False)
 
 
 def _register() -> None:

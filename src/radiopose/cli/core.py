@@ -276,32 +276,18 @@ def demo(
         if method != "filter":
             raise InputError("--method applies to --live (the 3-D demo runs the filter)")
         import sys
-        from contextlib import nullcontext
-        from functools import partial
 
-        from radiopose.cli import count_progress
+        from radiopose.cli import packet_progress
         from radiopose.demo3d import DEMO3D_DURATION_S, DEMO3D_INTERVAL_MS, run_demo3d
 
-        run = partial(
-            run_demo3d,
-            out,
-            seed=seed,
-            noise_db=noise_db,
-            duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
-            interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
-        )
-        show = sys.stderr.isatty()
-        with count_progress("filter, offline", elapsed=False) if show else nullcontext() as bar:
-            if bar is None:
-                run(echo=print)
-                return
-            task = bar.add_task("packets", total=None)
-
-            def progress(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
-
-            run(
-                echo=partial(bar.console.print, markup=False, highlight=False),
+        with packet_progress("filter, offline", sys.stderr.isatty()) as (progress, say):
+            run_demo3d(
+                out,
+                seed=seed,
+                noise_db=noise_db,
+                duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
+                interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
+                echo=say,
                 progress=progress,
             )
         return

@@ -92,19 +92,10 @@ def _locate(
         print(f"tracker settings from {settings_path}", file=sys.stderr)
     if acquisition_window_ms is not None:
         config = replace(config, acquisition_window_s=acquisition_window_ms / 1000.0)
-    show = not quiet and sys.stderr.isatty()
-    if show:
-        from radiopose.cli import count_progress
+    from radiopose.cli import packet_progress
 
-        with count_progress(f"locate ({method})", elapsed=False) as bar:
-            task = bar.add_task("packets", total=None)
-
-            def progress(done: int, total: int) -> None:
-                bar.update(task, completed=done, total=total)
-
-            result = run_locate(the_site, pk, method, config, progress)
-    else:
-        result = run_locate(the_site, pk, method, config)
+    with packet_progress(f"locate ({method})", not quiet and sys.stderr.isatty()) as (progress, _):
+        result = run_locate(the_site, pk, method, config, progress)
     extra = None
     if method == "filter" and len(result.estimates):
         from radiopose.packets import group_packets

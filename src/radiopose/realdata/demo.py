@@ -38,16 +38,14 @@ def run_real_demo(out_dir: str | Path, *, echo: Callable[[str], None] = print) -
     from radiopose.realdata.figures import plot_errors_over_time, plot_track
     from radiopose.realdata.tetam import shipped_dataset_dir
     from radiopose.site_io import load_site
-    from radiopose.tables import staged_directory
+    from radiopose.tables import staged_directory, staged_echo
     from radiopose.tracker import TrackerConfig, locate
     from radiopose.tracker_settings import load_site_tracker_settings
 
     t0 = time.perf_counter()
     out = Path(out_dir)
     with staged_directory(out) as stage:
-
-        def say(line: str) -> None:
-            echo(line.replace(str(stage), str(out)))
+        say = staged_echo(echo, stage, out)
 
         summary = import_tetam(shipped_dataset_dir(), stage / "data", shipped_import_settings())
         say(f"imported the BLE tracking site (CC0): {summary.lines()[1]}")
