@@ -157,6 +157,41 @@ def test_handheld_rejects_bad_settings():
 
 
 # ----------------------------------------------------------------------------- height model
+def test_parallel_kernels_do_not_depend_on_the_threads(clean_sim):
+    """The expected RSS and the coarse costs run over numba's threads; one thread
+    and two give the same numbers, bit for bit (one row is one thread's work)."""
+    import numba
+
+    from radiopose.filtering.kernels3d import coarse_costs
+
+    site = clean_sim.site
+    model = FilterModel3d.build3d(
+        site, candidate_space(site, site.devices[0].transmitter),
+        Pose3dConfig(acquisition_step_m=2.0, acquisition_tilts=2),
+    )  # fmt: skip
+    rng = np.random.default_rng(11)
+    n = 3001  # not a multiple of the thread count
+    S = _particles(rng.uniform(0, 360, n), rng.uniform(-80, 80, n), rng.uniform(-180, 180, n))
+    S[:, K.X_M], S[:, K.Y_M] = rng.uniform(0, 10, n), rng.uniform(0, 10, n)
+    S[:, K.Z_M] = rng.uniform(0.8, 1.6, n)
+    heard = np.array([0, 2, 3], dtype=np.int64)
+    table = model.coarse.table_dbm
+    rss = np.array([-60.0, -55.0, -70.0])
+    before = numba.get_num_threads()
+    results = []
+    try:
+        for threads in sorted({1, min(2, numba.config.NUMBA_NUM_THREADS)}, reverse=True):
+            numba.set_num_threads(threads)
+            cost = np.empty(table.shape[0])
+            coarse_costs(table, heard, rss, 3.0, 1.0, 6.0, cost)
+            results.append((model.expected(S, heard), cost))
+    finally:
+        numba.set_num_threads(before)
+    assert np.isfinite(results[0][0]).all() and np.isfinite(results[0][1]).all()
+    for expected, cost in results[1:]:
+        assert np.array_equal(expected, results[0][0]) and np.array_equal(cost, results[0][1])
+
+
 def test_height_model_reproduces_the_channel(clean_sim):
     """Noise-free: the 3-D expected RSS at the true poses is the simulated RSS, and
     at heights far from the surveyed one (0.6 m, 1.8 m; survey at 1.2 m) the

@@ -79,7 +79,7 @@ def receiver_gain_dbi(rot, d, ax, r, wx, wy, wz):  # pragma: no cover - compiled
     return K._pattern_dbi(table, phi, theta, ax[r, 0], ax[r, 1], ax[r, 2])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def expected3d_into(
     S, heard, rx, maps, layers_z, exponent, detrended, rg_rot, rg_d, rg_ax, grid, tx_dbm, d, pat,
     out,
@@ -88,9 +88,12 @@ def expected3d_into(
     model's channel + ``tx_dbm`` + the full-sphere pattern toward each receiver
     in the body frame of ``R = Rz(az)·Rx(pitch)·Ry(roll)``; with ``rg_*`` of
     :meth:`~radiopose.survey_height.ReceiverGain.kernel_arrays` (zero rows: no
-    term) the receiver's own directivity toward the particle as well."""
+    term) the receiver's own directivity toward the particle as well.
+
+    Particles in parallel over numba's threads (``NUMBA_NUM_THREADS``; one
+    particle's row is one thread's, so the result does not depend on them)."""
     gain = rg_rot.shape[0] > 0
-    for i in range(S.shape[0]):
+    for i in numba.prange(S.shape[0]):
         x = S[i, K.X_M]
         y = S[i, K.Y_M]
         z = S[i, K.Z_M]
@@ -194,24 +197,23 @@ def packet_update3d(  # pragma: no cover - compiled
     return lse0, K.normalise_into(logw, w)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, parallel=True)
 def coarse_costs(table, heard, rss, sigma_db, prior_db, prior_sd_db, out):  # pragma: no cover
     """Cost of every coarse pose (rows of ``table`` ``(n_pose, n_rx)``, expected RSS
     without offset) for one reading per heard receiver, the offset profiled out:
-    ``Σ (e − b̂)²/2σ² + (b̂ − b₀)²/2s²``, ``b̂ = (Σe/σ² + b₀/s²)/(h/σ² + 1/s²)``."""
+    ``Σ (e − b̂)²/2σ² + (b̂ − b₀)²/2s²``, ``b̂ = (Σe/σ² + b₀/s²)/(h/σ² + 1/s²)``.
+    Rows in parallel over numba's threads (each row's cost is one thread's)."""
     h = heard.shape[0]
     lam = 1.0 / (sigma_db * sigma_db)
     lam0 = 1.0 / (prior_sd_db * prior_sd_db)
-    e = np.empty(h)
-    for i in range(table.shape[0]):
+    for i in numba.prange(table.shape[0]):
         s = 0.0
         for q in range(h):
-            e[q] = rss[q] - table[i, heard[q]]
-            s += e[q]
+            s += rss[q] - table[i, heard[q]]
         b = (lam * s + lam0 * prior_db) / (h * lam + lam0)
         c = 0.0
         for q in range(h):
-            c += (e[q] - b) ** 2
+            c += ((rss[q] - table[i, heard[q]]) - b) ** 2
         out[i] = 0.5 * lam * c + 0.5 * lam0 * (b - prior_db) ** 2
 
 
