@@ -14,7 +14,7 @@ one intercept per receiver. With several surveyed heights, each height has
 its own map and a height between two surveyed ones blends the two corrected
 values linearly in ``z``; outside them the nearest surveyed height is used.
 
-Detrended maps (``build_height_model(..., detrend=True)``): the survey is
+Detrended maps (``build_height_model(..., detrend=True)``, the default): the survey is
 interpolated onto the candidate grid with its path loss removed —
 ``R_r(x, y) = M_r(x, y; z_s) + 10 n log10(max(d(z_s), d0))`` at each surveyed
 point — and the path loss is added back at the device's exact 3-D distance,
@@ -265,11 +265,12 @@ def _fitted_exponent(m_db: FloatArray, idx: np.ndarray, ell: FloatArray, n_rx: i
 
 
 def build_height_model(
-    site: Site, decimals: int = 3, detrend: bool = False, receiver_gain: bool = False
+    site: Site, decimals: int = 3, detrend: bool = True, receiver_gain: bool = False
 ) -> HeightModel:
     """The site's :class:`HeightModel`: one map per surveyed height (heights rounded
     to ``decimals``), the site's own survey map where only one height was surveyed;
-    ``detrend``: maps of the survey with its fitted path loss removed,
+    ``detrend`` (default on, as ``Pose3dConfig.survey_detrend``): maps of the survey
+    with its fitted path loss removed (off: the survey's own maps),
     ``receiver_gain``: with the receivers' own directivity removed (module
     docstring); either interpolated with the site's own interpolation settings."""
     rows = site.survey_rows
