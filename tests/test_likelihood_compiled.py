@@ -188,3 +188,21 @@ def test_pitch_roll_candidates(space, sphere):
     assert fast.n_q == 6 and fast.n_az == 36
     for heard in packets(s3, rng, 3):
         same(fast.score_heard(heard, 50), ref.score_heard(heard, 50))
+
+
+def test_spare_core_threads_one_thread_when_busy_then_restored(monkeypatch):
+    """On a busy machine the 3-D filter's parallel kernels run on one thread;
+    the caller's thread count comes back afterwards (and is untouched when a
+    core is spare)."""
+    import numba
+
+    import radiopose.likelihood.compiled as compiled
+
+    before = numba.get_num_threads()
+    monkeypatch.setattr(compiled, "spare_core", lambda: False)
+    with compiled.spare_core_threads():
+        assert numba.get_num_threads() == 1
+    assert numba.get_num_threads() == before
+    monkeypatch.setattr(compiled, "spare_core", lambda: True)
+    with compiled.spare_core_threads():
+        assert numba.get_num_threads() == before

@@ -68,6 +68,7 @@ from radiopose.filtering.particle import (
 )
 from radiopose.geometry import orientation_matrices, pattern_angles_deg
 from radiopose.likelihood import CandidateSpace, HeardRss, profile_offset_db
+from radiopose.likelihood.compiled import spare_core_threads
 from radiopose.patterns.pattern import Pattern
 from radiopose.site import Site
 from radiopose.survey_height import HeightModel, build_height_model, no_receiver_gain
@@ -675,7 +676,8 @@ class FilterModel3d(FilterModel):
         """Expected RSS ``(n, h)`` dBm without the offset (height model, full sphere)."""
         heard = np.ascontiguousarray(heard_index, dtype=np.int64)
         out = np.empty((S.shape[0], heard.size))
-        expected3d_into(np.ascontiguousarray(S), heard, *self.arrays3d(), out)
+        with spare_core_threads():
+            expected3d_into(np.ascontiguousarray(S), heard, *self.arrays3d(), out)
         return out
 
     def arrays3d(self) -> tuple[Any, ...]:
@@ -844,8 +846,9 @@ class ParticleFilter3d(ParticleFilter):
         idx = np.ascontiguousarray(heard.receiver_index, dtype=np.int64)
         rss = np.ascontiguousarray(heard.rss_dbm, dtype=np.float64)
         cost = np.empty(coarse.table_dbm.shape[0])
-        coarse_costs(coarse.table_dbm, idx, rss, p3.acquisition_sigma_db, st.offset_prior_db,
-                     cfg.offset_prior_sd_db, cost)  # fmt: skip
+        with spare_core_threads():
+            coarse_costs(coarse.table_dbm, idx, rss, p3.acquisition_sigma_db,
+                         st.offset_prior_db, cfg.offset_prior_sd_db, cost)  # fmt: skip
         ok = np.isfinite(cost)
         if not ok.any():
             return None
@@ -944,12 +947,13 @@ class ParticleFilter3d(ParticleFilter):
         band = self._band
         if band is not None and dt > 0:
             _band_prior(S, logw, band, dt)
-        lse0, lse1 = packet_update3d(
-            S, logw, work.noise, noise_z, dt, self._motion, mod.box_m, mod.tilt_rad, mod.z_box_m,
-            np.ascontiguousarray(heard.receiver_index, dtype=np.int64), *mod.arrays3d(),
-            np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
-            self._likelihood_parameter(sigma), pred, work.w,
-        )  # fmt: skip
+        with spare_core_threads():
+            lse0, lse1 = packet_update3d(
+                S, logw, work.noise, noise_z, dt, self._motion, mod.box_m, mod.tilt_rad,
+                mod.z_box_m, np.ascontiguousarray(heard.receiver_index, dtype=np.int64),
+                *mod.arrays3d(), np.ascontiguousarray(heard.rss_dbm, dtype=np.float64), sigma,
+                self._likelihood_parameter(sigma), pred, work.w,
+            )  # fmt: skip
         est = self._finish_step(st, t_s, heard, key, pred, lse0, lse1)
         if est is None or self.pose3d.estimate != "mode" or self.lag_s is not None:
             return est  # (smoothing: the smoother's estimates take the mode, _emit)

@@ -61,11 +61,12 @@ the one exactness bound above, which a split would state twice.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import os
 import time
-from collections.abc import Hashable, Sequence
+from collections.abc import Hashable, Iterator, Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import numba
@@ -755,3 +756,21 @@ def spare_core() -> bool:
 def threads() -> int:
     """Threads numba uses (``NUMBA_NUM_THREADS``, default: all cores)."""
     return int(os.environ.get("NUMBA_NUM_THREADS", numba.config.NUMBA_NUM_THREADS))
+
+
+@contextlib.contextmanager
+def spare_core_threads() -> Iterator[None]:
+    """numba's parallel kernels (``parallel=True``) called inside the block run on
+    all of numba's threads when a core is spare (:func:`spare_core`) and on one
+    otherwise, for the reason given there; the calling thread's setting is
+    restored afterwards. Results never depend on it (a parallel kernel's rows are
+    each one thread's)."""
+    before = numba.get_num_threads()
+    if before == 1 or spare_core():
+        yield
+        return
+    numba.set_num_threads(1)
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
