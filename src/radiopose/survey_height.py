@@ -170,17 +170,17 @@ class ReceiverGain:
         receivers), only each point's own receiver's, ``(n,)``."""
         p = np.asarray(xyz_m, float).reshape(-1, 3)
         if receiver_index is None:
-            out = np.empty((p.shape[0], len(self.patterns)))
-            for j, pat in enumerate(self.patterns):
-                phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p)
-                out[:, j] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
-            return out
+            return np.stack([self._toward(j, p) for j in range(len(self.patterns))], axis=1)
         own = np.empty(p.shape[0])
-        for j, pat in enumerate(self.patterns):
+        for j in range(len(self.patterns)):
             sel = receiver_index == j
-            phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p[sel])
-            own[sel] = pat.lookup_dbi(phi.reshape(-1), theta.reshape(-1))
+            own[sel] = self._toward(j, p[sel])
         return own
+
+    def _toward(self, j: int, p: FloatArray) -> FloatArray:
+        """Receiver ``j``'s directivity (dBi) toward points ``p`` ``(n, 3)``, ``(n,)``."""
+        phi, theta = pattern_angles_deg(self.receivers_m[j], self.rotations[j], p)
+        return self.patterns[j].lookup_dbi(phi.reshape(-1), theta.reshape(-1))
 
     def kernel_arrays(self) -> tuple[FloatArray, FloatArray, FloatArray]:
         """``(rot, d, ax)`` of :func:`radiopose.filtering.kernels3d.receiver_gain_dbi`:
