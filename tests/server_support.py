@@ -227,6 +227,31 @@ def run_server(
         sock.close()
 
 
+def batch_rounds(trace: Tiny, per_batch: int = 40) -> Iterator[list[tuple[str, str, list]]]:
+    """Every receiver's frames as ``(receiver, batch id, rows)`` batches, one round
+    (the next batch of each receiver) at a time, so receivers interleave in time."""
+    chunks = {r: list(range(0, len(trace.frames[r]), per_batch)) for r in trace.frames}
+    for i in range(max(len(c) for c in chunks.values())):
+        batches = []
+        for r in sorted(trace.frames):
+            if i < len(chunks[r]):
+                f = trace.frames[r].take(slice(chunks[r][i], chunks[r][i] + per_batch))
+                rows = list(zip(f.timestamp_ns.tolist(), f.frame_sha256, f.transmitter,
+                                f.rss_dbm.tolist(), strict=True))  # fmt: skip
+                batches.append((r, f"{r}-{i}", rows))
+        yield batches
+
+
+def store_frames(db: Database, trace: Tiny, per_batch: int = 40) -> int:
+    """Store every receiver's frames as batches, receivers interleaved in time; how many."""
+    n = 0
+    for batches in batch_rounds(trace, per_batch):
+        for r, batch_id, rows in batches:
+            db.store_batch(r, batch_id, rows)
+            n += 1
+    return n
+
+
 def fast_live(**kw: object) -> LiveConfig:
     """Live settings for short test traces."""
     base = {"calibration_s": 1.0, "idle_flush_s": 0.7, "poll_s": 0.02, "checkpoint_s": 0.2}
@@ -264,13 +289,17 @@ def frame_dicts(frames: FrameRecords) -> list[dict[str, object]]:
     ]
 
 
-def wait_for(predicate, timeout_s: float = 30.0, interval_s: float = 0.05):
-    """Poll until ``predicate()`` is truthy; return its value (fail on timeout)."""
+def wait_for(predicate, timeout_s: float = 30.0, interval_s: float = 0.05, describe=None):
+    """Poll until ``predicate()`` is truthy; return its value (fail on timeout).
+
+    ``describe()``, if given, adds what was seen to the failure's message.
+    """
     end = time.monotonic() + timeout_s
     while True:
         value = predicate()
         if value:
             return value
         if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {predicate}")
+            seen = "" if describe is None else f": {describe()}"
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {predicate}{seen}")
         time.sleep(interval_s)

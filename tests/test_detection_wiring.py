@@ -202,21 +202,6 @@ def test_live_filter_pipeline_stores_alarm_events(
     db.close()
 
 
-def _store_frames(db, trace, per_batch: int = 40) -> int:  # type: ignore[no-untyped-def]
-    """Every receiver's frames as batches, receivers interleaved in time; how many."""
-    n = 0
-    chunks = {r: list(range(0, len(trace.frames[r]), per_batch)) for r in trace.frames}
-    for i in range(max(len(c) for c in chunks.values())):
-        for r in sorted(trace.frames):
-            if i < len(chunks[r]):
-                f = trace.frames[r].take(slice(chunks[r][i], chunks[r][i] + per_batch))
-                rows = list(zip(f.timestamp_ns.tolist(), f.frame_sha256, f.transmitter,
-                                f.rss_dbm.tolist(), strict=True))  # fmt: skip
-                db.store_batch(r, f"{r}-{i}", rows)
-                n += 1
-    return n
-
-
 def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeypatch) -> None:  # noqa: F811
     """A pipeline restarted from its checkpoint half-way ends with the same detector
     state and the same alarm events as one that never stopped (hair-trigger
@@ -226,7 +211,7 @@ def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeyp
     from radiopose.server.app import import_site_dir
     from radiopose.server.db import Database
     from radiopose.server.live import LivePipeline
-    from server_support import fast_live
+    from server_support import fast_live, store_frames
 
     monkeypatch.setattr(
         alarms, "DetectorConfig", lambda: DetectorConfig(threshold_nats=0.5, warmup_s=0.0)
@@ -238,7 +223,7 @@ def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeyp
     def run(name: str, restart: bool):  # type: ignore[no-untyped-def]
         db = Database(f"sqlite:///{tmp_path / name}")
         import_site_dir(db, tiny.site_dir)
-        n = _store_frames(db, tiny, per_batch=10)
+        n = store_frames(db, tiny, per_batch=10)
         p = LivePipeline(db, cfg)
         while p.state.cursor < n:
             if restart and p.state.cursor >= n // 2:

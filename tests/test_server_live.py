@@ -35,6 +35,7 @@ from radiopose.tracker import locate
 from server_support import (  # fixtures and helpers
     RECEIVERS,
     Running,
+    batch_rounds,
     db_url,
     fast_live,
     pg_server,
@@ -104,7 +105,15 @@ def test_live_run_matches_the_simulation_and_replays_exactly(
     # the server synchronises and stores in its own worker; under a loaded CI
     # machine (postgres beside the suite) that has taken over 30 s, so the wait
     # is generous: a passing run returns as soon as every packet is stored
-    wait_for(lambda: sum(1 for _ in server.db.packets()) == n_packets, 120, 0.25)
+    wait_for(
+        lambda: sum(1 for _ in server.db.packets()) == n_packets,
+        120,
+        0.25,
+        describe=lambda: (
+            f"{len(server.db.packets())} of {n_packets} packets stored; health "
+            + server.client(server.tokens["viewer"]).get("/health").text[:1500]
+        ),
+    )
     packets = server.db.packets()
     assert all(len(p["receiver_ids"]) == 3 for p in packets)
     # clock offsets were estimated (rx2 +0.3 s, rx3 -0.3 s against rx1)
@@ -237,4 +246,53 @@ def test_kill_9_loses_nothing_acknowledged(tiny, db_url: str, tmp_path: Path) ->
     ids = [(p["transmitter"], p["packet_id"]) for p in db.packets()]
     assert len(ids) == len(set(ids)) == 150
     _replays_exactly(db, tmp_path / "export")
+    db.close()
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+def test_a_slow_step_does_not_close_packets_whose_frames_are_arriving(
+    tiny, db_url: str, monkeypatch
+) -> None:
+    """Reports pause only once the pipeline has processed the last ones.
+
+    Each step here takes longer than ``idle_flush_s`` (as a cold compile on a
+    loaded machine does, while the agents' posts wait), and the pipeline polls
+    once more before the next round of reports is stored. Had the idle time
+    been counted from the start of the slow step, that poll would close the
+    open packets and the next round's frames would come too late for them.
+    """
+    from radiopose.server import live
+
+    clock = [1_000.0]
+    monkeypatch.setattr(live, "time", type("Clock", (), {"time": staticmethod(lambda: clock[0])}))
+    db = Database(db_url)
+    import_site_dir(db, tiny.site_dir)
+    cfg = fast_live(idle_flush_s=0.7, checkpoint_s=0.0, batches_per_step=2 * len(RECEIVERS))
+    pipeline = live.LivePipeline(db, cfg)
+    slow_batch = pipeline._batch
+
+    def batch(b):  # type: ignore[no-untyped-def]
+        out = slow_batch(b)
+        clock[0] += 0.5  # a step of three batches: 1.5 s, above the idle flush's 0.7 s
+        return out
+
+    monkeypatch.setattr(pipeline, "_batch", batch)
+    rounds = list(batch_rounds(tiny, per_batch=10))
+    late = RECEIVERS[-1]  # its reports trail the others' by one round
+    for i in range(len(rounds) + 1):
+        now = [b for b in rounds[i] if b[0] != late] if i < len(rounds) else []
+        now += [b for b in rounds[i - 1] if b[0] == late] if i > 0 else []
+        for r, batch_id, rows in now:
+            db.store_batch(r, batch_id, rows)
+        assert pipeline.step() == len(now)
+        assert pipeline.step() == 0  # a poll before the next round: not idle yet
+        assert pipeline.state.flushed is False
+    clock[0] += 1.0  # now the reports have stopped
+    pipeline.step()
+    assert pipeline.state.flushed is True
+    truth = read_packets_csv(tiny.root / "pcaps" / "pcap_truth.csv")
+    packets = db.packets()
+    assert len(packets) == len(set(truth.packet_id))
+    assert all(len(p["receiver_ids"]) == 3 for p in packets)
+    assert pipeline.state.matcher.counts.late_frames == 0
     db.close()

@@ -11,8 +11,9 @@ the server stored them) and carries all of its state in one picklable
 2. **matching** — the buffered and every later frame go through the bounded
    incremental matcher (:class:`radiopose.capture.StreamingMatcher`, clock
    corrected; chains close when every receiver has moved past them or after
-   ``max_lag_s``); when reports pause for ``idle_flush_s`` the open chains
-   are closed so the last packets are not held back;
+   ``max_lag_s``); when no report arrives for ``idle_flush_s`` after the
+   pipeline has processed the last one, the open chains are closed so the
+   last packets are not held back;
 3. **tracking** — each packet of a transmitter this partition owns goes to
    the streaming :class:`radiopose.tracker.Tracker` running the method of
    :data:`radiopose.tracker.METHODS` named by ``LiveConfig.method`` (one state
@@ -97,7 +98,8 @@ class LiveConfig:
         Buffer at most this many frames before estimating clocks.
     idle_flush_s
         Close open packets (and end calibration) after this long without a
-        new batch, wall seconds.
+        new batch, wall seconds, counted from the end of the step that
+        processed the last one.
     checkpoint_s
         A step without new packets writes its checkpoint at most this often,
         seconds (a step with packets always does, with them).
@@ -294,8 +296,13 @@ class LivePipeline:
         for b in batches:
             emitted += self._batch(b)
             st.cursor = b.id
-            st.last_batch_wall_s = now
             st.flushed = False
+        if batches:
+            # Reports pause only once the pipeline is done with the last ones: a
+            # step slower than ``idle_flush_s`` (a cold compile, a loaded machine, a
+            # worker thread holding the interpreter while the API waits) must not
+            # close the chains whose frames arrived meanwhile.
+            st.last_batch_wall_s = time.time()
         idle_s = now - st.last_batch_wall_s
         if not batches and not st.flushed and idle_s >= self.config.idle_flush_s:
             emitted += self._idle_flush(now)
