@@ -253,8 +253,14 @@ def store_frames(db: Database, trace: Tiny, per_batch: int = 40) -> int:
 
 
 def fast_live(**kw: object) -> LiveConfig:
-    """Live settings for short test traces."""
-    base = {"calibration_s": 1.0, "idle_flush_s": 0.7, "poll_s": 0.02, "checkpoint_s": 0.2}
+    """Live settings for short test traces.
+
+    The idle flush (2 s; 5 s by default) is what closes a trace's last packets,
+    so every test that waits for them pays it once; below about a second a CI
+    machine's stall of the agents' threads (several suites at once) can pass
+    for the end of the reports mid-calibration.
+    """
+    base = {"calibration_s": 1.0, "idle_flush_s": 2.0, "poll_s": 0.02, "checkpoint_s": 0.2}
     return LiveConfig(**{**base, **kw})
 
 
