@@ -71,10 +71,19 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv += ["--variants", "causal", "--set", "jump_probability=0.01"]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert len(rows) == 2 + 1 and "| causal |" in rows[2]
-    with pytest.raises(SystemExit) as exc:
-        _load(SCRIPTS / "live_lag_accuracy.py").main(["--quick", "--set", "no_such_field=1"])
-    assert exc.value.code == 2
-    assert "no_such_field" in capsys.readouterr().err
+    # --settle-s adds three columns: the errors after acquisition
+    argv += ["--settle-s", "0.1", "--duration-s", "0.3"]
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert "after 0.1 s" in rows[0] and rows[2].count("|") == 15
+    for bad, said in (
+        (["--set", "no_such_field=1"], "no_such_field"),
+        (["--settle-s", "0.2"], "--settle-s must be in [0, 0.2)"),
+        (["--duration-s", "0"], "--duration-s must be > 0"),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            _load(SCRIPTS / "live_lag_accuracy.py").main(["--quick", *bad])
+        assert exc.value.code == 2
+        assert said in capsys.readouterr().err
 
 
 def test_mirror_diagnosis(capsys: pytest.CaptureFixture[str]) -> None:
