@@ -5,7 +5,9 @@
 * an agent spools while the server is unreachable and delivers everything
   later, reusing its batch ids (also across an agent restart);
 * ``kill -9`` of the server mid-stream loses no acknowledged report, stores
-  nothing twice, and the tracker resumes (export still replays exactly).
+  nothing twice, and the tracker resumes (export still replays exactly);
+* a pipeline step slower than the idle flush does not close the packets whose
+  frames arrived while it ran.
 """
 
 from __future__ import annotations
