@@ -139,6 +139,12 @@ def test_report_is_stored_once(server: Running, tiny) -> None:
         (lambda b: b["frames"][0].update(rss_dbm=float("nan")), 422, "rss_dbm"),
         (lambda b: b["frames"][0].update(timestamp_s=-1.0), 422, "timestamp_s"),
         (lambda b: b["frames"][0].update(timestamp_s=float("inf")), 422, "timestamp_s"),
+        # past 2**63 ns (the database's integer): a 422, not a 500 the agent retries forever
+        (lambda b: b["frames"][0].update(timestamp_s=9.3e9), 422, "timestamp_s"),
+        # numbers are JSON numbers: not converted from text or booleans
+        (lambda b: b["frames"][0].update(timestamp_s="12.5"), 422, "timestamp_s"),
+        (lambda b: b["frames"][0].update(rss_dbm=True), 422, "rss_dbm"),
+        (lambda b: b.update(batch_id="a\u0000b"), 422, "batch_id"),
         (lambda b: b["frames"][0].update(frame_sha256="ab"), 422, "frame_sha256"),
         (lambda b: b["frames"][0].update(transmitter="nonsense"), 422, "transmitter"),
         (lambda b: b["frames"][0].update(transmitter="02:00:00:00:00:99"), 422, "not enrolled"),
@@ -160,6 +166,58 @@ def test_bad_reports_are_rejected_whole(server: Running, tiny, mutate, status, w
     assert words in detail and "\n" not in detail
     assert server.db.count_frames() == 0
     assert server.client(server.tokens["viewer"]).get("/health").status_code == 200
+
+
+def test_limits_at_their_edges_and_in_queries(server: Running, tiny) -> None:
+    """The largest timestamp is stored (both databases); a transmitter id of 64
+    characters can be enrolled and report (PostgreSQL once stored 17); bad query
+    values are 422s naming the parameter."""
+    rx1, admin = server.client(server.tokens["rx1"]), server.client(server.tokens["admin"])
+    body = _batch(tiny, n=1, batch_id="edge")
+    body["frames"][0]["timestamp_s"] = 9.2e9
+    assert rx1.post("/api/v1/reports", json=body).status_code == 201
+    (batch,) = server.db.batches_after(0, 10)
+    assert batch.timestamp_ns == (9_200_000_000_000_000_000,)
+    long_id = "phone-" + "x" * 58
+    r = admin.put(f"/api/v1/admin/devices/{long_id}", json={"pattern": "device", "tx_power_dbm": 1})
+    assert r.status_code == 200, r.text
+    body = _batch(tiny, n=1, batch_id="long-id")
+    body["frames"][0]["transmitter"] = long_id
+    assert rx1.post("/api/v1/reports", json=body).status_code == 201
+    assert server.db.count_frames() == 2
+    # the admin's numbers are JSON numbers too
+    r = admin.put("/api/v1/admin/devices/phone-3", json={"pattern": "device", "tx_power_dbm": "1"})
+    assert r.status_code == 422 and "tx_power_dbm" in r.json()["detail"]
+    viewer = server.client(server.tokens["viewer"])
+    for path, words in (
+        ("/api/v1/estimates?transmitter=a,b", "transmitter"),
+        ("/api/v1/estimates?transmitter=", "transmitter"),
+        ("/api/v1/alarms?transmitter=%00", "transmitter"),
+        (f"/api/v1/stream?after_id={2**63}", "after_id"),
+    ):
+        r = viewer.get(path)
+        assert r.status_code == 422 and words in r.json()["detail"], (path, r.text)
+
+
+@pytest.mark.parametrize("db_url", ["postgresql"], indirect=True)
+def test_an_old_postgresql_database_gains_the_longer_transmitter_column(db_url: str) -> None:
+    """A database of the release that stored MAC addresses only (17 characters)
+    is widened when opened, so a device named with up to 64 characters reports."""
+    from sqlalchemy import text
+
+    from radiopose.server.db import Database
+
+    db = Database(db_url)
+    with db.engine.begin() as c:  # what the old release created
+        c.execute(text("ALTER TABLE frames ALTER COLUMN transmitter TYPE VARCHAR(17)"))
+    url = db.url
+    db.close()
+    again = Database(url, create=False)  # a worker's connection migrates too
+    long_id = "phone-" + "x" * 58
+    again.store_batch("rx1", "b1", [(1_000_000_000, "ab" * 32, long_id, -60.0)])
+    (batch,) = again.batches_after(0, 10)
+    assert batch.transmitter == (long_id,)
+    again.close()
 
 
 def test_unknown_receiver_and_oversized_body(server: Running, tiny) -> None:
@@ -226,6 +284,21 @@ def test_admin_edits_are_validated_whole(server: Running, tiny) -> None:
         ),
         ("DELETE", "/api/v1/admin/patterns/rx1", None, "rx1"),
         ("PUT", "/api/v1/admin/survey", {"csv": "x_m,y_m\n1,2\n"}, "survey.csv"),
+        # a pattern no receiver or device uses yet is still a pattern file
+        ("PUT", "/api/v1/admin/patterns/spare", {"csv": "x"}, "spare.csv"),
+        (
+            "PUT",
+            "/api/v1/admin/patterns/spare",
+            {"csv": "azimuth_deg,polar_deg,directivity_dbi\n0,90,1\n90,90,nan\n"},
+            "spare.csv",
+        ),
+        ("PUT", "/api/v1/admin/patterns/spare", {"csv": "a\u0000"}, "csv"),
+        (
+            "PUT",
+            "/api/v1/admin/receivers/rx1",
+            {"x_m": "1", "y_m": 1, "z_m": 1, "pattern": "rx1"},
+            "x_m",
+        ),
         (
             "PUT",
             "/api/v1/admin/devices/a%2Cb",

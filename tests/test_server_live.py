@@ -6,6 +6,7 @@
   later, reusing its batch ids (also across an agent restart);
 * ``kill -9`` of the server mid-stream loses no acknowledged report, stores
   nothing twice, and the tracker resumes (export still replays exactly);
+* a SIGTERM to the server's whole process group (systemd's stop) ends it;
 * a pipeline step slower than the idle flush does not close the packets whose
   frames arrived while it ran.
 """
@@ -169,7 +170,7 @@ def test_agent_spools_while_the_server_is_down(tiny, db_url: str, tmp_path: Path
     db.close()
 
 
-def _serve(db_url: str, site: Path, port: int, log: Path) -> subprocess.Popen:
+def _serve(db_url: str, site: Path, port: int, log: Path, **popen: object) -> subprocess.Popen:
     with open(log, "ab") as err:
         return subprocess.Popen(
             [
@@ -189,6 +190,7 @@ def _serve(db_url: str, site: Path, port: int, log: Path) -> subprocess.Popen:
             ],
             stdout=subprocess.DEVNULL,
             stderr=err,
+            **popen,  # type: ignore[call-overload]
         )
 
 
@@ -249,6 +251,37 @@ def test_kill_9_loses_nothing_acknowledged(tiny, db_url: str, tmp_path: Path) ->
     assert len(ids) == len(set(ids)) == 150
     _replays_exactly(db, tmp_path / "export")
     db.close()
+
+
+@pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)
+def test_sigterm_to_the_process_group_stops_the_server(tiny, db_url: str, tmp_path: Path) -> None:
+    """systemd's default stop (``KillMode=control-group``) sends SIGTERM to the
+    server and its pipeline child at once; the server must still exit (it once
+    waited forever on an event the dead child had been waiting on)."""
+    db = Database(db_url)
+    import_site_dir(db, tiny.site_dir)
+    viewer = create_token(db, "viewer")
+    port = _closed_port()
+    url = f"http://127.0.0.1:{port}"
+    log = tmp_path / "serve.log"
+    proc = _serve(db_url, tiny.site_dir, port, log, start_new_session=True)
+    try:
+        wait_for(lambda: _up(url, viewer), 60, 0.2)
+        time.sleep(1.0)  # the pipeline child is up and polling
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            rc = proc.wait(30)
+        except subprocess.TimeoutExpired:
+            pytest.fail("the server did not exit within 30 s of a SIGTERM to its process group")
+        # a graceful shutdown, then uvicorn re-raises the signal for the exit status
+        assert rc in (0, -signal.SIGTERM), log.read_text()[-2000:]
+        text = log.read_text()
+        assert "Application shutdown complete" in text and "Traceback" not in text
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+        db.close()
 
 
 @pytest.mark.parametrize("db_url", ["sqlite"], indirect=True)

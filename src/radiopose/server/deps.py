@@ -57,7 +57,9 @@ def require(*roles: str) -> Callable[..., Principal]:
     def dep(who: Annotated[Principal, Depends(_principal)]) -> Principal:
         if who.role not in roles:
             raise HTTPException(
-                403, f"a {who.role} token may not do this (needs {' or '.join(roles)})"
+                403,
+                f"{_article(who.role)} {who.role} token may not do this "
+                f"(needs {' or '.join(roles)})",
             )
         return who
 
@@ -68,3 +70,8 @@ Viewer = Annotated[Principal, Depends(require(*sorted(READ_ROLES)))]
 Admin = Annotated[Principal, Depends(require("admin"))]
 ReceiverRole = Annotated[Principal, Depends(require("receiver"))]
 AnyRole = Annotated[Principal, Depends(require("receiver", "viewer", "admin"))]
+
+
+def _article(word: str) -> str:
+    """``a`` or ``an`` before ``word`` (a role name)."""
+    return "an" if word[:1].lower() in "aeiou" else "a"

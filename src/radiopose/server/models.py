@@ -99,7 +99,7 @@ class FrameRow(Base):
     receiver_id: Mapped[str] = mapped_column(String(64))
     timestamp_ns: Mapped[int] = mapped_column(BigInteger)
     frame_sha256: Mapped[str] = mapped_column(String(64))
-    transmitter: Mapped[str] = mapped_column(String(17))
+    transmitter: Mapped[str] = mapped_column(String(64))
     rss_dbm: Mapped[float] = mapped_column(Float)
 
 
@@ -170,10 +170,15 @@ _ADDED_COLUMNS: tuple[tuple[str, str], ...] = tuple(
 )
 """Nullable columns added after the first release: :func:`migrate` adds them to
 an existing database (old rows read ``NULL``)."""
+_WIDENED_COLUMNS: tuple[tuple[str, str], ...] = (("frames", "transmitter"),)
+"""Text columns made longer after the first release (``frames.transmitter``: 17
+characters, a MAC address, before transmitter ids of up to 64): :func:`migrate`
+widens them in an existing PostgreSQL database (SQLite does not enforce lengths)."""
 
 
 def migrate(engine: Engine) -> None:
-    """Add the nullable columns of :data:`_ADDED_COLUMNS` that an existing table lacks.
+    """Add the nullable columns of :data:`_ADDED_COLUMNS` that an existing table lacks,
+    and widen the text columns of :data:`_WIDENED_COLUMNS` (PostgreSQL).
 
     Idempotent and safe to race: another process adding the same column first
     is not an error.
@@ -193,3 +198,15 @@ def migrate(engine: Engine) -> None:
         except OperationalError as exc:  # SQLite: added meanwhile by another process
             if "duplicate column" not in str(exc.orig):
                 raise
+    if engine.dialect.name != "postgresql":
+        return
+    for table, column in _WIDENED_COLUMNS:
+        if table not in tables:
+            continue
+        want = Base.metadata.tables[table].c[column].type
+        have = next(c["type"] for c in insp.get_columns(table) if c["name"] == column)
+        have_len, want_len = getattr(have, "length", None), getattr(want, "length", None)
+        if have_len is not None and want_len is not None and have_len < want_len:
+            kind = want.compile(dialect=engine.dialect)
+            with engine.begin() as c:  # widening twice (a racing process) is harmless
+                c.execute(text(f"ALTER TABLE {table} ALTER COLUMN {column} TYPE {kind}"))

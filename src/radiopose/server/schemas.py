@@ -5,10 +5,13 @@ is here so that a bad request is answered ``422`` with a one-line reason and
 stores nothing:
 
 * at most :data:`MAX_FRAMES_PER_BATCH` frames and :data:`MAX_BODY_BYTES` bytes;
-* ``timestamp_s`` finite, ``0 <= t <= 1e11`` s (the receiver's own clock);
+* ``timestamp_s`` finite, ``0 <= t <= 9.2e9`` s (the receiver's own clock;
+  stored as nanoseconds in a signed 64-bit integer, whose limit is 9.22e9 s);
 * ``frame_sha256`` 64 hex digits, ``transmitter`` a transmitter id (1–64
   printable characters, no commas or whitespace: a MAC address or a name);
-* ``rss_dbm`` finite within :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`.
+* ``rss_dbm`` finite within :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`;
+* numbers are JSON numbers (``strict``: ``"12.5"`` or ``true`` is a 422, not
+  converted), and no text holds a NUL or another control character.
 
 Receiver and transmitter ids must also be known to the site; that is checked
 by the endpoint (``422``).
@@ -25,11 +28,13 @@ from radiopose.capture.records import MAX_TRANSMITTER_ID_CHARS, PLAUSIBLE_RSS_DB
 MAX_FRAMES_PER_BATCH = 5_000
 MAX_BODY_BYTES = 2_000_000
 MAX_CSV_BYTES = 20_000_000
-MAX_TIMESTAMP_S = 1e11
+MAX_TIMESTAMP_S = 9.2e9
+"""Largest accepted ``timestamp_s``: below 2**63 ns, the database's integer limit."""
 
 _Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f,]+$")]
-_Angle = Annotated[float, Field(ge=-360.0, le=360.0, allow_inf_nan=False)]
-_Metres = Annotated[float, Field(ge=-1e6, le=1e6, allow_inf_nan=False)]
+_Name = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[^\x00-\x1f\x7f]+$")]
+_Angle = Annotated[float, Field(strict=True, ge=-360.0, le=360.0, allow_inf_nan=False)]
+_Metres = Annotated[float, Field(strict=True, ge=-1e6, le=1e6, allow_inf_nan=False)]
 
 
 class FrameReport(BaseModel):
@@ -37,14 +42,16 @@ class FrameReport(BaseModel):
 
     model_config = ConfigDict(frozen=True)
 
-    timestamp_s: Annotated[float, Field(ge=0.0, le=MAX_TIMESTAMP_S, allow_inf_nan=False)]
+    timestamp_s: Annotated[
+        float, Field(strict=True, ge=0.0, le=MAX_TIMESTAMP_S, allow_inf_nan=False)
+    ]
     frame_sha256: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{64}$")]
     transmitter: Annotated[
         str, Field(min_length=1, max_length=MAX_TRANSMITTER_ID_CHARS, pattern=r"^[^\s,]+$")
     ]
     rss_dbm: Annotated[
         float,
-        Field(ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),
+        Field(strict=True, ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),
     ]
 
 
@@ -54,7 +61,7 @@ class ReportBatch(BaseModel):
     model_config = ConfigDict(frozen=True)
 
     receiver_id: _Id
-    batch_id: Annotated[str, Field(min_length=1, max_length=128)]
+    batch_id: _Name
     frames: Annotated[list[FrameReport], Field(max_length=MAX_FRAMES_PER_BATCH)]
 
 
@@ -92,9 +99,9 @@ class ReceiverIn(BaseModel):
     y_m: _Metres
     z_m: _Metres
     azimuth_deg: _Angle = 0.0
-    pitch_deg: Annotated[float, Field(ge=-90.0, le=90.0, allow_inf_nan=False)] = 0.0
+    pitch_deg: Annotated[float, Field(strict=True, ge=-90.0, le=90.0, allow_inf_nan=False)] = 0.0
     roll_deg: _Angle = 0.0
-    pattern: Annotated[str, Field(min_length=1, max_length=128)]
+    pattern: _Name
 
 
 class ReceiverOut(ReceiverIn):
@@ -106,8 +113,8 @@ class DeviceIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    pattern: Annotated[str, Field(min_length=1, max_length=128)]
-    tx_power_dbm: Annotated[float, Field(ge=-100.0, le=60.0, allow_inf_nan=False)]
+    pattern: _Name
+    tx_power_dbm: Annotated[float, Field(strict=True, ge=-100.0, le=60.0, allow_inf_nan=False)]
 
 
 class DeviceOut(DeviceIn):
@@ -119,7 +126,7 @@ class CsvIn(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    csv: Annotated[str, Field(min_length=1, max_length=MAX_CSV_BYTES)]
+    csv: Annotated[str, Field(min_length=1, max_length=MAX_CSV_BYTES, pattern=r"^[^\x00]*$")]
 
 
 class Area(BaseModel):

@@ -146,6 +146,30 @@ def build_site(parts: dict[str, Any]) -> Site:
     return site
 
 
+def check_pattern_csv(name: str, csv_text: str) -> None:
+    """Validate one pattern's CSV text as ``patterns/<name>.csv`` would load, whether
+    or not the site uses it yet (:func:`build_site` reads only the patterns in use).
+
+    Raises
+    ------
+    InputError
+        The text is not a pattern CSV; the message names ``patterns/<name>.csv``,
+        line and column.
+    """
+    from radiopose.patterns import read_pattern_csv
+
+    if not _safe_name(name):
+        raise InputError(f"pattern name {name!r} is not a plain file name")
+    with tempfile.TemporaryDirectory(prefix="radiopose-pattern-") as tmp:
+        path = Path(tmp) / "patterns" / f"{name}.csv"
+        path.parent.mkdir()
+        path.write_text(csv_text, encoding="utf-8")
+        try:
+            read_pattern_csv(path, name)
+        except InputError as exc:
+            raise InputError(str(exc).replace(tmp + os.sep, "").replace(tmp, "site")) from None
+
+
 def export_site(parts: dict[str, Any], directory: str | os.PathLike[str]) -> Path:
     """Write the stored site as a directory that ``radiopose locate`` reads."""
     build_site(parts)

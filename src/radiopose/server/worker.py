@@ -66,8 +66,13 @@ class LiveWorker:
         self._wake.set()
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        self._stop.set()
-        self._wake.set()
+        # A child process that died (a SIGKILL, or a SIGTERM to the whole process
+        # group before it learnt to take one) may still count as waiting on the
+        # events, and setting them would then wait for it forever: only a live
+        # child is told; a dead one is only joined.
+        if self.mode == "thread" or self._runner.ident is None or self._runner.is_alive():
+            self._stop.set()
+            self._wake.set()
         if self._runner.ident is not None:
             self._runner.join(timeout_s)
         if self.mode == "process" and self._runner.is_alive():
@@ -79,13 +84,18 @@ class LiveWorker:
 
 
 def _loop(
-    db: Database, config: LiveConfig, stop: Any, wake: Any, holder: LiveWorker | None = None
+    db: Database,
+    config: LiveConfig,
+    stop: Any,
+    wake: Any,
+    holder: LiveWorker | None = None,
+    terminated: list[bool] | None = None,
 ) -> None:
     import os
 
     parent = os.getppid()
     pipeline: LivePipeline | None = None
-    while not stop.is_set():
+    while not stop.is_set() and not (terminated and terminated[0]):
         if holder is None and os.getppid() != parent:  # the server died: so do we
             return
         try:
@@ -105,12 +115,24 @@ def _loop(
 
 
 def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
+    import signal
+
     from radiopose.server.jsonlog import configure_logging
 
+    # A SIGTERM to the whole process group (systemd's default, ``kill -- -PGID``)
+    # reaches this child too. Dying inside ``wake.wait`` would leave it counted
+    # as a waiter of the event, and the server's own shutdown would then block in
+    # ``stop.set()`` forever; so the signal only ends the loop after its wait.
+    terminated = [False]
+
+    def on_term(signum: int, frame: object) -> None:
+        terminated[0] = True
+
+    signal.signal(signal.SIGTERM, on_term)
     configure_logging("info")
     db = Database(url, create=False)
     try:
-        _loop(db, config, stop, wake)
+        _loop(db, config, stop, wake, terminated=terminated)
     except KeyboardInterrupt:
         pass
     finally:

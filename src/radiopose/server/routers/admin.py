@@ -126,8 +126,10 @@ def delete_device(transmitter: str, who: Admin, db: DB) -> SiteOut:
 
 
 def put_pattern(name: str, body: CsvIn, who: Admin, db: DB) -> SiteOut:
-    """Add or replace a pattern (CSV text of ``patterns/<name>.csv``)."""
+    """Add or replace a pattern (CSV text of ``patterns/<name>.csv``), validated
+    as a pattern file even while nothing uses it."""
     _check_id(name)
+    sitestore.check_pattern_csv(name, body.csv)
 
     def change(p: dict[str, Any]) -> dict[str, Any]:
         return sitestore.edited(p, patterns={**p["patterns"], name: body.csv})

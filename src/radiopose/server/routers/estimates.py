@@ -17,6 +17,11 @@ from radiopose.server.deps import API, DB, Viewer
 from radiopose.server.routers.site import health_of
 from radiopose.server.schemas import Estimate
 
+_Transmitter = Annotated[
+    str | None, Query(min_length=1, max_length=64, pattern=r"^[^\s,\x00-\x1f\x7f]+$")
+]
+"""A transmitter id in a query: 1–64 characters, no comma, whitespace or control character."""
+
 
 def add_routes(router: APIRouter) -> None:
     """Add this module's routes to ``router`` (the app's own, so they stay flat)."""
@@ -34,7 +39,7 @@ def add_routes(router: APIRouter) -> None:
 def estimates(
     who: Viewer,
     db: DB,
-    transmitter: Annotated[str | None, Query(max_length=64)] = None,
+    transmitter: _Transmitter = None,
     since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
     limit: Annotated[int, Query(ge=1, le=100_000)] = 10_000,
 ) -> list[dict[str, Any]]:
@@ -49,7 +54,7 @@ def estimates(
 def alarms(
     who: Viewer,
     db: DB,
-    transmitter: Annotated[str | None, Query(max_length=64)] = None,
+    transmitter: _Transmitter = None,
     since_s: Annotated[float | None, Query(allow_inf_nan=False)] = None,
     limit: Annotated[int, Query(ge=1, le=100_000)] = 1_000,
 ) -> list[dict[str, Any]]:
@@ -61,7 +66,7 @@ async def stream(
     request: Request,
     who: Viewer,
     db: DB,
-    after_id: Annotated[int | None, Query(ge=0)] = None,
+    after_id: Annotated[int | None, Query(ge=0, le=2**63 - 1)] = None,
 ) -> StreamingResponse:
     """Server-sent events: ``estimates`` (JSON list) as stored, ``health`` every 2 s."""
     state = request.app.state
