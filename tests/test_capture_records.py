@@ -200,6 +200,25 @@ def test_microsecond_and_nanosecond_pcap_timestamps(tmp_path: Path) -> None:
     assert f.rss_dbm[0] == -40.0
 
 
+def test_a_pcap_record_with_a_sub_second_field_of_a_second_or_more_is_skipped(
+    tmp_path: Path,
+) -> None:
+    """Counted as ``bad_timestamp`` (it would read as a time a second or more
+    later, a frame that no other receiver heard then); the records around it are kept."""
+    buf = radiotap_header(-40) + probe_request(TX, 1, b"t")
+    for magic, frac_ok, frac_bad in (
+        (0xA1B23C4D, 999_999_999, 2_000_000_000),  # nanoseconds
+        (0xA1B2C3D4, 999_999, 1_000_000),  # microseconds
+    ):
+        path = tmp_path / f"frac{magic:x}.pcap"
+        rec = [struct.pack("<IIII", 1700000000 + k, frac, len(buf), len(buf)) + buf
+               for k, frac in enumerate((frac_ok, frac_bad, 0))]  # fmt: skip
+        path.write_bytes(struct.pack("<IHHiIII", magic, 2, 4, 0, 0, 65535, 127) + b"".join(rec))
+        cap = read_pcap(path)
+        assert cap.stats[0].skipped == {"bad_timestamp": 1}
+        assert cap.stats[0].frames_kept == 2
+
+
 def _idb(cls: type, linktype: int, tsresol: int | None = None, tsoffset: int | None = None):
     opts = []
     opt_cls = dpkt.pcapng.PcapngOptionLE if cls.__hdr_fmt__[0] == "<" else dpkt.pcapng.PcapngOption

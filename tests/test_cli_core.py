@@ -197,3 +197,38 @@ def test_packet_progress_shown_and_not(capsys):
         progress(3, 10)
         say("[b]not markup[/b]")
     assert "[b]not markup[/b]" in capsys.readouterr().out
+
+
+def test_outputs_never_overwrite_inputs(tmp_path, capsys):
+    """``-o`` naming an input (the packets, a file of the site, the pattern to
+    plot) is a one-line error before any work, and the input is intact."""
+    code, _, _ = run(["simulate", "-o", str(tmp_path / "s"), "--duration-s", "0.2"], capsys)
+    assert code == 0
+    site, packets = tmp_path / "s" / "site", tmp_path / "s" / "packets.csv"
+    before = packets.read_bytes()
+    pattern = next((site / "patterns").glob("*.csv"))
+    for args in (
+        ["locate", str(site), str(packets), "-o", str(packets), "--method", "location"],
+        ["locate", str(site), str(packets), "-o", str(pattern), "--method", "location"],
+        ["pattern", "plot", str(pattern), "-o", str(pattern)],
+    ):
+        code, _, err = run(args, capsys)
+        assert code == 2 and "would overwrite" in err and err.count("\n") == 1, err
+    assert packets.read_bytes() == before and pattern.read_text().startswith("azimuth_deg")
+    # an output directory is refused before the work, not after it
+    code, _, err = run(["locate", str(site), str(packets), "-o", str(tmp_path)], capsys)
+    assert code == 2 and "is a directory" in err and "wrote" not in err
+
+
+def test_simulate_never_leaves_stale_captures(tmp_path, capsys):
+    out = tmp_path / "s"
+    code, _, _ = run(["simulate", "-o", str(out), "--duration-s", "0.2", "--pcap"], capsys)
+    assert code == 0
+    before = {p.name: p.read_bytes() for p in (out / "captures").iterdir()}
+    code, _, err = run(["simulate", "-o", str(out), "--seed", "5", "--duration-s", "0.2"], capsys)
+    assert code == 2 and "earlier run" in err and err.count("\n") == 1
+    assert {p.name: p.read_bytes() for p in (out / "captures").iterdir()} == before
+    code, _, _ = run(
+        ["simulate", "-o", str(out), "--seed", "5", "--duration-s", "0.2", "--pcap"], capsys
+    )
+    assert code == 0 and {p.name: p.read_bytes() for p in (out / "captures").iterdir()} != before

@@ -113,6 +113,22 @@ def test_interrupted_run_resumes_without_redoing_finished_runs(serial, tmp_path)
     pd.testing.assert_frame_equal(again.results, run.results)
 
 
+def test_a_damaged_part_file_is_an_error_naming_its_line(serial, tmp_path):
+    """A line inside the part file that is not a result row (a hand edit, a
+    damaged disk) is not dropped silently (it once turned integer columns of
+    results.csv into floats): the run stops at that line, nothing is computed."""
+    from radiopose.errors import InputError
+
+    run_experiments([_tiny()], tmp_path, workers=0)
+    part = tmp_path / "parts" / "tiny.csv"
+    good = part.read_text(encoding="utf-8")
+    part.write_text(good + "garbage,row\n", encoding="utf-8")
+    n_lines = good.count("\n") + 1
+    with pytest.raises(InputError, match=rf"tiny\.csv:{n_lines}: not a result row"):
+        run_experiments([_tiny()], tmp_path, workers=0)
+    assert part.read_text(encoding="utf-8") == good + "garbage,row\n"  # left as found
+
+
 def test_changed_config_does_not_reuse_stale_rows(serial, tmp_path):
     run_experiments([_tiny()], tmp_path, workers=0)
     doc = {**DOC, "scenario": {**DOC["scenario"], "duration_s": 0.04}}

@@ -139,10 +139,25 @@ def test_malformed_lines_are_one_line_errors_and_nothing_is_written(
     assert not out.exists()
 
 
+@pytest.mark.parametrize("keep_bytes", [0, 1000])
+def test_an_empty_or_cut_survey_file_is_an_error(tmp_path, keep_bytes):
+    """A survey file cut before its Fingerprints line (empty, or inside the
+    Dongles JSON) is an error naming it, not a survey silently smaller."""
+    d = _copy(tmp_path)
+    p = d / "hst" / "set_1_tetam_multi_rssi.hst"
+    p.write_bytes(p.read_bytes()[:keep_bytes])
+    with pytest.raises(InputError, match="no 'Fingerprints:' line") as exc:
+        read_dataset(d)
+    assert "set_1_tetam_multi_rssi.hst" in str(exc.value)
+
+
 def test_tracker_toml_errors_name_the_key(tmp_path):
     p = tmp_path / "tracker.toml"
     p.write_text("smoothing_lag_s = 3.0\n[filter]\nhuber_c = 1.0\nhubre_c = 2.0\n")
-    with pytest.raises(InputError, match=r"tracker.toml:4, column 'filter.hubre_c': unknown key"):
+    with pytest.raises(
+        InputError,
+        match=r"tracker.toml:4, column 'filter.hubre_c': unknown key \(did you mean 'huber_c'",
+    ):
         read_tracker_toml(p)
     p.write_text("[filter]\nn_particles = 0\n")
     with pytest.raises(InputError, match="n_particles"):

@@ -185,3 +185,25 @@ def test_times_beyond_int64_ns_are_line_errors(tmp_path, which):
     path.write_text("\n".join([*lines[:2], ",".join(row), *lines[3:]]) + "\n")
     with pytest.raises(InputError, match=rf"{which}\.csv:3, column 'timestamp_s': value 1e308"):
         read(path)
+
+
+def test_a_packet_transmitter_that_is_not_an_id_is_a_line_error(tmp_path):
+    """The contract's transmitter id (no commas or whitespace): a packets.csv row
+    breaking it is an error at its line, not an unknown transmitter skipped."""
+    from radiopose.packets import Packets, read_packets_csv, write_packets_csv
+
+    path = tmp_path / "packets.csv"
+    write_packets_csv(
+        Packets(
+            np.array(["0", "1", "2"], dtype=object),
+            np.array([0.0, 0.1, 0.2]),
+            np.array(["phone", "ph one", "phone"], dtype=object),
+            np.array(["rx1"] * 3, dtype=object),
+            np.array([-50.0, -51.0, -52.0]),
+        ),
+        path,
+    )
+    with pytest.raises(
+        InputError, match=r"packets\.csv:3, column 'transmitter': not a transmitter"
+    ):
+        read_packets_csv(path)

@@ -96,6 +96,8 @@ CASES = [
     ("receivers.csv", "receiver_id,", "rid,", 1, "receiver_id", "missing required column"),
     ("devices.csv", ",device,", ",nodevice,", 2, "pattern", "unknown pattern 'nodevice'"),
     ("devices.csv", ",15\n", ",abc\n", 2, "tx_power_dbm", "not a number"),
+    ("devices.csv", "02:00:00:00:00:01,", "0 2:00:00:00:00:01,", 2, "transmitter",
+     "not a transmitter id"),
     ("survey.csv", ",rx1,", ",rx9,", 2, "receiver_id", "unknown receiver 'rx9'"),
     ("survey.csv", "\n0,0,1,rx1,", "\n0,0,nan,rx1,", 2, "z_m", "not a finite number"),
     ("site.toml", "step_m = 0.25", "step_m = -1.0", 9, "area.step_m", "must be > 0"),

@@ -138,3 +138,53 @@ def test_staged_echo_names_the_target_not_the_stage(tmp_path):
         say(f"wrote {stage / 'a.txt'}")
     assert lines == [f"wrote {out / 'a.txt'}"]
     assert (out / "a.txt").read_text() == "x"
+
+
+def test_atomic_writer_writes_through_links_and_special_files(tmp_path):
+    """A symbolic link's file is replaced (the link stays); a FIFO or a device is
+    written, never replaced by a regular file (``-o /dev/null`` once did that)."""
+    import os
+    import threading
+
+    from radiopose.tables import atomic_writer
+
+    target = tmp_path / "target.csv"
+    target.write_text("old\n")
+    link = tmp_path / "link.csv"
+    link.symlink_to(target)
+    with atomic_writer(link) as fh:
+        fh.write("new\n")
+    assert link.is_symlink() and target.read_text() == "new\n"
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got: list[str] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_text()))
+    reader.start()
+    with atomic_writer(fifo) as fh:
+        fh.write("through the pipe\n")
+    reader.join(10)
+    assert got == ["through the pipe\n"] and fifo.exists() and not fifo.is_file()
+    with atomic_writer("/dev/null") as fh:
+        fh.write("discarded\n")
+    assert Path("/dev/null").is_char_device()
+
+
+def test_an_output_may_not_overwrite_an_input(tmp_path):
+    from radiopose.tables import check_outputs_not_inputs
+
+    packets = tmp_path / "packets.csv"
+    packets.write_text("x\n")
+    site = tmp_path / "site"
+    (site / "patterns").mkdir(parents=True)
+    (site / "patterns" / "rx1.csv").write_text("x\n")
+    alias = tmp_path / "alias.csv"
+    alias.symlink_to(packets)
+    for out, words in (
+        (packets, "the input"),
+        (alias, "the input"),
+        (site / "patterns" / "rx1.csv", "a file of the input directory"),
+    ):
+        with pytest.raises(InputError, match=words):
+            check_outputs_not_inputs([out], [packets, site])
+    # new files, even inside the site directory, and options not given are fine
+    check_outputs_not_inputs([tmp_path / "est.csv", site / "new.csv", None], [packets, site])

@@ -16,11 +16,12 @@ key of a table that is not in the file has no line.
 from __future__ import annotations
 
 import bisect
+import difflib
 import math
 import os
 import re
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from radiopose.errors import InputError
@@ -521,12 +522,25 @@ class Section:
             raise self.error(name, f"expected true or false, got {v!r:.40}")
         return v
 
-    def finish(self) -> None:
-        """Reject keys that were never read (typos)."""
+    def finish(self, allowed: Iterable[str] | None = None) -> None:
+        """Reject keys that were never read (typos).
+
+        ``allowed``: every key this table may hold, for a reader that reads only
+        the keys present (default: the keys asked for); the message suggests
+        the closest ones, or lists them when there are few.
+        """
         unknown = sorted(set(self.data) - self.used)
-        if unknown:
-            known = ", ".join(sorted(self.used)) or "none"
-            raise self.error(unknown[0], f"unknown key (known here: {known})")
+        if not unknown:
+            return
+        known = sorted(set(self.used if allowed is None else allowed) - {unknown[0]})
+        close = difflib.get_close_matches(unknown[0], known, n=3, cutoff=0.6)
+        if close:
+            hint = f"did you mean {' or '.join(repr(k) for k in close)}?"
+        elif len(known) <= 12:
+            hint = f"known here: {', '.join(known) or 'none'}"
+        else:
+            hint = f"{len(known)} keys are known here; see the docs"
+        raise self.error(unknown[0], f"unknown key ({hint})")
 
 
 _REQUIRED = object()

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from radiopose.ids import check_transmitter_ids
 from radiopose.tables import Column, Table, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
@@ -130,6 +131,7 @@ def pose_columns(position_m: FloatArray, orientation_deg: FloatArray) -> dict[st
 def read_packets_csv(path: str | os.PathLike[str]) -> Packets:
     """Read and validate ``packets.csv``."""
     t = read_table(path, PACKET_COLUMNS)
+    check_transmitter_ids(t)
     return Packets(
         t["packet_id"],
         t["timestamp_s"],

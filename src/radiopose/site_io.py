@@ -31,6 +31,7 @@ import numpy as np
 
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
+from radiopose.ids import check_transmitter_ids
 from radiopose.patterns.pattern import Pattern, read_pattern_csv, write_pattern_csv
 from radiopose.site import (
     COORD_LIMIT_M,
@@ -292,6 +293,7 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
         )
 
     dt = read_table(root / "devices.csv", DEVICE_COLUMNS)
+    check_transmitter_ids(dt)
     devices = []
     seen_tx: set[str] = set()
     for i in range(len(dt)):

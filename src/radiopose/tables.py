@@ -240,10 +240,20 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO[
     """Open a temporary file beside ``path``; rename it over ``path`` on success.
 
     On any exception the temporary file is removed and ``path`` is untouched.
-    Parent directories are created.
+    Parent directories are created. A symbolic link is written through (the
+    file it names is replaced, the link stays); an existing path that is not a
+    regular file (``/dev/null``, a FIFO) is opened and written directly, since
+    renaming over it would replace the device node or pipe with a file.
     """
     target = Path(path)
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))
     check_output_paths(files=[target])
+    if target.exists() and not target.is_file():
+        kw: dict[str, Any] = {"newline": "", "encoding": "utf-8"} if "b" not in mode else {}
+        with open(target, mode, **kw) as fh:
+            yield fh
+        return
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
@@ -306,6 +316,44 @@ def check_output_paths(
                             errno.ENOTDIR, "cannot create: a parent is not a directory", str(p)
                         )
                     break
+
+
+def check_outputs_not_inputs(
+    outputs: Sequence[str | os.PathLike[str] | None], inputs: Sequence[str | os.PathLike[str]]
+) -> None:
+    """Refuse, before any work, an output that would overwrite an input.
+
+    An output is refused if it is (after symbolic links) one of the input files,
+    or an existing file inside an input directory (a site directory holds only
+    inputs). ``None`` outputs (an option not given) are skipped.
+
+    Raises
+    ------
+    InputError
+        Naming the output and the input it would overwrite.
+    """
+    from radiopose.errors import InputError
+
+    files: dict[Path, Path] = {}
+    dirs: list[tuple[Path, Path]] = []
+    for given in map(Path, inputs):
+        real = given.resolve()
+        if real.is_dir():
+            dirs.append((real, given))
+        else:
+            files[real] = given
+    for out in outputs:
+        if out is None:
+            continue
+        real = Path(out).resolve()
+        if real in files:
+            what = f"the input {os.fspath(files[real])!r}"
+        elif real.is_file() and any(d in real.parents for d, _ in dirs):
+            given = next(g for d, g in dirs if d in real.parents)
+            what = f"a file of the input directory {os.fspath(given)!r}"
+        else:
+            continue
+        raise InputError(f"the output would overwrite {what}", path=out)
 
 
 @contextlib.contextmanager

@@ -189,7 +189,7 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
             overrides[key] = sec.string(key, choices=_STRING_CHOICES.get(key))
         elif key == POSE3D_TABLE:
             pose3d = _read_pose3d(sec.section(POSE3D_TABLE))
-    sec.finish()
+    sec.finish(allowed=[*kinds, POSE3D_TABLE])
     root.finish()
     try:
         dataclasses.replace(FilterConfig(), **overrides)
@@ -223,7 +223,7 @@ def _read_pose3d(sec: Section) -> FilterOverrides:
         elif kind is tuple:
             lo, hi = POSE3D_RANGES.get(key, (-1e6, 1e6))
             out[key] = sec.numbers(key, low=lo, high=hi, nonempty=False, scalar=False)
-    sec.finish()
+    sec.finish(allowed=kinds)
     return out
 
 

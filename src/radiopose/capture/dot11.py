@@ -19,7 +19,8 @@ protocol version not 0, extension frames), ``no_transmitter`` (ACK, CTS,
 ...), ``wrong_link_type`` (pcapng interface that is not radiotap),
 ``no_timestamp`` (pcapng simple packet blocks), ``bad_timestamp`` (pcapng
 timestamp plus ``if_tsoffset`` outside the int64 nanosecond range, about
-years 1677–2262), ``truncated_record`` (file cut short inside a record: the
+years 1677–2262; a pcap record whose sub-second field is not below one
+second), ``truncated_record`` (file cut short inside a record: the
 frames before it are kept).
 """
 

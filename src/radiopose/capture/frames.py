@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from radiopose.ids import MAX_TRANSMITTER_ID_CHARS, transmitter_id_problem
+
 __all__ = [
     "MAX_TRANSMITTER_ID_CHARS",
     "PLAUSIBLE_RSS_DBM",
@@ -51,21 +53,6 @@ SKIP_REASONS: tuple[str, ...] = (
 )
 
 _MAC = re.compile(r"^[0-9a-fA-F]{2}([:-][0-9a-fA-F]{2}){5}$")
-MAX_TRANSMITTER_ID_CHARS = 64
-
-
-def transmitter_id_problem(value: str) -> str | None:
-    """Why ``value`` is not a transmitter id, or ``None`` if it is one.
-
-    The contract: any string without commas or whitespace (a MAC address for
-    real devices, a name such as ``phone`` in simulations); here also printable
-    and 1–64 characters.
-    """
-    if not 0 < len(value) <= MAX_TRANSMITTER_ID_CHARS:
-        return f"a transmitter id has 1-{MAX_TRANSMITTER_ID_CHARS} characters, got {len(value)}"
-    if "," in value or any(c.isspace() for c in value) or not value.isprintable():
-        return f"not a transmitter id (no commas, whitespace or control characters): {value[:40]!r}"
-    return None
 
 
 def canonical_transmitter(value: str) -> str:

@@ -126,6 +126,9 @@ def _iter_pcap(fh: BinaryIO, path: str, head: bytes) -> Iterator[tuple[int, int,
             yield -1, -1, b"", -1
             return
         offset += size + caplen
+        if frac * frac_ns >= 1_000_000_000:  # a fraction of a second that is not
+            yield -3, -3, b"", -3  # the bad-timestamp marker: skipped and counted
+            continue
         yield sec * 1_000_000_000 + frac * frac_ns, linktype, data, length
 
 
@@ -245,7 +248,8 @@ def iter_raw_records(
     A record cut short by the end of the file is yielded once as
     ``(-1, -1, b"", -1)`` and ends the iteration; a pcapng simple packet block
     (no timestamp) as ``(-2, -2, b"", -2)``; a radiotap pcapng packet whose
-    timestamp in nanoseconds does not fit in int64 as ``(-3, -3, b"", -3)``.
+    timestamp in nanoseconds does not fit in int64, or a pcap record whose
+    sub-second field is a second or more, as ``(-3, -3, b"", -3)``.
 
     Raises
     ------

@@ -144,6 +144,12 @@ def simulate(
         for (name, default), value in zip(_PCAP_DEFAULTS.items(), values, strict=True):
             if value != default:
                 raise InputError(f"{name} applies only with --pcap")
+        if (out / "captures").exists():  # an earlier run's, which the new packets would not match
+            raise InputError(
+                "holds the captures of an earlier run, which would not match the new "
+                "packets: remove it, or pass --pcap to replace it",
+                path=out / "captures",
+            )
     else:
         from radiopose.capture.writer import CaptureConfig
 

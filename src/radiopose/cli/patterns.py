@@ -21,7 +21,7 @@ from radiopose.errors import InputError
 from radiopose.patterns.enrol import EnrolConfig, enrol_csv
 from radiopose.patterns.importers import read_basta_json, read_mitll, read_msi
 from radiopose.patterns.pattern import Pattern, read_pattern_csv, write_pattern_csv
-from radiopose.tables import atomic_writer
+from radiopose.tables import atomic_writer, check_outputs_not_inputs
 
 pattern_app = typer.Typer(
     name="pattern",
@@ -212,6 +212,7 @@ def enrol_command(
     config = _enrol_config(
         smooth_deg=smooth_deg, azimuth_step_deg=step_deg, polar_step_deg=polar_step_deg
     )
+    check_outputs_not_inputs([output, plot], [measurements])
     pattern = enrol_csv(measurements, config, name=name or output.stem)
     _write_outputs(pattern, output, plot)
     _summary(pattern, output)
@@ -259,6 +260,7 @@ def import_command(
     name: _NameOption = None,
 ) -> None:
     """Import a pattern from an industry file or real measurements into the contract CSV."""
+    check_outputs_not_inputs([output, plot], [source])
     pname = name or output.stem
     if fmt is ImportFormat.msi:
         pattern = read_msi(source, mode=msi_mode.value, normalise=normalise, name=pname)
@@ -281,6 +283,7 @@ def plot_command(
     """Plot a pattern: the 90° polar cut (plus a heat map for a full sphere) as PNG."""
     from radiopose.patterns.plot import pattern_png
 
+    check_outputs_not_inputs([output], [pattern_csv])
     pattern = read_pattern_csv(pattern_csv)
     png = pattern_png(pattern)
     with atomic_writer(output, "wb") as fh:

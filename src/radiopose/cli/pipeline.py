@@ -76,6 +76,10 @@ def _locate(
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     if kernel not in SCORERS:
         raise InputError(f"--kernel must be one of {', '.join(sorted(SCORERS))}, got {kernel!r}")
+    from radiopose.tables import check_output_paths, check_outputs_not_inputs
+
+    check_output_paths(files=[out])  # before the work, not after it
+    check_outputs_not_inputs([out], [packets, site])
     if not gc.get_freeze_count():
         # The objects made so far (the imported modules: numpy's, numba's,
         # ours) outlive the run: kept out of the cyclic collector's full passes

@@ -258,7 +258,7 @@ def _read_table(sec: Section, cls: type, skip: set[str]) -> dict[str, Any]:
     for name in list(sec.data):
         if name in allowed:
             out[name] = _read_value(sec, name, hints[name])
-    sec.finish()
+    sec.finish(allowed=allowed)
     return out
 
 

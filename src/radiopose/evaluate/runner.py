@@ -318,7 +318,9 @@ class PartFile:
     """The append-only result file of one experiment (``OUT/parts/<name>.csv``).
 
     Opening keeps the complete rows already there (dropping a torn last line
-    and rewriting the file if its header differs from ``columns``).
+    and rewriting the file if its header differs from ``columns``); any other
+    line that is not a row of the header's width is an
+    :class:`~radiopose.errors.InputError` naming it (the file was damaged).
     """
 
     def __init__(self, path: Path, columns: Sequence[str]) -> None:
@@ -351,8 +353,16 @@ class PartFile:
         header = next(reader)
         out = []
         for fields_ in reader:
-            if len(fields_) == len(header):
-                out.append(dict(zip(header, fields_, strict=True)))
+            if len(fields_) != len(header):  # only the last line can be torn (dropped above)
+                from radiopose.errors import InputError
+
+                raise InputError(
+                    f"not a result row ({len(fields_)} fields, the header has {len(header)}): "
+                    "the file was changed by hand or damaged; delete it to rerun the experiment",
+                    path=self.path,
+                    line=reader.line_num,
+                )
+            out.append(dict(zip(header, fields_, strict=True)))
         return out
 
     def _rewrite(self) -> None:

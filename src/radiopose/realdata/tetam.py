@@ -255,6 +255,7 @@ def read_histograms(
     by_mac = {s.mac: s.alias for s in sensors}
     labels: np.ndarray | None = None
     out: list[SurveyPoint] = []
+    fingerprints = False
     for i, line in enumerate(_read_lines(p), start=1):
         if line.startswith("Bins:"):
             try:
@@ -272,6 +273,7 @@ def read_histograms(
         elif line.startswith("Fingerprints:"):
             if labels is None:
                 raise InputError("Fingerprints before Bins", path=p, line=i, column="Fingerprints")
+            fingerprints = True
             for key, per_sensor in _json_line(line, "Fingerprints", p, i).items():
                 try:
                     xyz = ast.literal_eval(key)
@@ -321,6 +323,8 @@ def read_histograms(
                 path=p,
                 line=i,
             )
+    if not fingerprints:  # an empty or cut file would drop its whole survey unseen
+        raise InputError("no 'Fingerprints:' line (an empty or truncated survey file?)", path=p)
     summary.survey_rows += len(out)
     return out
 
