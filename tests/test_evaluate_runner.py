@@ -129,6 +129,14 @@ def test_a_damaged_part_file_is_an_error_naming_its_line(serial, tmp_path):
     assert part.read_text(encoding="utf-8") == good + "garbage,row\n"  # left as found
 
 
+def test_bad_workers_write_nothing(tmp_path):
+    from radiopose.errors import InputError
+
+    with pytest.raises(InputError, match="--workers must be >= 0"):
+        run_experiments([_tiny()], tmp_path / "out", workers=-2)
+    assert not (tmp_path / "out").exists()
+
+
 def test_changed_config_does_not_reuse_stale_rows(serial, tmp_path):
     run_experiments([_tiny()], tmp_path, workers=0)
     doc = {**DOC, "scenario": {**DOC["scenario"], "duration_s": 0.04}}

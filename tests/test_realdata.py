@@ -151,6 +151,19 @@ def test_an_empty_or_cut_survey_file_is_an_error(tmp_path, keep_bytes):
     assert "set_1_tetam_multi_rssi.hst" in str(exc.value)
 
 
+def test_tracker_toml_range_errors_name_the_line_and_a_directory_is_refused(tmp_path):
+    from radiopose.tracker_settings import load_site_settings
+
+    p = tmp_path / "tracker.toml"
+    p.write_text("[filter]\nhuber_c = 1.0\naccel_noise_mps2 = -0.5\n")
+    with pytest.raises(InputError, match=r"tracker.toml:3, column 'filter.accel_noise_mps2'"):
+        read_tracker_toml(p)
+    p.unlink()
+    p.mkdir()  # named like the settings, not silently ignored
+    with pytest.raises(InputError, match=r"tracker\.toml: is not a file"):
+        load_site_settings(tmp_path)
+
+
 def test_tracker_toml_errors_name_the_key(tmp_path):
     p = tmp_path / "tracker.toml"
     p.write_text("smoothing_lag_s = 3.0\n[filter]\nhuber_c = 1.0\nhubre_c = 2.0\n")

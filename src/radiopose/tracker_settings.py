@@ -193,8 +193,11 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
     root.finish()
     try:
         dataclasses.replace(FilterConfig(), **overrides)
-    except InputError as exc:  # the dataclass names the field; add the file
-        raise InputError(exc.reason, path=path, column="filter") from None
+    except InputError as exc:  # the dataclass names the field; add the file and its line
+        bad = next((k for k in overrides if f" {k} " in f" {exc.reason} "), None)
+        line = None if bad is None else find_key_line(("filter", bad), doc.key_lines)
+        column = "filter" if bad is None else f"filter.{bad}"
+        raise InputError(exc.reason, path=path, line=line, column=column) from None
     try:
         dataclasses.replace(Pose3dConfig(), **pose3d)
     except InputError as exc:
@@ -270,8 +273,10 @@ def load_site_settings(
     """Every setting of ``SITE/tracker.toml`` and its path (empty settings and ``None``
     if there is none)."""
     p = Path(site_dir) / FILE_NAME
-    if not p.is_file():
+    if not p.exists():
         return TrackerSettings(), None
+    if not p.is_file():  # a directory (or worse) named like the settings: not ignored
+        raise InputError("is not a file (a site's tracker settings are a TOML file)", path=p)
     return read_tracker_settings(p), p
 
 

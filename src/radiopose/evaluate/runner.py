@@ -354,8 +354,6 @@ class PartFile:
         out = []
         for fields_ in reader:
             if len(fields_) != len(header):  # only the last line can be torn (dropped above)
-                from radiopose.errors import InputError
-
                 raise InputError(
                     f"not a result row ({len(fields_)} fields, the header has {len(header)}): "
                     "the file was changed by hand or damaged; delete it to rerun the experiment",
@@ -463,6 +461,8 @@ def run_experiments(
     names = [e.name for e in experiments]
     if len(set(names)) != len(names):
         raise InputError(f"experiment {next(n for n in names if names.count(n) > 1)!r} given twice")
+    if workers is not None and workers < 0:  # before anything is written
+        raise InputError(f"--workers must be >= 0, got {workers}")
     out = Path(out_dir)
     tasks = plan(experiments)
     parts = {e.name: PartFile(out / "parts" / f"{e.name}.csv", columns_for(e)) for e in experiments}
