@@ -332,8 +332,6 @@ def check_outputs_not_inputs(
     InputError
         Naming the output and the input it would overwrite.
     """
-    from radiopose.errors import InputError
-
     files: dict[Path, Path] = {}
     dirs: list[tuple[Path, Path]] = []
     for given in map(Path, inputs):

@@ -66,10 +66,9 @@ class LiveWorker:
         self._wake.set()
 
     def stop(self, timeout_s: float = 10.0) -> None:
-        # A child process that died (a SIGKILL, or a SIGTERM to the whole process
-        # group before it learnt to take one) may still count as waiting on the
-        # events, and setting them would then wait for it forever: only a live
-        # child is told; a dead one is only joined.
+        # A child process killed inside a wait (a SIGKILL) still counts as waiting
+        # on the events, and setting them would then wait for it forever: only a
+        # live child is told; a dead one is only joined.
         if self.mode == "thread" or self._runner.ident is None or self._runner.is_alive():
             self._stop.set()
             self._wake.set()
