@@ -77,7 +77,7 @@ def test_simulate_contract_call(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--receivers", "0"], "n_receivers = 0 is out of range"),
+        (["--receivers", "0"], "n_receivers = 0 is out of range (allowed: 1 to 16)"),
         (["--rotation", "spin"], "--rotation must be one of"),
         (["--noise-db", "-2"], "noise_db"),
         (["--duration-s", "0.001"], "shorter than one packet interval"),

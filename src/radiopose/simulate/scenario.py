@@ -131,23 +131,25 @@ class ScenarioConfig:
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
         checks = [
-            ("size_m", 0 < self.size_m <= 1e6),
-            ("step_m", 0 < self.step_m <= self.size_m),
-            ("survey_step_m", 0 < self.survey_step_m <= self.size_m),
-            ("n_receivers", 1 <= self.n_receivers <= 16),
-            ("noise_db", 0 <= self.noise_db <= 30),
-            ("survey_noise_db", 0 <= self.survey_noise_db <= 30),
-            ("interval_ms", 0.01 <= self.interval_ms <= 60_000),
-            ("duration_s", 0 < self.duration_s <= 3600),
-            ("azimuth_step_deg", 0 < self.azimuth_step_deg <= 360),
-            ("loss_fraction", 0 <= self.loss_fraction < 1),
-            ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0),
-            ("pose", self.pose in ("2d", "3d")),
+            ("size_m", 0 < self.size_m <= 1e6, "(0, 1e6]"),
+            ("step_m", 0 < self.step_m <= self.size_m, "(0, size_m]"),
+            ("survey_step_m", 0 < self.survey_step_m <= self.size_m, "(0, size_m]"),
+            ("n_receivers", 1 <= self.n_receivers <= 16, "1 to 16"),
+            ("noise_db", 0 <= self.noise_db <= 30, "[0, 30]"),
+            ("survey_noise_db", 0 <= self.survey_noise_db <= 30, "[0, 30]"),
+            ("interval_ms", 0.01 <= self.interval_ms <= 60_000, "[0.01, 60000]"),
+            ("duration_s", 0 < self.duration_s <= 3600, "(0, 3600]"),
+            ("azimuth_step_deg", 0 < self.azimuth_step_deg <= 360, "(0, 360]"),
+            ("loss_fraction", 0 <= self.loss_fraction < 1, "[0, 1)"),
+            ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0, ">= 0"),
+            ("pose", self.pose in ("2d", "3d"), "2d or 3d"),
         ]
-        for name, ok in checks:
+        for name, ok, allowed in checks:
             value = getattr(self, name)
             if not ok or (isinstance(value, float) and not math.isfinite(value)):
-                raise InputError(f"scenario setting {name} = {value!r} is out of range")
+                raise InputError(
+                    f"scenario setting {name} = {value!r} is out of range (allowed: {allowed})"
+                )
         if round(self.duration_s / (self.interval_ms / 1000.0)) < 1:
             raise InputError(
                 f"duration_s = {self.duration_s!r} is shorter than one packet interval "
