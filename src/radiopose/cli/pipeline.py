@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import gc
 import json
+import math
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -76,6 +77,10 @@ def _locate(
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     if kernel not in SCORERS:
         raise InputError(f"--kernel must be one of {', '.join(sorted(SCORERS))}, got {kernel!r}")
+    if acquisition_window_ms is not None and not 0 <= acquisition_window_ms < math.inf:
+        raise InputError(
+            f"--acquisition-window-ms must be a finite number >= 0, got {acquisition_window_ms}"
+        )
     from radiopose.tables import check_output_paths, check_outputs_not_inputs
 
     check_output_paths(files=[out])  # before the work, not after it
