@@ -277,6 +277,7 @@ def test_sigterm_to_the_process_group_stops_the_server(tiny, db_url: str, tmp_pa
         assert rc in (0, -signal.SIGTERM), log.read_text()[-2000:]
         text = log.read_text()
         assert "Application shutdown complete" in text and "Traceback" not in text
+        assert "leaked semaphore" not in text  # the child's events freed, not left to exit
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)

@@ -77,6 +77,21 @@ class LiveWorker:
         if self.mode == "process" and self._runner.is_alive():
             self._runner.terminate()
             self._runner.join(timeout_s)
+        started = self._runner.ident is not None
+        if self.mode == "process" and started and not self._runner.is_alive():
+            self._release_events()
+
+    def _release_events(self) -> None:
+        """Free the child's events now rather than at interpreter exit: uvicorn
+        ends a signalled server by re-raising the signal, so multiprocessing's exit
+        handlers never run and its resource tracker would report the events'
+        semaphores as leaked. Later ``wake``/``stop`` calls are no-ops."""
+        import gc
+        import threading
+
+        self._runner._args = ()  # the Process keeps its arguments (the events) until freed
+        self._stop, self._wake = threading.Event(), threading.Event()
+        gc.collect()
 
     def _run(self) -> None:
         _loop(self.db, self.config, self._stop, self._wake, self)
