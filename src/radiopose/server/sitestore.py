@@ -142,8 +142,14 @@ def build_site(parts: dict[str, Any]) -> Site:
         try:
             site = load_site(tmp)
         except InputError as exc:
-            raise InputError(str(exc).replace(tmp + os.sep, "").replace(tmp, "site")) from None
+            raise _relative_to(exc, tmp) from None
     return site
+
+
+def _relative_to(exc: InputError, tmp: str) -> InputError:
+    """``exc`` with the temporary directory ``tmp`` left out of its paths (the
+    message names files as they sit in the site: ``patterns/rx1.csv:3``)."""
+    return InputError(str(exc).replace(tmp + os.sep, "").replace(tmp, "site"))
 
 
 def check_pattern_csv(name: str, csv_text: str) -> None:
@@ -167,7 +173,7 @@ def check_pattern_csv(name: str, csv_text: str) -> None:
         try:
             read_pattern_csv(path, name)
         except InputError as exc:
-            raise InputError(str(exc).replace(tmp + os.sep, "").replace(tmp, "site")) from None
+            raise _relative_to(exc, tmp) from None
 
 
 def export_site(parts: dict[str, Any], directory: str | os.PathLike[str]) -> Path:
