@@ -30,6 +30,7 @@ TIERS: dict[str, str] = {
     "test_security_attacker": "analytic",
     "test_units": "analytic",
     # property: seeded properties, round trips and hypothesis fuzzing of parsers/geometry
+    "test_api_input": "property",
     "test_capture_radiotap": "property",
     "test_capture_records": "property",
     "test_geometry": "property",

@@ -206,3 +206,17 @@ def test_spare_core_threads_one_thread_when_busy_then_restored(monkeypatch):
     monkeypatch.setattr(compiled, "spare_core", lambda: True)
     with compiled.spare_core_threads():
         assert numba.get_num_threads() == before
+
+
+@pytest.mark.parametrize("parallel", [False, True])
+def test_k_beyond_the_grid_returns_every_candidate_best_first(space, parallel):
+    """A k of more candidates than the grid holds (or, with ``search = "bounded"``,
+    than the window holds) is every candidate in order, as the reference gives it;
+    the kernel once asserted there ("no exclusion possible at full size")."""
+    rng = np.random.default_rng(5)
+    fast, ref = ShiftScorer(space, parallel=parallel), ReferenceScorer(space)
+    k = space.n_candidates + 7
+    for heard in packets(space, rng, n=2):
+        top = fast.score_heard(heard, k)
+        assert top.candidate_idx.size == space.n_candidates
+        same(top, ref.score_heard(heard, k))

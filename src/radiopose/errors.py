@@ -69,3 +69,47 @@ def unreadable(path: str | PathLike[str], exc: OSError, expected: str = "a file"
     if isinstance(exc, IsADirectoryError):
         return InputError(f"is a directory, expected {expected}", path=path)
     return InputError(f"cannot read: {exc.strerror}", path=path)
+
+
+def check_setting_types(config: object, what: str) -> None:
+    """Check that each field of the dataclass ``config`` holds a value of its
+    annotated type, so that a configuration built in Python fails at
+    construction, as a ``tracker.toml`` does when read: ``int`` an integer
+    (not a bool), ``float`` a finite real number, ``float | None`` that or
+    ``None``, ``bool`` a bool, ``str`` text, ``tuple[float, ...]`` a tuple of
+    finite real numbers. Other annotations (nested configurations,
+    ``Literal``) are the class's own checks.
+
+    Raises
+    ------
+    InputError
+        ``"{what} setting NAME = VALUE must be …"`` for the first field that is not.
+    """
+    import dataclasses
+    import math
+    import numbers
+
+    def real(v: object) -> bool:
+        return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+
+    checks = {
+        "int": (lambda v: isinstance(v, numbers.Integral) and not isinstance(v, bool),
+                "an integer"),
+        "float": (real, "a finite number"),
+        "float | None": (lambda v: v is None or real(v), "a finite number or None"),
+        # numpy's bool is not a bool subclass: accepted by its type's name
+        "bool": (lambda v: isinstance(v, bool) or type(v).__name__ == "bool_", "true or false"),
+        "str": (lambda v: isinstance(v, str), "text"),
+        "tuple[float, ...]": (
+            lambda v: isinstance(v, tuple) and all(real(x) for x in v),
+            "a tuple of finite numbers",
+        ),
+    }  # fmt: skip
+    for f in dataclasses.fields(config):  # type: ignore[arg-type]
+        check = checks.get(str(f.type))
+        if check is None:
+            continue
+        value = getattr(config, f.name)
+        ok, expected = check
+        if not ok(value):
+            raise InputError(f"{what} setting {f.name} = {value!r} must be {expected}")

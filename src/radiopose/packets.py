@@ -11,21 +11,26 @@ pitch_deg, roll_deg`` — the true pose when each packet was sent.
 
 from __future__ import annotations
 
+import math
+import numbers
 import os
 from dataclasses import dataclass
 
 import numpy as np
 
-from radiopose.ids import check_transmitter_ids
+from radiopose.errors import InputError
+from radiopose.ids import check_transmitter_ids, transmitter_id_problem
 from radiopose.tables import Column, Table, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
+RSS_MIN_DBM, RSS_MAX_DBM = -200.0, 50.0
+"""The range of an RSS reading, dBm (``packets.csv``; :func:`check_observation`)."""
 PACKET_COLUMNS = (
     Column("packet_id", "str"),
     Column("timestamp_s", low=-MAX_ABS_TIME_S, high=MAX_ABS_TIME_S),
     Column("transmitter", "str"),
     Column("receiver_id", "str"),
-    Column("rss_dbm", low=-200.0, high=50.0),
+    Column("rss_dbm", low=RSS_MIN_DBM, high=RSS_MAX_DBM),
 )
 POSE_COLUMNS = (
     Column("x_m"),
@@ -182,7 +187,14 @@ def write_truth_csv(truth: Truth, path: str | os.PathLike[str]) -> None:
 
 def group_packets(packets: Packets) -> list[PacketObservation]:
     """Group rows into one observation per ``(transmitter, packet_id)``, in file order
-    of each packet's first row. Rows of one packet need not be adjacent."""
+    of each packet's first row. Rows of one packet need not be adjacent.
+
+    Raises
+    ------
+    InputError
+        Columns of different lengths (:func:`check_packet_arrays`).
+    """
+    check_packet_arrays(packets)
     order: dict[tuple[str, str], list[int]] = {}
     for i, (tx, pid) in enumerate(zip(packets.transmitter, packets.packet_id, strict=True)):
         order.setdefault((str(tx), str(pid)), []).append(i)
@@ -201,3 +213,113 @@ def group_packets(packets: Packets) -> list[PacketObservation]:
             )
         )
     return out
+
+
+def _show(value: object) -> str:
+    """A value for a message: a number to 9 significant digits, anything else as written."""
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        return f"{float(value):.9g}"
+    return repr(value)
+
+
+_PACKET_ARRAYS = ("packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm")
+
+
+def check_packet_arrays(packets: Packets) -> None:
+    """Check that a :class:`Packets` built in Python has one value per row in
+    each column (``read_packets_csv`` builds only such tables).
+
+    Raises
+    ------
+    InputError
+        A column that is not one-dimensional, or columns of different lengths
+        (``lines`` too, when set).
+    """
+    sizes = {}
+    for name in _PACKET_ARRAYS:
+        a = np.asarray(getattr(packets, name))
+        if a.ndim != 1:
+            raise InputError(
+                f"packets column {name} has shape {a.shape}: expected one value per row",
+                path=packets.path,
+            )
+        sizes[name] = a.shape[0]
+    if packets.lines is not None:
+        sizes["lines"] = np.asarray(packets.lines).shape[0]
+    if len(set(sizes.values())) > 1:
+        raise InputError(
+            "packets columns differ in length: " + ", ".join(f"{k} {v}" for k, v in sizes.items()),
+            path=packets.path,
+        )
+    # every row's time (a packet takes its first row's): a bad one in a later row too
+    try:
+        t = np.asarray(packets.timestamp_s, dtype=np.float64)
+    except (TypeError, ValueError):
+        t = np.full(len(packets), np.nan)
+    bad = np.flatnonzero(~(np.abs(t) <= MAX_ABS_TIME_S))
+    if bad.size:
+        row = int(bad[0])
+        raise InputError(
+            f"row {row} (from 0): timestamp {_show(packets.timestamp_s[row])} s is not a "
+            f"finite number within ±{MAX_ABS_TIME_S:g} s",
+            path=packets.path,
+            line=None if packets.lines is None else int(packets.lines[row]),
+            column="timestamp_s",
+        )
+
+
+def check_observation(
+    packet: PacketObservation, path: str | os.PathLike[str] | None = None
+) -> None:
+    """The checks ``packets.csv`` applies to each row, for one packet however it
+    was built (a file, the live server, or Python): text ids (the transmitter
+    a contract id), a finite timestamp within ±:data:`~radiopose.units.MAX_ABS_TIME_S`
+    seconds, and one finite RSS within [:data:`RSS_MIN_DBM`, :data:`RSS_MAX_DBM`]
+    dBm per receiver.
+
+    Raises
+    ------
+    InputError
+        One line naming the packet (and ``path``, line and column when known).
+    """
+    what = f"packet {packet.packet_id!r} of {packet.transmitter!r}"
+    if not isinstance(packet.packet_id, str) or not isinstance(packet.transmitter, str):
+        raise InputError(f"{what}: packet_id and transmitter must be text", path=path)
+    problem = transmitter_id_problem(packet.transmitter)
+    if problem is not None:
+        raise InputError(f"{what}: {problem}", path=path, line=packet.line, column="transmitter")
+    t = packet.timestamp_s
+    if not (
+        isinstance(t, numbers.Real) and not isinstance(t, bool)
+        and math.isfinite(t) and abs(t) <= MAX_ABS_TIME_S
+    ):  # fmt: skip
+        raise InputError(
+            f"{what}: timestamp {_show(t)} s is not a finite number within ±{MAX_ABS_TIME_S:g} s",
+            path=path,
+            line=packet.line,
+            column="timestamp_s",
+        )
+    n = len(packet.receiver_ids)
+    if not all(isinstance(r, str) for r in packet.receiver_ids):
+        raise InputError(f"{what}: receiver ids must be text", path=path, column="receiver_id")
+    try:
+        rss = np.asarray(packet.rss_dbm, dtype=np.float64)
+    except (TypeError, ValueError):
+        rss = np.full(1, np.nan)
+    if rss.shape != (n,):
+        raise InputError(
+            f"{what}: {n} receivers but RSS of shape {np.shape(packet.rss_dbm)}",
+            path=path,
+            line=packet.line,
+            column="rss_dbm",
+        )
+    bad = np.flatnonzero(~((rss >= RSS_MIN_DBM) & (rss <= RSS_MAX_DBM)))  # NaN too
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(
+            f"{what}: RSS {_show(packet.rss_dbm[k])} dBm from receiver {packet.receiver_ids[k]!r} "
+            f"is not a finite number in [{RSS_MIN_DBM:g}, {RSS_MAX_DBM:g}] dBm",
+            path=path,
+            line=packet.line_of(k),
+            column="rss_dbm",
+        )

@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING, Any
 from radiopose.config import Section, find_key_line, load_toml
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
-from radiopose.filtering.config import SMOOTHERS
+from radiopose.filtering.config import MAX_LAG_S, MIN_REENTRY_INTERVAL_S, SMOOTHERS
 from radiopose.filtering.particle import LIKELIHOODS
 from radiopose.filtering.particle3d import ESTIMATES as POSE3D_ESTIMATES
 from radiopose.filtering.particle3d import MAX_COARSE_PATHS, Pose3dConfig
@@ -73,7 +73,7 @@ POSE3D_RANGES: dict[str, tuple[float, float]] = {
     "acquisition_sigma_db": (0.0, 60.0),
     "acquisition_k": (1, 10_000_000),
     "acquisition_tilts": (1, 1000),
-    "reentry_interval_s": (0.0, 3600.0),
+    "reentry_interval_s": (MIN_REENTRY_INTERVAL_S, 3600.0),
     "proposal_window_s": (0.0, 3600.0),
     "sigma_floor_db": (0.0, 60.0),
     "refine_steps": (0, 100),
@@ -165,7 +165,7 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
     """
     doc = load_toml(path)
     root = Section(doc, path)
-    lag = root.number("smoothing_lag_s", None, low=0.0, high=3600.0)
+    lag = root.number("smoothing_lag_s", None, low=0.0, high=MAX_LAG_S)
     live = _live_method(root)
     sec = root.section("filter", required=False)
     kinds = _filter_fields()

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.filtering.forked import check_workers
 
 if TYPE_CHECKING:
@@ -25,6 +25,17 @@ LIKELIHOODS = ("mixture", "huber")
 
 SMOOTHERS = ("lineage", "backward")
 """The values of :attr:`FilterConfig.smoother` (issue 15, the offline smoother)."""
+
+MAX_LAG_S = 10.0
+"""Longest smoothing lag, seconds (``TrackerConfig.smoothing_lag_s``,
+``tracker.toml``'s ``smoothing_lag_s``, the streaming ``Tracker``'s ``lag_s``):
+the smoother holds every particle of every packet within the lag, so its
+memory grows with lag × packet rate × particles (about 0.4 GB at 10 s, 200
+packets/s and the 2-D default)."""
+
+MIN_REENTRY_INTERVAL_S = 1e-3
+"""Shortest :attr:`FilterConfig.reentry_interval_s`, seconds (a re-entry per
+millisecond is already one per packet at any real rate)."""
 
 REFIT_PASSES = ("forward", "reversed", "both")
 """The values of :attr:`FilterConfig.offset_refit_passes` (issue 15, round 7)."""
@@ -364,6 +375,7 @@ class FilterConfig:
     coarse_track_path_step_m: float = 0.5
 
     def __post_init__(self) -> None:
+        check_setting_types(self, "filter")
         positive = (
             "accel_noise_mps2", "angular_accel_noise_dps2", "max_speed_mps", "max_rate_dps",
             "reentry_interval_s", "proposal_window_s", "sigma_prior_db", "sigma_floor_db",
@@ -384,6 +396,11 @@ class FilterConfig:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise InputError(f"filter setting {name} = {v!r} must be >= 0")
+        if self.reentry_interval_s < MIN_REENTRY_INTERVAL_S:
+            raise InputError(
+                f"filter setting reentry_interval_s = {self.reentry_interval_s!r} must be at "
+                f"least {MIN_REENTRY_INTERVAL_S:g} s"
+            )
         if not 10 <= self.n_particles <= 1_000_000:
             raise InputError(f"filter setting n_particles = {self.n_particles!r} is out of range")
         if not 0 < self.outlier_probability < 1 or not 0 < self.outlier_range_db < math.inf:
@@ -422,8 +439,13 @@ class FilterConfig:
             )
         if not all(math.isfinite(v) for v in self.offset_scan_db):
             raise InputError(f"filter setting offset_scan_db = {self.offset_scan_db!r} not finite")
-        if not self.initial_offsets_db or self.k < 1 or self.min_acquisition_receivers < 1:
-            raise InputError("filter settings: initial_offsets_db, k and receivers must be set")
+        if not self.initial_offsets_db or self.min_acquisition_receivers < 1:
+            raise InputError(
+                "filter settings: initial_offsets_db must list an offset and "
+                "min_acquisition_receivers must be >= 1"
+            )
+        if not 1 <= self.k <= 100_000:
+            raise InputError(f"filter setting k = {self.k!r} must be in [1, 100000]")
         for name in (
             "offset_selection_merge_db", "offset_selection_trigger_db", "coarse_track_margin",
         ):  # fmt: skip

@@ -477,11 +477,13 @@ class ParticleFilter:
         """Rows the smoother's genealogy keeps per packet for re-entered
         hypotheses: one re-entry's worth per re-entry while the packet is within
         the lag and the evidence window, with one to spare (so its ring need
-        not widen, a copy of all of it, while tracking)."""
+        not widen, a copy of all of it, while tracking), at most ``2 n`` (the
+        defaults need 0.65 n; a long lag or frequent re-entries widen the ring
+        as they go instead of reserving it for every packet up front)."""
         cfg = self.config
         m = max(1, round(cfg.reentry_fraction * n))
         span_s = (self.lag_s or 0.0) + cfg.proposal_window_s
-        return m * (math.ceil(span_s / cfg.reentry_interval_s) + 2)
+        return min(m * (math.ceil(span_s / cfg.reentry_interval_s) + 2), 2 * n)
 
     def _likelihood_parameter(self, sigma_db: float) -> float:
         """The scalar that :func:`kernels.measurement_update` takes after σ:

@@ -49,8 +49,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column names read as K.X_M
+from radiopose.filtering.config import MIN_REENTRY_INTERVAL_S
 from radiopose.filtering.kernels3d import (
     coarse_costs,
     expected3d_into,
@@ -414,18 +415,30 @@ class Pose3dConfig:
         return replace(self, n_particles=self.offline_n_particles)
 
     def __post_init__(self) -> None:
+        check_setting_types(self, "3-D filter")
+        if self.reentry_interval_s < MIN_REENTRY_INTERVAL_S:
+            raise InputError(
+                f"3-D filter setting reentry_interval_s = {self.reentry_interval_s!r} must be "
+                f"at least {MIN_REENTRY_INTERVAL_S:g} s"
+            )
         for name in (
             "angular_accel_noise_dps2", "height_noise_mps", "tilt_noise_dps", "acquisition_step_m",
             "acquisition_azimuth_step_deg", "acquisition_sigma_db", "mode_radius_m",
             "heading_prior_time_s", "heading_prior_speed_mps", "offset_bank_sd_db",
             "refine_coarse_walk_m", "refine_coarse_walk_deg", "hand_height_sd_m",
-            "hand_pitch_sd_deg",
+            "hand_pitch_sd_deg", "proposal_window_s", "sigma_floor_db",
         ):  # fmt: skip
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise InputError(f"3-D filter setting {name} = {v!r} must be a positive number")
-        if min(self.n_particles - 9, self.acquisition_heights, self.acquisition_k) < 1:
-            raise InputError("3-D filter settings: n_particles >= 10, acquisition counts >= 1")
+        if min(
+            self.n_particles - 9, self.acquisition_heights, self.acquisition_k,
+            self.acquisition_tilts, self.mode_centres,
+        ) < 1:  # fmt: skip
+            raise InputError(
+                "3-D filter settings: n_particles >= 10; acquisition_heights, acquisition_k, "
+                "acquisition_tilts and mode_centres >= 1"
+            )
         if self.offline_n_particles != 0 and not (10 <= self.offline_n_particles <= MAX_PARTICLES):
             n = self.offline_n_particles
             raise InputError(
@@ -599,6 +612,12 @@ class CoarseGrid:
             ys = np.arange(a.y_min_m, a.y_max_m + 1e-9, step)
             if xs.size * ys.size * z.size * orient.shape[0] * n_rx <= cfg.max_table_entries:
                 break
+            if xs.size == 1 and ys.size == 1:  # one position and still too large
+                raise InputError(
+                    f"3-D filter setting max_table_entries = {cfg.max_table_entries} is too "
+                    f"small for this site: one position's heights, orientations and receivers "
+                    f"alone are {z.size * orient.shape[0] * n_rx} entries"
+                )
             step *= 1.25
         gx, gy, gz = np.meshgrid(xs, ys, z, indexing="ij")
         pos = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])

@@ -174,9 +174,10 @@ def receiver_indices(
                 column="receiver_id",
             )
         if i in seen:
+            first = packet.line_of(seen[i])
             raise InputError(
                 f"packet {packet.packet_id!r} of {packet.transmitter} has two rows for "
-                f"receiver {rid!r} (the first on line {packet.line_of(seen[i])})",
+                f"receiver {rid!r}" + ("" if first is None else f" (the first on line {first})"),
                 path=path,
                 line=packet.line_of(k),
                 column="receiver_id",

@@ -573,9 +573,11 @@ class ShiftScorer(ScorerBase):
                 lo_ex = excluded - float(self._delta(excluded, heard, w64))
                 if lo_ex > kth + float(self._delta(kth, heard, w64)):
                     break
-            self.retries += 1
             if kk_eff >= n_total:
-                raise AssertionError("shift kernel: no exclusion possible at full size")
+                # every candidate was scored and kept (``k`` is more than the grid or
+                # the bounded window holds): ``short`` is all of them, best first
+                break
+            self.retries += 1
             kk *= 4
         hint = np.unique(short // (self.n_az * self.n_q))
         if slot is _LAST_CALL:

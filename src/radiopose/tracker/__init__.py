@@ -57,6 +57,7 @@ from radiopose.tracker.protocol import (
 from radiopose.tracker.reasons import (
     PENDING,
     SKIP_ACQUIRING,
+    SKIP_DUPLICATE,
     SKIP_MOVEMENT_MODEL,
     SKIP_NO_CANDIDATES,
     SKIP_NO_ORIENTATION_CLUSTER,
@@ -85,6 +86,7 @@ __all__ = [
     "PATTERN_STEPS",
     "PENDING",
     "SKIP_ACQUIRING",
+    "SKIP_DUPLICATE",
     "SKIP_MOVEMENT_MODEL",
     "SKIP_NEVER_EMITTED",
     "SKIP_NO_CANDIDATES",

@@ -16,7 +16,7 @@ from radiopose.errors import InputError
 from radiopose.estimates import Estimates, PoseEstimate
 from radiopose.likelihood import Scorer
 from radiopose.likelihood.candidates import receiver_indices
-from radiopose.packets import PacketObservation, Packets, group_packets
+from radiopose.packets import PacketObservation, Packets, check_observation, group_packets
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
 from radiopose.tracker.protocol import Method
@@ -81,6 +81,7 @@ def _check_packets(site: Site, packets: Packets) -> list[PacketObservation]:
     obs = group_packets(packets)
     last: dict[str, tuple[float, str]] = {}
     for o in obs:
+        check_observation(o, packets.path)
         receiver_indices(o, site.receiver_ids, packets.path)
         key = o.transmitter.lower()
         prev = last.get(key)
@@ -138,9 +139,10 @@ def locate(
     Raises
     ------
     InputError
-        Empty table, a receiver not in the site, a receiver twice in one packet,
-        time going backwards within a transmitter, or no enrolled transmitter at
-        all. Packets of unknown transmitters and packets heard by too few
+        Empty table, columns of different lengths, a timestamp or RSS that is
+        not a finite number in range, a receiver not in the site, a receiver
+        twice in one packet, time going backwards within a transmitter, or no
+        enrolled transmitter at all. Packets of unknown transmitters and packets heard by too few
         receivers are skipped and counted in the summary.
     """
     t0 = time.perf_counter()

@@ -17,12 +17,12 @@ from typing import Any
 from radiopose.errors import InputError
 from radiopose.estimates import PoseEstimate
 from radiopose.likelihood import HeardRss, Scorer, candidate_space, make_scorer
-from radiopose.packets import PacketObservation
+from radiopose.packets import PacketObservation, check_observation
 from radiopose.site import Site
-from radiopose.tracker.config import TrackerConfig
+from radiopose.tracker.config import MAX_LAG_S, TrackerConfig
 from radiopose.tracker.filter import reads_site_scorer
 from radiopose.tracker.protocol import Delayed, Device, LooksAhead, Method, Outcome
-from radiopose.tracker.reasons import SKIP_UNKNOWN_TRANSMITTER
+from radiopose.tracker.reasons import SKIP_DUPLICATE, SKIP_UNKNOWN_TRANSMITTER
 from radiopose.tracker.registry import get_method
 
 
@@ -65,8 +65,11 @@ class Tracker:
         offline: bool = False,
     ) -> None:
         self.impl: Method = get_method(method) if isinstance(method, str) else method
-        if lag_s is not None and not 0 <= lag_s < math.inf:
-            raise InputError(f"lag_s = {lag_s!r} must be a number >= 0")
+        if lag_s is not None and not (
+            isinstance(lag_s, int | float) and not isinstance(lag_s, bool)
+            and 0 <= lag_s <= MAX_LAG_S
+        ):  # fmt: skip
+            raise InputError(f"lag_s = {lag_s!r} must be in [0, {MAX_LAG_S:g}] s (or None)")
         self.site = site
         self.method = self.impl.name
         self.config = config or TrackerConfig()
@@ -77,6 +80,9 @@ class Tracker:
         self._shared: dict[str, Any] = {}
         self._delayed: list[PoseEstimate] = []
         self._last_s: dict[str, float] = {}  # last packet time per device (for release)
+        # per device, the latest packet time and the ids of its packets at that time:
+        # a packet seen again is a duplicate (an earlier one is out of order)
+        self._latest: dict[str, tuple[float, set[str]]] = {}
         self.offline = offline  # batch locate: the whole file (issue 15, offset selection)
 
     def _device(self, transmitter: str) -> Device:
@@ -112,16 +118,31 @@ class Tracker:
         With a lagged method the reason is ``PENDING`` and the estimate comes
         later from :meth:`take_delayed` (or :meth:`flush`).
 
+        A packet given again (the same transmitter and packet id as one at the
+        latest time of its transmitter) is skipped as ``SKIP_DUPLICATE``, so
+        its evidence counts once; one earlier than the latest is the method's
+        out-of-order skip.
+
         Raises
         ------
         InputError
-            The packet names a receiver that is not in the site.
+            The packet names a receiver that is not in the site, or one of
+            its values is not what ``packets.csv`` allows
+            (:func:`~radiopose.packets.check_observation`).
         """
+        check_observation(packet)
         if not self.is_enrolled(packet.transmitter):
             return None, SKIP_UNKNOWN_TRANSMITTER
         dev = self._device(packet.transmitter)
         heard = dev.space.heard(packet)
         t = float(packet.timestamp_s)
+        latest = self._latest.get(dev.key)
+        if latest is None or t > latest[0]:
+            self._latest[dev.key] = (t, {packet.packet_id})
+        elif t == latest[0]:
+            if packet.packet_id in latest[1]:
+                return None, SKIP_DUPLICATE
+            latest[1].add(packet.packet_id)
         state = self.states.get(dev.key)
         if not isinstance(state, self.impl.state_type):
             state = self.impl.new_state(dev)
