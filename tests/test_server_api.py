@@ -147,6 +147,9 @@ def test_report_is_stored_once(server: Running, tiny) -> None:
         (lambda b: b.update(batch_id="a\u0000b"), 422, "batch_id"),
         (lambda b: b["frames"][0].update(frame_sha256="ab"), 422, "frame_sha256"),
         (lambda b: b["frames"][0].update(transmitter="nonsense"), 422, "transmitter"),
+        # the contract's rule, as every reader applies it (ids.transmitter_id_problem)
+        (lambda b: b["frames"][0].update(transmitter="a\u0000b"), 422, "not a transmitter id"),
+        (lambda b: b["frames"][0].update(transmitter="a\u200bb"), 422, "not a transmitter id"),
         (lambda b: b["frames"][0].update(transmitter="02:00:00:00:00:99"), 422, "not enrolled"),
         (lambda b: b["frames"][0].pop("rss_dbm"), 422, "rss_dbm"),
         (lambda b: b.update(batch_id=""), 422, "batch_id"),
@@ -193,6 +196,7 @@ def test_limits_at_their_edges_and_in_queries(server: Running, tiny) -> None:
         ("/api/v1/estimates?transmitter=a,b", "transmitter"),
         ("/api/v1/estimates?transmitter=", "transmitter"),
         ("/api/v1/alarms?transmitter=%00", "transmitter"),
+        ("/api/v1/estimates?transmitter=a%E2%80%8Bb", "transmitter"),
         (f"/api/v1/stream?after_id={2**63}", "after_id"),
     ):
         r = viewer.get(path)

@@ -21,15 +21,27 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from radiopose.capture.records import MAX_TRANSMITTER_ID_CHARS, PLAUSIBLE_RSS_DBM
+from radiopose.capture.records import PLAUSIBLE_RSS_DBM
+from radiopose.ids import transmitter_id_problem
 
 MAX_FRAMES_PER_BATCH = 5_000
 MAX_BODY_BYTES = 2_000_000
 MAX_CSV_BYTES = 20_000_000
 MAX_TIMESTAMP_S = 9.2e9
 """Largest accepted ``timestamp_s``: below 2**63 ns, the database's integer limit."""
+
+def _transmitter_id(value: str) -> str:
+    problem = transmitter_id_problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
+
+TransmitterId = Annotated[str, AfterValidator(_transmitter_id)]
+"""A transmitter id as every reader checks it (:func:`radiopose.ids.transmitter_id_problem`:
+1–64 printable characters, no comma or whitespace); a 422 naming the rule."""
 
 _Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f,]+$")]
 _Name = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[^\x00-\x1f\x7f]+$")]
@@ -46,9 +58,7 @@ class FrameReport(BaseModel):
         float, Field(strict=True, ge=0.0, le=MAX_TIMESTAMP_S, allow_inf_nan=False)
     ]
     frame_sha256: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{64}$")]
-    transmitter: Annotated[
-        str, Field(min_length=1, max_length=MAX_TRANSMITTER_ID_CHARS, pattern=r"^[^\s,]+$")
-    ]
+    transmitter: TransmitterId
     rss_dbm: Annotated[
         float,
         Field(strict=True, ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),

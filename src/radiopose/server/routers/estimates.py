@@ -15,12 +15,10 @@ from starlette.concurrency import run_in_threadpool
 from radiopose.server.alarms import Alarm, FlaggedEstimate, flag_estimates
 from radiopose.server.deps import API, DB, Viewer
 from radiopose.server.routers.site import health_of
-from radiopose.server.schemas import Estimate
+from radiopose.server.schemas import Estimate, TransmitterId
 
-_Transmitter = Annotated[
-    str | None, Query(min_length=1, max_length=64, pattern=r"^[^\s,\x00-\x1f\x7f]+$")
-]
-"""A transmitter id in a query: 1–64 characters, no comma, whitespace or control character."""
+_Transmitter = Annotated[TransmitterId | None, Query()]
+"""A transmitter id in a query, checked as every reader checks one (:data:`TransmitterId`)."""
 
 
 def add_routes(router: APIRouter) -> None:
