@@ -32,6 +32,7 @@ MAX_CSV_BYTES = 20_000_000
 MAX_TIMESTAMP_S = 9.2e9
 """Largest accepted ``timestamp_s``: below 2**63 ns, the database's integer limit."""
 
+
 def _transmitter_id(value: str) -> str:
     problem = transmitter_id_problem(value)
     if problem is not None:
