@@ -81,7 +81,7 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--rotation", "spin"], "--rotation must be one of"),
         (["--noise-db", "-2"], "noise_db"),
         (["--duration-s", "0.001"], "shorter than one packet interval"),
-        (["--duration-s", "inf"], "duration_s = inf is out of range"),
+        (["--duration-s", "inf"], "duration_s = inf must be a finite number"),
         (["--size-m", "1.5"], "leaves no room to walk"),
         (["--speed-mps", "1", "nan"], "--speed-mps needs"),
         (["--pcap", "--duplicates", "2"], "duplicate_fraction"),

@@ -132,3 +132,30 @@ def test_cli_reports_a_malformed_config_in_one_line(tmp_path, capsys):
     assert code == 2
     assert err.count("\n") == 0 and "'sweep.scenario.noise_db'" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_too_large_is_refused_before_it_is_built(tmp_path):
+    """10⁵ conditions took 33 s and 1 GB to parse, 10⁷ never ended."""
+    ten = lambda start, step: "[" + ", ".join(f"{start + i * step:g}" for i in range(10)) + "]"  # noqa: E731
+    sweep = (
+        f"scenario.noise_db = {ten(0.1, 0.1)}\n"
+        f"scenario.survey_noise_db = {ten(0.0, 0.1)}\n"
+        f"scenario.tx_power_dbm = {ten(10.0, 1.0)}\n"
+        f"scenario.loss_fraction = {ten(0.0, 0.05)}\n"
+        f"scenario.interval_ms = {ten(5.0, 1.0)}\n"
+    )
+    p = _write(tmp_path, BASE.replace("scenario.noise_db = [0.5, 3.0]\n", sweep))
+    with pytest.raises(
+        InputError, match=r"key 'sweep': 100,000 conditions \(10 × 10 × 10 × 10 × 10\)"
+    ):
+        load_experiment(p)
+    p = _write(
+        tmp_path,
+        BASE.replace("runs = 2", "runs = 100000").replace(
+            "[0.5, 3.0]", "[0.5, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0]"
+        ),
+    )
+    with pytest.raises(InputError, match=r"key 'runs': 11 conditions × 100,000 runs"):
+        load_experiment(p)
+    with pytest.raises(InputError, match=r"--runs 1000000: 2 conditions"):
+        load_experiment(_write(tmp_path, BASE), runs=100_000 * 10)

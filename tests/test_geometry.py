@@ -117,3 +117,18 @@ def test_seeded_rotation_invariance():
             phi[0, 0, 0] - base[0]
         ) == pytest.approx(360.0, abs=1e-7)
         assert theta[0, 0, 0] == pytest.approx(base[1], abs=1e-7)
+
+
+def test_a_non_finite_angle_gives_nan_in_its_row_only():
+    """scipy refused the whole call ("zero norm quaternions")."""
+    from radiopose.geometry import orientation_error_deg, relative_rotation_angle_deg
+
+    est = np.array([[10.0, 20.0, 0.0], [np.nan, 1.0, 1.0], [30.0, 0.0, np.inf], [5.0, 0.0, 0.0]])
+    true = np.zeros((4, 3))
+    for f in (orientation_error_deg, relative_rotation_angle_deg):
+        out = f(est, true)
+        assert np.isnan(out[1:3]).all()
+        np.testing.assert_allclose(out[[0, 3]], f(est[[0, 3]], true[[0, 3]]))
+    np.testing.assert_allclose(
+        relative_rotation_angle_deg([10.0, 0, 0], [[0, 0, 0], [20, 0, 0]]), [10, 10]
+    )

@@ -207,3 +207,38 @@ def test_a_packet_transmitter_that_is_not_an_id_is_a_line_error(tmp_path):
         InputError, match=r"packets\.csv:3, column 'transmitter': not a transmitter"
     ):
         read_packets_csv(path)
+
+
+def test_a_packet_estimated_twice_in_python_is_an_error():
+    """Three estimates of one truth row once gave coverage 3.0 (the CSV reader
+    refuses the repeated row; a table built in Python did not)."""
+    tr = _truth()
+    with pytest.raises(
+        InputError, match=r"estimates 1 and 2 of method 'full' are both of truth row 4"
+    ):
+        score(tr, _est(tr, [3, 3, 3]))
+    (s,) = score(tr, _est(tr, [3, 4, 5]))
+    assert s.coverage == pytest.approx(0.3)
+
+
+@pytest.mark.parametrize(
+    ("damage", "message"),
+    [
+        (lambda e: e.orientation_deg.__setitem__((1, 0), np.nan), "estimate 2: time, position"),
+        (lambda e: e.position_m.__setitem__((0, 2), np.inf), "estimate 1: time, position"),
+        (lambda e: e.timestamp_s.__setitem__(2, np.nan), "estimate 3: time, position"),
+    ],
+)
+def test_a_non_finite_estimate_is_an_error_not_a_scipy_traceback(damage, message):
+    tr = _truth()
+    e = _est(tr, [1, 2, 3])
+    damage(e)
+    with pytest.raises(InputError, match=message):
+        score(tr, e)
+
+
+@pytest.mark.parametrize("tolerance_s", [np.nan, -1.0, np.inf])
+def test_the_tolerance_is_checked(tolerance_s):
+    tr = _truth()
+    with pytest.raises(InputError, match="tolerance_s"):
+        score(tr, _est(tr, [1]), tolerance_s=tolerance_s)

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from radiopose.errors import InputError
 from radiopose.packets import read_packets_csv, read_truth_csv
 from radiopose.simulate import MotionConfig, ScenarioConfig, seed_range, simulate
+from radiopose.simulate.channel import LogDistance
 from radiopose.site import load_site
 from radiopose.units import angle_diff_deg
 
@@ -140,3 +141,63 @@ def test_seed_range_refuses_what_is_not_a_seed_set(bad: str) -> None:
     with pytest.raises(argparse.ArgumentTypeError, match="is not FIRST-LAST") as err:
         seed_range(bad)
     assert "\n" not in str(err.value)
+
+
+# ------------------------------------------------ settings built in Python (QA, session 24)
+def _handheld(**kw):
+    from radiopose.simulate.handheld import HandheldConfig
+
+    return HandheldConfig(**kw)
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        # minutes of relaxing the spacing, or all memory, before
+        (lambda: ScenarioConfig(min_receiver_spacing_m=1e300), "min_receiver_spacing_m = 1e\\+300"),
+        (
+            lambda: ScenarioConfig(motion=MotionConfig(path="walk", walk_corner_m=1e-6)),
+            "walk_corner_m = 1e-06 needs 0.01",
+        ),
+        (lambda: _handheld(min_receiver_spacing_m=1e300), "min_receiver_spacing_m"),
+        (lambda: _handheld(pattern_step_deg=0.01), "pattern_step_deg = 0.01 is out of range"),
+        (lambda: _handheld(pattern_step_deg=0.0), "pattern_step_deg"),
+        (lambda: _handheld(pattern_step_deg=7.0), "pattern_step_deg = 7.0 does not divide 180"),
+        (lambda: _handheld(size_m=1000.0, step_m=0.05), "more than 25,000,000 grid points"),
+        (lambda: _handheld(azimuth_step_deg=0.0), "azimuth_step_deg = 0.0 is out of range"),
+        (lambda: _handheld(azimuth_step_deg=7.0), "azimuth_step_deg = 7.0 does not divide 360"),
+        (lambda: _handheld(pitch_deg=()), "pitch_deg = \\(\\) is out of range"),
+        (lambda: _handheld(pitch_deg=(500.0,)), "pitch_deg = \\(500.0,\\) is out of range"),
+        (lambda: _handheld(z_step_m=1e-6), "heights \\(limit 1,000\\)"),
+        (lambda: _handheld(survey_heights_m=(np.nan,)), "survey_heights_m = \\(nan,\\) must be"),
+        # types: a numpy or comparison TypeError before
+        (lambda: ScenarioConfig(size_m="20"), "size_m = '20' must be a finite number"),
+        (lambda: ScenarioConfig(n_receivers=2.5), "n_receivers = 2.5 must be an integer"),
+        (lambda: ScenarioConfig(n_receivers=True), "n_receivers = True must be an integer"),
+        (lambda: ScenarioConfig(motion=MotionConfig(speed_mps=(1.0,))), "speed_mps = \\(1.0,\\)"),
+        # values that reached packets and maps as NaN, -inf or 999,929 dBm
+        (lambda: ScenarioConfig(device_range_db=(20.0, 14.0)), "device_range_db"),
+        (lambda: ScenarioConfig(device_range_db=(np.nan, np.nan)), "device_range_db"),
+        (lambda: ScenarioConfig(tx_power_dbm=np.nan), "tx_power_dbm = nan must be"),
+        (lambda: ScenarioConfig(tx_power_dbm=1e6), "tx_power_dbm = 1000000.0 is out of range"),
+        (lambda: ScenarioConfig(z_m=np.nan), "z_m = nan must be"),
+        (lambda: ScenarioConfig(channel=LogDistance(d0_m=0.0)), "d0_m = 0.0 is out of range"),
+        (lambda: ScenarioConfig(channel=LogDistance(exponent=np.nan)), "exponent = nan must be"),
+        (lambda: _handheld(channel=LogDistance(exponent=-1.0)), "exponent = -1.0 is out of range"),
+    ],
+)
+def test_a_scenario_setting_built_in_python_is_a_one_line_error(config, message):
+    cfg = config()
+    with pytest.raises(InputError, match=message) as err:
+        cfg.validate()
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("seed", [1.5, -1, True, "7", 2**63])
+def test_a_seed_that_is_not_an_integer_in_range_is_an_error(seed):
+    from radiopose.simulate.handheld import simulate_handheld
+
+    with pytest.raises(InputError, match="must be an integer in"):
+        simulate(ScenarioConfig.smoke(), seed=seed)
+    with pytest.raises(InputError, match="must be an integer in"):
+        simulate_handheld(_handheld(size_m=6.0, step_m=0.5, duration_s=0.05), seed=seed)

@@ -77,8 +77,8 @@ def check_setting_types(config: object, what: str) -> None:
     construction, as a ``tracker.toml`` does when read: ``int`` an integer
     (not a bool), ``float`` a finite real number, ``float | None`` that or
     ``None``, ``bool`` a bool, ``str`` text, ``tuple[float, ...]`` a tuple of
-    finite real numbers. Other annotations (nested configurations,
-    ``Literal``) are the class's own checks.
+    finite real numbers, ``tuple[float, float]`` a pair of them. Other
+    annotations (nested configurations, ``Literal``) are the class's own checks.
 
     Raises
     ------
@@ -103,6 +103,10 @@ def check_setting_types(config: object, what: str) -> None:
         "tuple[float, ...]": (
             lambda v: isinstance(v, tuple) and all(real(x) for x in v),
             "a tuple of finite numbers",
+        ),
+        "tuple[float, float]": (
+            lambda v: isinstance(v, tuple) and len(v) == 2 and all(real(x) for x in v),
+            "a pair of finite numbers (low, high)",
         ),
     }  # fmt: skip
     for f in dataclasses.fields(config):  # type: ignore[arg-type]

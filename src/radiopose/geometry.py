@@ -185,13 +185,21 @@ def relative_rotation_angle_deg(est_deg: ArrayLike, true_deg: ArrayLike) -> Floa
     ----------
     est_deg, true_deg
         ``(n, 3)`` (or ``(3,)``) arrays of (azimuth, pitch, roll) in degrees.
+
+    A row with a non-finite angle gives NaN (as numpy's own arithmetic would;
+    scipy's rotations refuse it).
     """
     e = np.asarray(est_deg, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(true_deg, dtype=np.float64).reshape(-1, 3)
-    r_e = rotation_from_euler_deg(e[:, 0], e[:, 1], e[:, 2])
-    r_t = rotation_from_euler_deg(t[:, 0], t[:, 1], t[:, 2])
-    rel = r_e.inv() * r_t
-    return np.rad2deg(rel.magnitude())
+    e, t = np.broadcast_arrays(e, t)
+    ok = np.isfinite(e).all(axis=1) & np.isfinite(t).all(axis=1)
+    out = np.full(e.shape[0], np.nan)
+    if ok.any():
+        e, t = e[ok], t[ok]
+        r_e = rotation_from_euler_deg(e[:, 0], e[:, 1], e[:, 2])
+        r_t = rotation_from_euler_deg(t[:, 0], t[:, 1], t[:, 2])
+        out[ok] = np.rad2deg((r_e.inv() * r_t).magnitude())
+    return out
 
 
 def orientation_error_deg(est_deg: ArrayLike, true_deg: ArrayLike) -> FloatArray:
@@ -200,10 +208,11 @@ def orientation_error_deg(est_deg: ArrayLike, true_deg: ArrayLike) -> FloatArray
     Where pitch and roll of both are zero (azimuth-only motion) this is the
     wrapped azimuth difference ``|angle_diff_deg|``; otherwise the angle of the
     relative rotation. The two agree for azimuth-only poses (up to rounding);
-    the first is exact.
+    the first is exact. A row with a non-finite angle gives NaN.
     """
     e = np.asarray(est_deg, dtype=np.float64).reshape(-1, 3)
     t = np.asarray(true_deg, dtype=np.float64).reshape(-1, 3)
+    e, t = np.broadcast_arrays(e, t)
     flat = (e[:, 1] == 0) & (e[:, 2] == 0) & (t[:, 1] == 0) & (t[:, 2] == 0)
     out = relative_rotation_angle_deg(e, t)
     out[flat] = np.abs(angle_diff_deg(e[flat, 0], t[flat, 0]))

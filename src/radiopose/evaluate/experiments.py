@@ -51,6 +51,7 @@ used apart from the others.
 from __future__ import annotations
 
 import itertools
+import math
 import os
 import re
 import types
@@ -74,6 +75,11 @@ SHIPPED_BEYOND: tuple[str, ...] = ("3d",)
 FigureKind = Literal["error", "reduction", "relative"]
 Quantity = Literal["position", "orientation"]
 KERNEL_AUTO = "auto"
+MAX_CONDITIONS = 10_000
+"""Most conditions a sweep may multiply out to (the shipped experiments have
+at most a few dozen); more is an error naming the sweep, not an hour of parsing."""
+MAX_TASKS = 1_000_000
+"""Most runs of an experiment in all (conditions × runs)."""
 
 # Fields of the configuration dataclasses that an experiment may set, per table.
 _SCENARIO_SKIP = {"channel", "motion"}
@@ -214,6 +220,11 @@ class Experiment:
         """The same experiment with another number of runs per condition."""
         if runs < 1:
             raise InputError(f"--runs must be at least 1, got {runs}")
+        if len(self.conditions) * runs > MAX_TASKS:
+            raise InputError(
+                f"--runs {runs}: {len(self.conditions):,} conditions × {runs:,} runs is more "
+                f"than {MAX_TASKS:,} runs in all"
+            )
         return replace(self, runs=int(runs))
 
 
@@ -387,6 +398,13 @@ def _conditions(
     sweep: list[tuple[str, str, tuple[Any, ...], str]],
     path: str,
 ) -> tuple[Condition, ...]:
+    n_conditions = math.prod(len(vals) for _, _, vals, _ in sweep)
+    if n_conditions > MAX_CONDITIONS:
+        raise InputError(
+            f"key 'sweep': {n_conditions:,} conditions "
+            f"({' × '.join(str(len(v)) for _, _, v, _ in sweep)}); at most {MAX_CONDITIONS:,}",
+            path=path,
+        )
     out = []
     combos = itertools.product(*(vals for _, _, vals, _ in sweep)) if sweep else [()]
     for i, combo in enumerate(combos):
@@ -547,6 +565,12 @@ def parse_experiment(doc: dict[str, Any], path: str, quick: bool = False) -> Exp
 
     keys = _short_names(sweep, path)
     conditions = _conditions(base, origins, sweep, path)
+    if len(conditions) * runs > MAX_TASKS:
+        raise InputError(
+            f"key 'runs': {len(conditions):,} conditions × {runs:,} runs = "
+            f"{len(conditions) * runs:,} runs in all; at most {MAX_TASKS:,}",
+            path=path,
+        )
     figures = _check_figures(figs, keys, conditions, methods, path)
     return Experiment(
         name,

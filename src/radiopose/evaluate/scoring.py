@@ -130,7 +130,29 @@ def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tupl
     """Score estimates against truth, one :class:`MethodScore` per method (file order).
 
     With no estimates at all, one row with method ``"none"`` and coverage 0.
+
+    Raises
+    ------
+    InputError
+        A tolerance that is not a finite number >= 0; a truth row or an
+        estimate whose time or pose is not finite; an estimate without a truth
+        row (:func:`match_truth`); two estimates of one method matched to one
+        truth row (a packet estimated twice would count twice in coverage).
     """
+    if not (isinstance(tolerance_s, int | float) and np.isfinite(tolerance_s) and tolerance_s >= 0):
+        raise InputError(f"tolerance_s = {tolerance_s!r} must be a finite number >= 0")
+    for what, table in (("truth row", truth), ("estimate", estimates)):
+        finite = (
+            np.isfinite(table.timestamp_s)
+            & np.isfinite(table.position_m).all(axis=1)
+            & np.isfinite(table.orientation_deg).all(axis=1)
+        )
+        if not finite.all():
+            i = int(np.flatnonzero(~finite)[0])
+            message = f"{what} {i + 1}: time, position or orientation is not a finite number"
+            if table is estimates:
+                raise InputError(message, **estimates.where(i))
+            raise InputError(message)
     n_packets = len(truth)
     idx = match_truth(truth, estimates, tolerance_s)
     methods = list(dict.fromkeys(str(m) for m in estimates.method)) or ["none"]
@@ -138,6 +160,16 @@ def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tupl
     for m in methods:
         sel = np.array([str(x) == m for x in estimates.method], dtype=bool)
         rows = idx[sel]
+        seen, counts = np.unique(rows, return_counts=True)
+        if (counts > 1).any():
+            r = int(seen[counts > 1][0])
+            i, j = np.flatnonzero(sel)[np.flatnonzero(rows == r)[:2]]
+            raise InputError(
+                f"estimates {i + 1} and {j + 1} of method {m!r} are both of truth row {r + 1} "
+                f"({truth.transmitter[r]} at {truth.timestamp_s[r]:.9g} s): a packet estimated "
+                "twice would count twice",
+                **estimates.where(int(j)),
+            )
         pos_err = np.linalg.norm(estimates.position_m[sel] - truth.position_m[rows], axis=1)
         ori = None
         if m not in POSITION_ONLY_METHODS:

@@ -32,6 +32,24 @@ class LogDistance:
     d0_m: float = 1.0
     exponent: float = 3.0
 
+    def validate(self) -> None:
+        """Raise :class:`~radiopose.errors.InputError` naming the first setting
+        out of range: ``pl_d0_db`` in [-100, 200] dB, ``d0_m`` in (0, 100] m,
+        ``exponent`` in (0, 10]."""
+        from radiopose.errors import InputError, check_setting_types
+
+        check_setting_types(self, "channel")
+        for name, ok, allowed in (
+            ("pl_d0_db", -100.0 <= self.pl_d0_db <= 200.0, "[-100, 200] dB"),
+            ("d0_m", 0.0 < self.d0_m <= 100.0, "(0, 100] m"),
+            ("exponent", 0.0 < self.exponent <= 10.0, "(0, 10]"),
+        ):
+            if not ok:
+                raise InputError(
+                    f"channel setting {name} = {getattr(self, name)!r} is out of range "
+                    f"(allowed: {allowed})"
+                )
+
     def path_loss_db(self, distance_m: ArrayLike) -> FloatArray:
         """Path loss in dB at distances in metres (clamped below ``d0_m``)."""
         d = np.maximum(np.asarray(distance_m, float), self.d0_m)

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.patterns.pattern import Pattern
 from radiopose.patterns.synthetic import smartphone_like
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
@@ -42,11 +42,17 @@ from radiopose.simulate.scenario import (
     DEFAULT_TRANSMITTER,
     ScenarioConfig,
     Simulation,
+    check_seed,
     observe_path,
+    power_and_range_checks,
     survey_rows_of,
 )
 from radiopose.simulate.trajectories import MotionConfig, walk_path, walking_azimuth_deg
 from radiopose.site import (
+    MAX_CANDIDATES,
+    MAX_GRID_POINTS,
+    MAX_HEIGHTS,
+    MAX_ORIENTATIONS,
     AreaGrid,
     Device,
     OrientationGrid,
@@ -121,6 +127,7 @@ class HandheldConfig:
 
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
+        check_setting_types(self, "3-D scenario")
         lo_p, hi_p = self.pitch_range_deg
         lo_h, hi_h = self.height_range_m
         checks = [
@@ -137,12 +144,58 @@ class HandheldConfig:
             ("height_range_m", self.z_min_m <= lo_h <= hi_h <= self.z_max_m),
             ("roll_amplitude_deg", 0 <= self.roll_amplitude_deg <= 90),
             ("survey_heights_m", len(self.survey_heights_m) >= 1),
+            ("survey_heights_m", all(0.0 <= z <= 100.0 for z in self.survey_heights_m)),
+            ("z_min_m", 0.0 <= self.z_min_m <= 100.0),
+            ("z_max_m", self.z_max_m <= 100.0),
+            ("ceiling_height_m", 0.0 <= self.ceiling_height_m[0] <= self.ceiling_height_m[1]),
+            ("wall_height_m", 0.0 <= self.wall_height_m[0] <= self.wall_height_m[1]),
+            ("speed_mps", 0.0 <= self.speed_mps[0] <= self.speed_mps[1] <= 100.0),
+            ("wobble_deg", 0.0 <= self.wobble_deg[0] <= self.wobble_deg[1] <= 180.0),
+            ("azimuth_step_deg", 0.0 < self.azimuth_step_deg <= 360.0),
+            ("pitch_deg", len(self.pitch_deg) >= 1 and all(-90 <= p <= 90 for p in self.pitch_deg)),
+            ("roll_deg", len(self.roll_deg) >= 1 and all(-360 <= r <= 360 for r in self.roll_deg)),
+            ("pattern_step_deg", 0.1 <= self.pattern_step_deg <= 90.0),
+            ("min_receiver_spacing_m", 0 <= self.min_receiver_spacing_m <= 1e4),
         ]
+        checks += [(name, ok) for name, ok, _ in power_and_range_checks(self)]
         for name, ok in checks:
             if not ok:
                 raise InputError(
                     f"3-D scenario setting {name} = {getattr(self, name)!r} is out of range"
                 )
+        self.channel.validate()
+        for name, step, whole in (
+            ("azimuth_step_deg", self.azimuth_step_deg, 360.0),
+            ("pattern_step_deg", self.pattern_step_deg, 180.0),
+        ):
+            n_steps = round(whole / step)
+            if abs(n_steps * step - whole) > 1e-6:
+                raise InputError(
+                    f"3-D scenario setting {name} = {step!r} does not divide {whole:g}"
+                )
+        # the limits of a site read from disk (radiopose.site), from the numbers alone
+        n_axis = self.size_m / self.step_m + 1
+        n_z = (self.z_max_m - self.z_min_m) / self.z_step_m + 1
+        n_orient = 360.0 / self.azimuth_step_deg * len(self.pitch_deg) * len(self.roll_deg)
+        if (
+            n_axis**2 > MAX_GRID_POINTS
+            or (self.size_m / self.survey_step_m + 1) ** 2 > MAX_GRID_POINTS
+        ):
+            raise InputError(
+                f"3-D scenario: size_m = {self.size_m!r} with step_m = {self.step_m!r} "
+                f"(survey_step_m = {self.survey_step_m!r}) gives more than {MAX_GRID_POINTS:,} "
+                "grid points"
+            )
+        if n_z > MAX_HEIGHTS:
+            raise InputError(
+                f"3-D scenario setting z_step_m = {self.z_step_m!r} gives {n_z:.3g} heights "
+                f"(limit {MAX_HEIGHTS:,})"
+            )
+        if n_orient > MAX_ORIENTATIONS or n_axis**2 * n_orient > MAX_CANDIDATES:
+            raise InputError(
+                f"3-D scenario: {n_orient:.3g} orientations, {n_axis**2 * n_orient:.3g} "
+                f"candidate poses per height (limits {MAX_ORIENTATIONS:,} and {MAX_CANDIDATES:,})"
+            )
         for name, step, span in (
             ("step_m", self.step_m, self.size_m),
             ("survey_step_m", self.survey_step_m, self.size_m),
@@ -201,9 +254,7 @@ def simulate_handheld(config: HandheldConfig | None = None, seed: int = 0) -> Si
     """Simulate the 3-D hand-held scenario (see the module docstring)."""
     cfg = config or HandheldConfig()
     cfg.validate()
-    if not 0 <= seed < 2**63:
-        raise InputError(f"seed must be a non-negative integer below 2**63, got {seed}")
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(check_seed(seed))
 
     # Receivers at mixed heights, each with its own slice pattern.
     xy: list[FloatArray] = []

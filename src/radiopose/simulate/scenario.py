@@ -28,7 +28,7 @@ from typing import Literal
 
 import numpy as np
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.packets import Packets, Truth, write_packets_csv, write_truth_csv
 from radiopose.patterns.pattern import Pattern
 from radiopose.patterns.synthetic import smartphone_like
@@ -130,6 +130,7 @@ class ScenarioConfig:
 
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
+        check_setting_types(self, "scenario")
         checks = [
             ("size_m", 0 < self.size_m <= 1e6, "(0, 1e6]"),
             ("step_m", 0 < self.step_m <= self.size_m, "(0, size_m]"),
@@ -141,8 +142,12 @@ class ScenarioConfig:
             ("duration_s", 0 < self.duration_s <= 3600, "(0, 3600]"),
             ("azimuth_step_deg", 0 < self.azimuth_step_deg <= 360, "(0, 360]"),
             ("loss_fraction", 0 <= self.loss_fraction < 1, "[0, 1)"),
-            ("min_receiver_spacing_m", self.min_receiver_spacing_m >= 0, ">= 0"),
+            # a spacing the area cannot hold is relaxed by 0.8 every 10,000 tries:
+            # bounded so that relaxing takes a second, not minutes
+            ("min_receiver_spacing_m", 0 <= self.min_receiver_spacing_m <= 1e4, "[0, 10000]"),
             ("pose", self.pose in ("2d", "3d"), "2d or 3d"),
+            ("z_m", abs(self.z_m) <= 1000.0, "[-1000, 1000]"),
+            *power_and_range_checks(self),
         ]
         for name, ok, allowed in checks:
             value = getattr(self, name)
@@ -156,6 +161,7 @@ class ScenarioConfig:
                 f"({self.interval_ms:g} ms): no packet would be sent"
             )
         self.motion.validate()
+        self.channel.validate()
         if self.size_m <= 2 * self.motion.margin_m:
             raise InputError(
                 f"size_m = {self.size_m!r} leaves no room to walk: the device keeps "
@@ -189,6 +195,34 @@ class ScenarioConfig:
             raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
         if round(self.duration_s / (self.interval_ms / 1000.0)) > 2_000_000:
             raise InputError("more than 2,000,000 packets: shorten duration_s or raise interval_ms")
+
+
+def power_and_range_checks(cfg: object) -> list[tuple[str, bool, str]]:
+    """The ``(name, ok, allowed)`` checks a scenario's powers and directivity
+    ranges share with ``devices.csv``: powers in [-100, 60] dBm; each range
+    ``(low, high)`` with 0 <= low <= high <= 60 dB (only the fields ``cfg`` has)."""
+    out = []
+    for name in ("tx_power_dbm", "survey_tx_power_dbm"):
+        v = getattr(cfg, name)
+        out.append((name, -100.0 <= v <= 60.0, "[-100, 60] dBm"))
+    for name in ("device_range_db", "receiver_range_db", "survey_range_db"):
+        if hasattr(cfg, name):
+            lo, hi = getattr(cfg, name)
+            out.append((name, 0.0 <= lo <= hi <= 60.0, "0 <= low <= high <= 60 dB"))
+    return out
+
+
+def check_seed(seed: object) -> int:
+    """A simulation seed: an integer in [0, 2**63) (numpy's generators take no other)."""
+    import numbers
+
+    if (
+        not isinstance(seed, numbers.Integral)
+        or isinstance(seed, bool)
+        or not 0 <= int(seed) < 2**63
+    ):
+        raise InputError(f"seed {seed!r} must be an integer in [0, 2**63)")
+    return int(seed)
 
 
 @dataclass(frozen=True, eq=False)
@@ -245,8 +279,7 @@ def simulate(config: ScenarioConfig | None = None, seed: int = 0) -> Simulation:
     """Simulate a scenario (see the module docstring)."""
     cfg = config or ScenarioConfig()
     cfg.validate()
-    if not 0 <= seed < 2**63:
-        raise InputError(f"seed must be a non-negative integer below 2**63, got {seed}")
+    seed = check_seed(seed)
     if cfg.pose == "3d":  # pose3d: the hand-held scenario (docs/pose3d.md)
         from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 

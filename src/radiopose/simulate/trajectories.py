@@ -22,11 +22,16 @@ from typing import Literal
 
 import numpy as np
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.units import FloatArray, wrap_deg
 
 RotationKind = Literal["linear", "periodic", "fast", "heading"]
 PathKind = Literal["straight", "walk"]
+
+
+MIN_WALK_CORNER_M = 0.01
+"""Smallest :attr:`MotionConfig.walk_corner_m`, metres: the walk is sampled at a
+quarter of it, so a micrometre corner once sampled a 20 m walk 80 million times."""
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,7 @@ class MotionConfig:
 
     def validate(self) -> None:
         """Raise :class:`InputError` naming the first out-of-range setting."""
+        check_setting_types(self, "motion")
         if self.rotation not in ("linear", "periodic", "fast", "heading"):
             raise InputError(f"motion setting rotation = {self.rotation!r} is unknown")
         if self.path not in ("straight", "walk"):
@@ -105,7 +111,7 @@ class MotionConfig:
         walk = {
             "walk_min_leg_m": (self.walk_min_leg_m, 0.0, 1e6),
             "walk_max_turn_deg": (self.walk_max_turn_deg, 1.0, 180.0),
-            "walk_corner_m": (self.walk_corner_m, 0.0, 1e3),
+            "walk_corner_m": (self.walk_corner_m, MIN_WALK_CORNER_M, 1e3),
         }
         for name, (v, lo_ok, hi_ok) in walk.items():
             if not (math.isfinite(v) and lo_ok <= v <= hi_ok and v > 0):
@@ -192,7 +198,9 @@ def walk_path(
     # in an area smaller than a rounded corner the corners shrink with the legs
     # (else smoothing would fold the walk onto the area's centre)
     corner_m = min(config.walk_corner_m, 0.25 * min_leg)
-    ds = min(0.05, 0.25 * corner_m)
+    # the path is sampled at ds (at most 1 mm finer, in an area too small to walk
+    # a rounded corner: a bound on the samples, not a change of any valid walk)
+    ds = max(min(0.05, 0.25 * corner_m), 1e-3)
     sigma = corner_m / ds
     pts = [rng.uniform(lo, hi)]
     heading: float | None = None
