@@ -212,3 +212,82 @@ def test_a_coarse_table_bound_too_small_for_one_position_is_an_error():
             sim.site, height, dev.tx_power_dbm, sim.site.patterns[dev.pattern],
             Pose3dConfig(max_table_entries=1000),
         )  # fmt: skip
+
+
+# ------------------------------------------------------------------- sync and security
+def _frame_records(rss=(-50.0, -60.0)):
+    from radiopose.capture.frames import FrameRecords
+
+    n = len(rss)
+    obj = lambda xs: np.asarray(xs, dtype=object).reshape(-1)  # noqa: E731
+    return FrameRecords(
+        obj([f"rx{i + 1}" for i in range(n)]),
+        np.arange(n, dtype=np.int64) * 1000,
+        obj(["ab" * 32] * n),
+        obj(["02:00:00:00:00:01"] * n),
+        np.asarray(rss, dtype=np.float64),
+    )
+
+
+@pytest.mark.parametrize(
+    ("build", "message"),
+    [
+        (lambda: _sync(max_candidates=0), r"max_candidates = 0 is out of range"),
+        (lambda: _sync(max_candidates=-1), r"max_candidates = -1 is out of range"),
+        (lambda: _sync(max_drift_ppm=math.nan), r"max_drift_ppm = nan must be a finite"),
+        (lambda: _sync(max_drift_ppm=-5.0), r"max_drift_ppm = -5.0 is out of range"),
+        (lambda: _sync(min_pairs=-3), r"min_pairs = -3 is out of range"),
+        (lambda: _sync(tolerance_s=math.nan), r"tolerance_s = nan must be a finite"),
+        (lambda: _frame_records((-50.0, math.nan)), r"RSS nan dBm of receiver 'rx2'"),
+        (lambda: _match(tolerance_s=math.nan), r"tolerance_s = nan must be in \(0, 60\] s"),
+        (lambda: _match(tolerance_s=-1.0), r"tolerance_s = -1.0 must be in"),
+        (lambda: _clocks([]), "no receivers given"),
+        (lambda: _spoof(limit_scales=(1.0, math.nan)), "limit_scales"),
+        (lambda: _spoof(target_noise_db=math.inf), "target_noise_db"),
+        (lambda: _spoof(follow_radius_m=math.inf), "follow_radius_m"),
+        (lambda: _spoof(n_targets=2.5), "n_targets = 2.5 must be an integer"),
+        (lambda: _attacker(min_distance_m=math.nan), "min_distance_m = nan"),
+        (lambda: _score_track([0.0, math.nan]), "finite and non-decreasing"),
+        (lambda: _score_track([1.0, 0.0]), "finite and non-decreasing"),
+    ],
+)
+def test_sync_and_security_inputs_built_in_python_are_one_line_errors(build, message):
+    with pytest.raises(InputError, match=message) as err:
+        build()
+    assert "\n" not in str(err.value)
+
+
+def _sync(**kw):
+    from radiopose.capture.sync import SyncConfig
+
+    return SyncConfig(**kw)
+
+
+def _match(**kw):
+    from radiopose.capture.sync import match_packets
+
+    return match_packets(_frame_records(), ["rx1", "rx2"], **kw)
+
+
+def _clocks(receivers):
+    from radiopose.capture.sync import estimate_clocks
+
+    return estimate_clocks(_frame_records(), receivers)
+
+
+def _spoof(**kw):
+    from radiopose.security.experiments import SpoofConfig
+
+    return SpoofConfig(**kw)
+
+
+def _attacker(**kw):
+    from radiopose.security.attacker import AttackerModel
+
+    return AttackerModel(**kw)
+
+
+def _score_track(t_s):
+    from radiopose.security.detection import score_track
+
+    return score_track(np.asarray(t_s), np.full((len(t_s), 3), -50.0))

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from radiopose.errors import InputError
 from radiopose.ids import MAX_TRANSMITTER_ID_CHARS, transmitter_id_problem
 
 __all__ = [
@@ -93,7 +94,14 @@ class FrameRecords:
         n = self.timestamp_ns.shape[0]
         for name in ("receiver_id", "frame_sha256", "transmitter", "rss_dbm"):
             if getattr(self, name).shape != (n,):
-                raise ValueError(f"FrameRecords.{name} must have shape ({n},)")
+                raise InputError(f"FrameRecords.{name} must have shape ({n},)")
+        bad = np.flatnonzero(~np.isfinite(self.rss_dbm))
+        if bad.size:  # the readers refuse these; a table built in Python too
+            k = int(bad[0])
+            raise InputError(
+                f"FrameRecords row {k} (from 0): RSS {self.rss_dbm[k]} dBm of receiver "
+                f"{self.receiver_id[k]!r} is not a finite number"
+            )
         if self.antenna_rss_dbm is None:
             empty = np.empty(n, dtype=object)
             empty[:] = [()] * n

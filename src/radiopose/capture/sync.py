@@ -47,7 +47,6 @@ used apart (by the live server), lives in :mod:`radiopose.capture.streaming`.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -56,7 +55,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.capture.records import Capture, FrameRecords, ReceiverStats
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.packets import Packets
 
 if TYPE_CHECKING:
@@ -112,10 +111,20 @@ class SyncConfig:
     max_lag_s: float = 30.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.tolerance_s) and self.tolerance_s > 0):
-            raise ValueError(f"tolerance_s must be > 0, got {self.tolerance_s}")
-        if not self.max_lag_s > 0:
-            raise ValueError(f"max_lag_s must be > 0, got {self.max_lag_s}")
+        check_setting_types(self, "sync")
+        for name, ok, allowed in (
+            ("tolerance_s", 0 < self.tolerance_s <= 60.0, "(0, 60] s"),
+            ("max_lag_s", 0 < self.max_lag_s <= 86_400.0, "(0, 86400] s"),
+            ("max_drift_ppm", 0 <= self.max_drift_ppm <= 1e6, "[0, 1e6] ppm"),
+            ("min_pairs", 1 <= self.min_pairs <= 1_000_000, "[1, 1000000]"),
+            ("min_drift_span_s", self.min_drift_span_s >= 0, ">= 0 s"),
+            ("max_candidates", 1 <= self.max_candidates <= 1_000_000, "[1, 1000000]"),
+        ):
+            if not ok:
+                raise InputError(
+                    f"sync setting {name} = {getattr(self, name)!r} is out of range "
+                    f"(allowed: {allowed})"
+                )
 
 
 @dataclass(frozen=True)
@@ -422,7 +431,11 @@ def estimate_clocks(
         ``receiver_id -> ClockModel``, in ``receivers`` order.
     """
     cfg = config or SyncConfig()
+    if not receivers:
+        raise InputError("estimate_clocks: no receivers given")
     ref = cfg.reference if cfg.reference is not None else receivers[0]
+    if ref not in receivers:
+        raise InputError(f"reference receiver {ref!r} is not one of {', '.join(receivers)}")
     by_rx = {r: np.flatnonzero(frames.receiver_id == r) for r in receivers}
     ref_rows = by_rx[ref]
     ref_once, ref_pos = _once(frames.frame_sha256[ref_rows])
@@ -505,6 +518,8 @@ def match_packets(
     packets, counts, hashes
         The ``packets.csv`` rows, the counts and what became of the hashes.
     """
+    if not (isinstance(tolerance_s, int | float) and 0 < tolerance_s <= 60.0):
+        raise InputError(f"tolerance_s = {tolerance_s!r} must be in (0, 60] s")
     n = len(frames)
     if n == 0:
         return _empty_packets(), MatchCounts(), HashCounts()

@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from radiopose.errors import InputError, check_setting_types
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, expected_rss_dbm
 from radiopose.likelihood.numpy_kernel import TableScorer, build_table
 from radiopose.likelihood.power import best_power_mse_db2
@@ -86,8 +87,9 @@ class AttackerModel:
     k: int = 100
 
     def __post_init__(self) -> None:
+        check_setting_types(self, "attacker")
         if not (self.min_distance_m >= 0 and self.power_range_db >= 0 and self.k >= 1):
-            raise ValueError(f"attacker model out of range: {self}")
+            raise InputError(f"attacker model out of range: {self}")
 
 
 # ----------------------------------------------------------------------------- kernels

@@ -332,6 +332,8 @@ def score_track(
     r = np.ascontiguousarray(np.atleast_2d(np.asarray(values_db, dtype=np.float64)))
     if r.shape[0] != t.shape[0]:
         raise InputError(f"score_track: {t.shape[0]} times but {r.shape[0]} value rows")
+    if t.ndim != 1 or not np.isfinite(t).all() or (np.diff(t) < 0).any():
+        raise InputError("score_track: the times must be finite and non-decreasing")
     cfg = config or DetectorConfig()
     new = np.zeros(t.size, np.bool_) if new_track is None else np.asarray(new_track, np.bool_)
     score, alarm = _score_kernel(

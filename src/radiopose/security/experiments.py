@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.likelihood import CandidateSpace, candidate_space, expected_rss_dbm
 from radiopose.packets import PacketObservation
 from radiopose.patterns.synthetic import smartphone_like
@@ -99,13 +99,15 @@ class SpoofConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
+        check_setting_types(self, "spoof")  # finite numbers, integers (NaN, inf, 2.5)
         checks = [
             ("n_targets", self.n_targets >= 1),
-            ("target_noise_db", self.target_noise_db >= 0),
+            ("target_noise_db", 0 <= self.target_noise_db <= 60),
             ("path_packets", self.path_packets >= 1),
             ("limit_scales", len(self.limit_scales) >= 1 and min(self.limit_scales) > 0),
-            ("packet_noise_db", self.packet_noise_db >= 0),
+            ("packet_noise_db", 0 <= self.packet_noise_db <= 60),
             ("follow_radius_m", self.follow_radius_m > 0),
+            ("seed", 0 <= self.seed < 2**63),
         ]
         for name, ok in checks:
             if not ok:
