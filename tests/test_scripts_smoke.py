@@ -60,6 +60,11 @@ def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     for method in ("full", "location", "orientation", "top", "lms"):
         assert any(f"| {method} " in row or f"| `{method}`" in row for row in _table_rows(text))
     assert out.with_suffix(".json").is_file()
+    # a smoke table must not replace docs/accuracy.md (it once did): --quick needs --out
+    with pytest.raises(SystemExit) as exit_:
+        _load(SCRIPTS / "accuracy_table.py").main(["--quick", "--seeds", "1", "--sigmas", "1"])
+    assert exit_.value.code == 2
+    assert "--quick writes a smoke table" in capsys.readouterr().err
 
 
 def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
