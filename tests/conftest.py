@@ -45,6 +45,7 @@ TIERS: dict[str, str] = {
     "test_site": "property",
     "test_site_toml_keys": "property",
     "test_site_validation": "property",
+    "test_site_api_input": "property",
     "test_tables": "property",
     # e2e: simulated (or real) scenarios through the pipeline, the CLI and the reports,
     # asserting an error bound or a pinned output

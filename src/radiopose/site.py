@@ -3,7 +3,8 @@
 A site directory (interchange contract, "Site"; its files are listed in
 :mod:`radiopose.site_io`): :func:`~radiopose.site_io.load_site` validates all
 of it (every referenced pattern present, receiver ids unique, grid sane, every
-receiver surveyed, survey rows name known receivers) and builds the survey map
+receiver surveyed — on a 3-D site at every surveyed height
+(:func:`missing_survey_height`) — survey rows name known receivers) and builds the survey map
 (:mod:`radiopose.survey`);
 :func:`~radiopose.site_io.write_site` writes one (atomically, file by file).
 This module holds the value objects, the validation limits and the geometry on
@@ -71,6 +72,9 @@ MAX_HEIGHTS = 1000
 """Most candidate heights of a ``z_min_m``/``z_max_m``/``z_step_m`` range."""
 MIN_SURVEY_COVERAGE = 0.5
 """Least fraction of candidate positions inside each receiver's surveyed convex hull."""
+SURVEY_HEIGHT_DECIMALS = 3
+"""Survey heights (``z_m``) rounded to this many decimals are one surveyed height
+(a layer of :func:`radiopose.survey_height.build_height_model`)."""
 ANGLE_COLUMNS = (
     Column("azimuth_deg", low=-360.0, high=360.0),
     Column("pitch_deg", low=-90.0, high=90.0),
@@ -268,7 +272,17 @@ class Site:
         return np.array([r.position_m for r in self.receivers]).reshape(-1, 3)
 
     def device(self, transmitter: str) -> Device:
-        """The enrolled device of a transmitter (case-insensitive address match)."""
+        """The enrolled device of a transmitter (case-insensitive address match).
+
+        Raises
+        ------
+        InputError
+            ``transmitter`` is not text, or not enrolled.
+        """
+        if not isinstance(transmitter, str):
+            raise InputError(
+                f"transmitter must be text, got {type(transmitter).__name__} {transmitter!r:.40}"
+            )
         key = transmitter.lower()
         for d in self.devices:
             if d.transmitter.lower() == key:
@@ -276,7 +290,21 @@ class Site:
         raise InputError(f"unknown transmitter {transmitter!r}: not enrolled in devices.csv")
 
     def device_pattern(self, transmitter: str) -> Pattern:
-        return self.patterns[self.device(transmitter).pattern]
+        """The pattern of a transmitter's enrolled device.
+
+        Raises
+        ------
+        InputError
+            As :meth:`device`, or the site holds no pattern of the device's name.
+        """
+        d = self.device(transmitter)
+        pattern = self.patterns.get(d.pattern)
+        if pattern is None:
+            raise InputError(
+                f"device {d.transmitter!r} names pattern {d.pattern!r}, which site "
+                f"{self.name!r} does not hold"
+            )
+        return pattern
 
 
 def height_range_middle_m(z_min_m: float, z_max_m: float, z_step_m: float) -> float:
@@ -287,8 +315,37 @@ def height_range_middle_m(z_min_m: float, z_max_m: float, z_step_m: float) -> fl
 
 def site_is_3d(site: Site) -> bool:
     """Whether a site asks for 3-D pose: a height range, or several pitches or rolls."""
-    o = site.orientations
-    return site.area.has_height_range or len(o.pitch_deg) > 1 or len(o.roll_deg) > 1
+    return parts_are_3d(site.area, site.orientations)
+
+
+def parts_are_3d(area: AreaGrid, orientations: OrientationGrid) -> bool:
+    """:func:`site_is_3d` of a site's area and candidate orientations."""
+    o = orientations
+    return area.has_height_range or len(o.pitch_deg) > 1 or len(o.roll_deg) > 1
+
+
+def missing_survey_height(
+    rows: SurveyRows, receiver_ids: tuple[str, ...], decimals: int = SURVEY_HEIGHT_DECIMALS
+) -> tuple[float, str, int] | None:
+    """The first surveyed height that lacks rows for some receiver.
+
+    Heights are the survey's ``z_m`` rounded to ``decimals``; a survey at one
+    height is complete. Returns ``(height_m, receiver_id, row)`` (``row``: the
+    first survey row at that height) or ``None`` when every surveyed height has
+    rows for every receiver.
+    """
+    z = np.round(np.asarray(rows.xyz_m, float)[:, 2], decimals)
+    layers = np.unique(z)
+    if layers.size < 2:
+        return None
+    rid = np.asarray(rows.receiver_id)
+    for h in layers:
+        sel = z == h
+        present = set(rid[sel].tolist())
+        for r in receiver_ids:
+            if r not in present:
+                return float(h), r, int(np.argmax(sel))
+    return None
 
 
 # ----------------------------------------------------------------------------- survey

@@ -42,10 +42,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.diskcache import memo_arrays
+from radiopose.errors import InputError
 from radiopose.units import FloatArray
 
 InterpolationMethod = Literal["cubic", "linear"]
 OutsidePolicy = Literal["nearest", "exclude"]
+METHODS: tuple[str, ...] = ("cubic", "linear")
+"""The interpolation methods (:data:`InterpolationMethod`)."""
+OUTSIDE_POLICIES: tuple[str, ...] = ("nearest", "exclude")
+"""The policies outside the surveyed hull (:data:`OutsidePolicy`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,12 +72,66 @@ class SurveyPoints:
     n_samples: NDArray[np.int64]
 
 
+def _first_bad(a: np.ndarray) -> int | None:
+    """Index (along the first axis) of the first row of ``a`` that is not all finite."""
+    ok = np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
+    return None if ok.all() else int(np.argmin(ok))
+
+
+def _float_array(value: object, what: str, where: str) -> FloatArray:
+    """``value`` as a float array, or an :class:`InputError` naming ``where`` and ``what``."""
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InputError(f"{where}: {what} must be numbers, got {value!r:.60}") from None
+
+
+def _check_choice(value: object, name: str, choices: tuple[str, ...], where: str) -> None:
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"{where}: {name} must be one of {', '.join(choices)}, got {value!r:.40}")
+
+
+def _check_points(points: object, where: str) -> None:
+    """Survey points usable for interpolation: at least one, finite, consistent shapes."""
+    if not isinstance(points, SurveyPoints):
+        raise InputError(f"{where}: expected SurveyPoints, got {type(points).__name__}")
+    xy, m = np.asarray(points.xy_m), np.asarray(points.m_db)
+    if xy.ndim != 2 or xy.shape[1] != 2 or m.shape != (xy.shape[0],):
+        raise InputError(
+            f"{where}: xy_m must be (n, 2) and m_db (n,), got shapes {xy.shape} and {m.shape}"
+        )
+    if xy.shape[0] == 0:
+        raise InputError(f"{where}: no survey points")
+    for name, arr in (("xy_m", xy), ("m_db", m)):
+        bad = _first_bad(arr)
+        if bad is not None:
+            raise InputError(f"{where}: {name}[{bad}] = {arr[bad]} is not finite")
+
+
 def average_by_point(xy_m: FloatArray, values_db: FloatArray, decimals: int = 6) -> SurveyPoints:
-    """Average values that share a surveyed point (positions rounded to ``decimals``)."""
-    key = np.round(np.asarray(xy_m, float), decimals)
+    """Average values that share a surveyed point (positions rounded to ``decimals``).
+
+    Raises
+    ------
+    InputError
+        ``xy_m`` not ``(n, 2)``, ``values_db`` not ``(n,)``, or a non-finite
+        position or value (naming its index).
+    """
+    xy = _float_array(xy_m, "xy_m", "average_by_point")
+    vals = _float_array(values_db, "values_db", "average_by_point")
+    if xy.ndim != 2 or xy.shape[1] != 2 or vals.shape != (xy.shape[0],):
+        raise InputError(
+            f"average_by_point: xy_m must be (n, 2) and values_db (n,), got shapes "
+            f"{xy.shape} and {vals.shape}"
+        )
+    for name, arr in (("xy_m", xy), ("values_db", vals)):
+        bad = _first_bad(arr) if arr.size else None
+        if bad is not None:
+            raise InputError(f"average_by_point: {name}[{bad}] = {arr[bad]} is not finite")
+    key = np.round(xy, decimals)
     uniq, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
     sums = np.zeros(uniq.shape[0])
-    np.add.at(sums, inverse.reshape(-1), values_db)
+    np.add.at(sums, inverse.reshape(-1), vals)
     return SurveyPoints(uniq, sums / counts, counts.astype(np.int64))
 
 
@@ -180,7 +239,23 @@ def interpolate_points(
     Returns
     -------
     ``(q,)`` values in dB (NaN outside the hull with ``"exclude"``).
+
+    Raises
+    ------
+    InputError
+        No survey points, a non-finite survey point or value or query point
+        (naming its index), or an unknown ``method`` or ``outside``.
     """
+    _check_choice(method, "method", METHODS, "interpolate_points")
+    _check_choice(outside, "outside", OUTSIDE_POLICIES, "interpolate_points")
+    _check_points(points, "interpolate_points: points")
+    q = _float_array(query_xy_m, "query_xy_m", "interpolate_points")
+    if q.size % 2 != 0:
+        raise InputError(f"interpolate_points: query_xy_m must be (q, 2), got shape {q.shape}")
+    q = q.reshape(-1, 2)
+    bad = _first_bad(q) if q.size else None
+    if bad is not None:
+        raise InputError(f"interpolate_points: query_xy_m[{bad}] = {q[bad]} is not finite")
     from scipy.interpolate import (  # ≈ 0.45 s to import: only where used
         CloughTocher2DInterpolator,
         LinearNDInterpolator,
@@ -189,7 +264,6 @@ def interpolate_points(
     )
     from scipy.spatial import cKDTree
 
-    q = np.asarray(query_xy_m, float).reshape(-1, 2)
     xy = points.xy_m
     if xy.shape[0] == 1:
         out = np.full(q.shape[0], points.m_db[0])
@@ -243,7 +317,20 @@ class SurveyMap:
     points: tuple[SurveyPoints, ...]
 
     def receiver_index(self, receiver_id: str) -> int:
-        return self.receiver_ids.index(receiver_id)
+        """Index of ``receiver_id`` along the first axis of ``m_db``.
+
+        Raises
+        ------
+        InputError
+            The map holds no such receiver.
+        """
+        try:
+            return self.receiver_ids.index(receiver_id)
+        except ValueError:
+            raise InputError(
+                f"unknown receiver {receiver_id!r:.40}: the survey map holds "
+                f"{', '.join(map(repr, self.receiver_ids))}"
+            ) from None
 
 
 def build_survey_map(
@@ -254,23 +341,52 @@ def build_survey_map(
     method: InterpolationMethod = "cubic",
     outside: OutsidePolicy = "nearest",
 ) -> SurveyMap:
-    """Interpolate every receiver's survey onto the ``(x_m, y_m)`` candidate grid."""
+    """Interpolate every receiver's survey onto the ``(x_m, y_m)`` candidate grid.
+
+    Raises
+    ------
+    InputError
+        No receivers, not one set of points per receiver, a repeated receiver
+        id, unusable points (:func:`interpolate_points`; naming the receiver),
+        empty or non-finite grid axes, or an unknown ``method`` or ``outside``.
+    """
+    where = "build_survey_map"
+    _check_choice(method, "method", METHODS, where)
+    _check_choice(outside, "outside", OUTSIDE_POLICIES, where)
+    ids, pts = tuple(receiver_ids), tuple(points)
+    if not ids:
+        raise InputError(f"{where}: no receivers")
+    if len(ids) != len(pts):
+        raise InputError(
+            f"{where}: {len(ids)} receiver id(s) but {len(pts)} set(s) of survey points; "
+            "give one per receiver"
+        )
+    seen: set[str] = set()
+    for i, (rid, p) in enumerate(zip(ids, pts, strict=True)):
+        if rid in seen:
+            raise InputError(f"{where}: receiver_ids[{i}] = {rid!r:.40} is repeated")
+        seen.add(rid)
+        _check_points(p, f"{where}: points[{i}] (receiver {rid!r:.40})")
+    for name, axis in (("x_m", x_m), ("y_m", y_m)):
+        a = _float_array(axis, name, where)
+        if a.ndim != 1 or a.size == 0 or not np.isfinite(a).all():
+            raise InputError(f"{where}: {name} must be a non-empty 1-D array of finite numbers")
     gx, gy = np.meshgrid(x_m, y_m, indexing="ij")
 
     def compute() -> dict[str, np.ndarray]:
         q = np.column_stack([gx.ravel(), gy.ravel()])
         return {
             "maps": np.stack(
-                [interpolate_points(p, q, method, outside).reshape(gx.shape) for p in points]
-            ).reshape(len(points), *gx.shape)
+                [interpolate_points(p, q, method, outside).reshape(gx.shape) for p in pts]
+            ).reshape(len(pts), *gx.shape)
         }
 
     # memoised on disk: scipy.interpolate's import costs more than the
     # interpolation (diskcache; the same float64 numbers)
     key: list[object] = [method, outside, np.asarray(x_m, float), np.asarray(y_m, float)]
-    for p in points:
+    for p in pts:
         key += [np.asarray(p.xy_m, float), np.asarray(p.m_db, float)]
     maps = memo_arrays("survey-map", key, compute)["maps"]
     for arr in (maps,):
         arr.setflags(write=False)
-    return SurveyMap(tuple(receiver_ids), np.asarray(x_m), np.asarray(y_m), maps, tuple(points))
+    return SurveyMap(ids, np.asarray(x_m), np.asarray(y_m), maps, pts)

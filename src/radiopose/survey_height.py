@@ -49,9 +49,16 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from radiopose.errors import InputError
 from radiopose.geometry import orientation_matrices, pattern_angles_deg
 from radiopose.patterns.pattern import Pattern
-from radiopose.site import Site, correct_survey, survey_points_by_receiver
+from radiopose.site import (
+    SURVEY_HEIGHT_DECIMALS,
+    Site,
+    correct_survey,
+    missing_survey_height,
+    survey_points_by_receiver,
+)
 from radiopose.survey import build_survey_map
 from radiopose.units import FloatArray
 
@@ -96,8 +103,18 @@ class HeightModel:
     receiver_gain: ReceiverGain | None = None
 
     def channel_db(self, xyz_m: FloatArray) -> FloatArray:
-        """``M_r(x, y, z)`` ``(n, n_rx)`` dB at points ``(n, 3)`` (bilinear in x, y)."""
+        """``M_r(x, y, z)`` ``(n, n_rx)`` dB at points ``(n, 3)`` (bilinear in x, y).
+
+        Raises
+        ------
+        InputError
+            A point that is not finite (one check of the whole array: this runs
+            once per packet in the 3-D filter).
+        """
         p = np.asarray(xyz_m, float).reshape(-1, 3)
+        if not np.isfinite(p).all():
+            bad = int(np.argmin(np.isfinite(p).all(axis=1)))
+            raise InputError(f"channel_db: point xyz_m[{bad}] = {p[bad]} is not finite")
         L = self.layers_z_m.size
         z = p[:, 2]
         if L == 1:
@@ -265,17 +282,34 @@ def _fitted_exponent(m_db: FloatArray, idx: np.ndarray, ell: FloatArray, n_rx: i
 
 
 def build_height_model(
-    site: Site, decimals: int = 3, detrend: bool = True, receiver_gain: bool = False
+    site: Site,
+    decimals: int = SURVEY_HEIGHT_DECIMALS,
+    detrend: bool = True,
+    receiver_gain: bool = False,
 ) -> HeightModel:
     """The site's :class:`HeightModel`: one map per surveyed height (heights rounded
     to ``decimals``), the site's own survey map where only one height was surveyed;
     ``detrend`` (default on, as ``Pose3dConfig.survey_detrend``): maps of the survey
     with its fitted path loss removed (off: the survey's own maps),
     ``receiver_gain``: with the receivers' own directivity removed (module
-    docstring); either interpolated with the site's own interpolation settings."""
+    docstring); either interpolated with the site's own interpolation settings.
+
+    Raises
+    ------
+    InputError
+        A surveyed height without survey rows for some receiver (a loaded or
+        assembled 3-D site never has one: :func:`radiopose.site_io.load_site`).
+    """
     rows = site.survey_rows
     z = np.round(rows.xyz_m[:, 2], decimals)
     layers = np.unique(z)
+    gap = missing_survey_height(rows, site.receiver_ids, decimals)
+    if gap is not None:
+        h, rid, _ = gap
+        raise InputError(
+            f"site {site.name!r}: receiver {rid!r} has no survey rows at surveyed height "
+            f"{h:g} m; every surveyed height needs rows for every receiver"
+        )
     x, y = np.asarray(site.survey_map.x_m, float), np.asarray(site.survey_map.y_m, float)
     m_db = _corrected_survey(site)
     idx, ell = _survey_log_distance(site)
