@@ -42,6 +42,7 @@ from radiopose.simulate.scenario import (
     DEFAULT_TRANSMITTER,
     ScenarioConfig,
     Simulation,
+    check_grid_limits,
     check_seed,
     observe_path,
     power_and_range_checks,
@@ -49,10 +50,7 @@ from radiopose.simulate.scenario import (
 )
 from radiopose.simulate.trajectories import MotionConfig, walk_path, walking_azimuth_deg
 from radiopose.site import (
-    MAX_CANDIDATES,
-    MAX_GRID_POINTS,
     MAX_HEIGHTS,
-    MAX_ORIENTATIONS,
     AreaGrid,
     Device,
     OrientationGrid,
@@ -173,28 +171,16 @@ class HandheldConfig:
                 raise InputError(
                     f"3-D scenario setting {name} = {step!r} does not divide {whole:g}"
                 )
-        # the limits of a site read from disk (radiopose.site), from the numbers alone
-        n_axis = self.size_m / self.step_m + 1
-        n_z = (self.z_max_m - self.z_min_m) / self.z_step_m + 1
         n_orient = 360.0 / self.azimuth_step_deg * len(self.pitch_deg) * len(self.roll_deg)
-        if (
-            n_axis**2 > MAX_GRID_POINTS
-            or (self.size_m / self.survey_step_m + 1) ** 2 > MAX_GRID_POINTS
-        ):
-            raise InputError(
-                f"3-D scenario: size_m = {self.size_m!r} with step_m = {self.step_m!r} "
-                f"(survey_step_m = {self.survey_step_m!r}) gives more than {MAX_GRID_POINTS:,} "
-                "grid points"
-            )
+        check_grid_limits(
+            "3-D scenario: ", self.size_m, self.step_m, self.survey_step_m, n_orient,
+            "azimuth_step_deg, pitch_deg and roll_deg give",
+        )  # fmt: skip
+        n_z = (self.z_max_m - self.z_min_m) / self.z_step_m + 1
         if n_z > MAX_HEIGHTS:
             raise InputError(
                 f"3-D scenario setting z_step_m = {self.z_step_m!r} gives {n_z:.3g} heights "
                 f"(limit {MAX_HEIGHTS:,})"
-            )
-        if n_orient > MAX_ORIENTATIONS or n_axis**2 * n_orient > MAX_CANDIDATES:
-            raise InputError(
-                f"3-D scenario: {n_orient:.3g} orientations, {n_axis**2 * n_orient:.3g} "
-                f"candidate poses per height (limits {MAX_ORIENTATIONS:,} and {MAX_CANDIDATES:,})"
             )
         for name, step, span in (
             ("step_m", self.step_m, self.size_m),

@@ -168,22 +168,10 @@ class ScenarioConfig:
                 f"{self.motion.margin_m:g} m from every edge, so size_m must exceed "
                 f"{2 * self.motion.margin_m:g} m"
             )
-        # The same limits as a site read from disk (radiopose.site), checked
-        # from the numbers alone before anything is allocated.
-        n_axis = self.size_m / self.step_m + 1
-        n_az = 360.0 / self.azimuth_step_deg
-        n_survey = (self.size_m / self.survey_step_m + 1) ** 2
-        if n_axis**2 > MAX_GRID_POINTS or n_survey > MAX_GRID_POINTS:
-            raise InputError(
-                f"size_m = {self.size_m!r} with step_m = {self.step_m!r} (survey_step_m = "
-                f"{self.survey_step_m!r}) gives more than {MAX_GRID_POINTS:,} grid points"
-            )
-        if n_az > MAX_ORIENTATIONS or n_axis**2 * n_az > MAX_CANDIDATES:
-            raise InputError(
-                f"azimuth_step_deg = {self.azimuth_step_deg!r} gives {n_az:.3g} azimuths, "
-                f"{n_axis**2 * n_az:.3g} candidate poses (limits {MAX_ORIENTATIONS:,} and "
-                f"{MAX_CANDIDATES:,})"
-            )
+        check_grid_limits(
+            "", self.size_m, self.step_m, self.survey_step_m, 360.0 / self.azimuth_step_deg,
+            f"azimuth_step_deg = {self.azimuth_step_deg!r} gives", "azimuths",
+        )  # fmt: skip
         for name in ("step_m", "survey_step_m"):
             if not grid_steps(self.size_m, getattr(self, name))[1]:
                 raise InputError(
@@ -195,6 +183,29 @@ class ScenarioConfig:
             raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
         if round(self.duration_s / (self.interval_ms / 1000.0)) > 2_000_000:
             raise InputError("more than 2,000,000 packets: shorten duration_s or raise interval_ms")
+
+
+def check_grid_limits(
+    prefix: str, size_m: float, step_m: float, survey_step_m: float, n_orientations: float,
+    orientations: str, noun: str = "orientations",
+) -> None:  # fmt: skip
+    """The limits of a site read from disk (:mod:`radiopose.site`), checked from
+    a scenario's numbers alone before anything is allocated: grid and survey
+    points, orientations and candidate poses (per height). ``prefix`` starts
+    each message, ``orientations`` says where the orientation count comes from."""
+    n_axis = size_m / step_m + 1
+    n_survey = (size_m / survey_step_m + 1) ** 2
+    if n_axis**2 > MAX_GRID_POINTS or n_survey > MAX_GRID_POINTS:
+        raise InputError(
+            f"{prefix}size_m = {size_m!r} with step_m = {step_m!r} (survey_step_m = "
+            f"{survey_step_m!r}) gives more than {MAX_GRID_POINTS:,} grid points"
+        )
+    if n_orientations > MAX_ORIENTATIONS or n_axis**2 * n_orientations > MAX_CANDIDATES:
+        raise InputError(
+            f"{prefix}{orientations} {n_orientations:.3g} {noun}, "
+            f"{n_axis**2 * n_orientations:.3g} candidate poses (limits {MAX_ORIENTATIONS:,} "
+            f"and {MAX_CANDIDATES:,})"
+        )
 
 
 def power_and_range_checks(cfg: object) -> list[tuple[str, bool, str]]:
