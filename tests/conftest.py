@@ -46,6 +46,7 @@ TIERS: dict[str, str] = {
     "test_site_toml_keys": "property",
     "test_site_validation": "property",
     "test_site_api_input": "property",
+    "test_patterns_api_input": "property",
     "test_tables": "property",
     # e2e: simulated (or real) scenarios through the pipeline, the CLI and the reports,
     # asserting an error bound or a pinned output

@@ -132,3 +132,15 @@ def test_a_non_finite_angle_gives_nan_in_its_row_only():
     np.testing.assert_allclose(
         relative_rotation_angle_deg([10.0, 0, 0], [[0, 0, 0], [20, 0, 0]]), [10, 10]
     )
+
+
+def test_a_non_finite_direction_gives_nan_pattern_angles():
+    """It gave (0, 90), a valid-looking direction a lookup would use."""
+    from radiopose.geometry import direction_to_pattern_angles_deg
+
+    phi, theta = direction_to_pattern_angles_deg(
+        [[np.nan, 0, 1], [0, 0, 0], [1, 0, 0], [np.inf, 0, 0]]
+    )
+    assert np.isnan(phi[[0, 3]]).all() and np.isnan(theta[[0, 3]]).all()
+    np.testing.assert_array_equal(phi[1:3], [0.0, 0.0])
+    np.testing.assert_array_equal(theta[1:3], [90.0, 90.0])

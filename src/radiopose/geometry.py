@@ -134,15 +134,21 @@ def direction_to_pattern_angles_deg(v: ArrayLike) -> tuple[FloatArray, FloatArra
     """Body-frame direction vectors ``(..., 3)`` → (pattern azimuth, polar angle) in degrees.
 
     ``phi = atan2(v_y, v_x) mod 360`` in ``[0, 360)``; ``theta = arccos(v_z/|v|)``
-    in ``[0, 180]``. Zero vectors give ``(0, 90)``.
+    in ``[0, 180]``. Zero vectors give ``(0, 90)``; a vector with a NaN or
+    infinite component gives NaN angles (which a pattern lookup refuses), not
+    a valid-looking direction.
     """
     v = np.asarray(v, dtype=np.float64)
     norm = np.linalg.norm(v, axis=-1)
+    zero = norm == 0
     phi = wrap_deg(np.rad2deg(np.arctan2(v[..., 1], v[..., 0])))
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_t = np.clip(v[..., 2] / norm, -1.0, 1.0)
-    theta = np.where(norm > 0, np.rad2deg(np.arccos(np.where(norm > 0, cos_t, 0.0))), 90.0)
-    phi = np.where(norm > 0, phi, 0.0)
+    theta = np.where(zero, 90.0, np.rad2deg(np.arccos(np.where(zero, 0.0, cos_t))))
+    phi = np.where(zero, 0.0, phi)
+    bad = ~np.isfinite(norm)
+    if bad.any():
+        phi, theta = np.where(bad, np.nan, phi), np.where(bad, np.nan, theta)
     return phi, theta
 
 

@@ -41,6 +41,7 @@ the window's own blur (``tests/test_patterns_enrol.py`` measures both).
 
 from __future__ import annotations
 
+import numbers
 import os
 from dataclasses import dataclass
 from typing import Literal
@@ -48,15 +49,16 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, check_setting_types
 from radiopose.patterns.pattern import (
-    MAX_AZIMUTHS,
     MAX_POLAR_ANGLES,
     MIN_GRID_STEP_DEG,
     Pattern,
-    grid_steps,
+    finite_number,
+    grid_count,
     mean_intensity,
     too_fine,
+    unwritable,
 )
 from radiopose.tables import Column, Table, read_table, write_table
 from radiopose.units import (
@@ -76,13 +78,18 @@ MEASUREMENT_COLUMNS = (
 
 _ANGLE_DECIMALS = 6  # directions equal to 1e-6 deg are the same direction
 
+MAX_SIMULATED_PACKETS = 10_000_000
+"""Most packets :func:`simulate_positioner_measurements` makes (checked before allocating)."""
+
 
 @dataclass(frozen=True)
 class EnrolConfig:
     """Settings of :func:`enrol`.
 
     Invalid settings raise :class:`~radiopose.errors.InputError` whose
-    ``column`` is the attribute name (the CLI names its option instead).
+    ``column`` is the attribute name (the CLI names its option instead); a
+    setting of the wrong type (``smooth_deg="5"``, ``azimuth_step_deg=True``)
+    is named in the message by :func:`~radiopose.errors.check_setting_types`.
     Steps finer than :data:`~radiopose.patterns.pattern.MIN_GRID_STEP_DEG`
     (0.1°) are rejected: at most 3600 azimuths × 1801 polar angles.
 
@@ -116,6 +123,7 @@ class EnrolConfig:
     smoothing_domain: Literal["linear", "db"] = "linear"
 
     def __post_init__(self) -> None:
+        check_setting_types(self, "enrolment")
         if not (np.isfinite(self.smooth_deg) and 0.0 <= self.smooth_deg < 180.0):
             raise InputError(
                 f"smoothing half-width {self.smooth_deg} deg not in [0, 180)", column="smooth_deg"
@@ -124,11 +132,25 @@ class EnrolConfig:
         if self.polar_step_deg is not None:
             _grid_count(self.polar_step_deg, 180.0, "polar step", "polar_step_deg")
         if self.interpolation not in ("spline", "linear"):
-            raise InputError(f"unknown interpolation {self.interpolation!r} (spline|linear)")
+            raise InputError(
+                f"unknown interpolation {self.interpolation!r:.40} (spline|linear)",
+                column="interpolation",
+            )
         if self.interpolation_domain not in ("db", "linear"):
-            raise InputError(f"unknown interpolation domain {self.interpolation_domain!r}")
+            raise InputError(
+                f"unknown interpolation domain {self.interpolation_domain!r:.40} (db|linear)",
+                column="interpolation_domain",
+            )
         if self.smoothing_domain not in ("linear", "db"):
-            raise InputError(f"unknown smoothing domain {self.smoothing_domain!r}")
+            raise InputError(
+                f"unknown smoothing domain {self.smoothing_domain!r:.40} (linear|db)",
+                column="smoothing_domain",
+            )
+
+
+class MeasurementError(InputError, ValueError):
+    """Bad :class:`Measurements` arrays (an :class:`InputError`; also a
+    :class:`ValueError`, which the constructor raised before)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -141,7 +163,11 @@ class Measurements:
         ``(n,)`` positioner angles, degrees (azimuth in ``[0, 360]``,
         elevation = pattern polar angle in ``[0, 180]``).
     rss_dbm
-        ``(n,)`` received signal strength, dBm.
+        ``(n,)`` received signal strength, dBm, in ``[-200, 60]``.
+
+    Values outside the ranges of the enrolment CSV (:data:`MEASUREMENT_COLUMNS`)
+    or not finite raise :class:`MeasurementError` (an :class:`InputError`)
+    naming the array and index.
     """
 
     motor_azimuth_deg: FloatArray
@@ -149,19 +175,31 @@ class Measurements:
     rss_dbm: FloatArray
 
     def __post_init__(self) -> None:
-        arrays = [
-            np.array(a, dtype=np.float64).reshape(-1)
-            for a in (self.motor_azimuth_deg, self.motor_elevation_deg, self.rss_dbm)
-        ]
+        arrays = []
+        for col in MEASUREMENT_COLUMNS:
+            try:
+                arrays.append(np.array(getattr(self, col.name), dtype=np.float64).reshape(-1))
+            except (TypeError, ValueError):
+                raise MeasurementError(
+                    f"measurement {col.name} is not an array of numbers", column=col.name
+                ) from None
         if len({a.size for a in arrays}) != 1:
-            raise ValueError("measurement arrays differ in length")
-        for name, a in zip(
-            ("motor_azimuth_deg", "motor_elevation_deg", "rss_dbm"), arrays, strict=True
-        ):
-            if not np.all(np.isfinite(a)):
-                raise ValueError(f"{name} has NaN/inf")
+            names = [c.name for c in MEASUREMENT_COLUMNS]
+            sizes = ", ".join(f"{n} {a.size}" for n, a in zip(names, arrays, strict=True))
+            raise MeasurementError(f"measurement arrays differ in length ({sizes})")
+        for col, a in zip(MEASUREMENT_COLUMNS, arrays, strict=True):
+            # the enrolment CSV's ranges (read_measurements_csv), one reduction each
+            assert col.low is not None and col.high is not None
+            ok = (a >= col.low) & (a <= col.high)  # False for NaN
+            if not ok.all():
+                r = int(np.argmin(ok))
+                what = "out of range" if np.isfinite(a[r]) else "not a finite number, expected"
+                raise MeasurementError(
+                    f"measurement {col.name}[{r}] = {a[r]:g} is {what} {col.describe_range()}",
+                    column=col.name,
+                )
             a.setflags(write=False)
-            object.__setattr__(self, name, a)
+            object.__setattr__(self, col.name, a)
 
     def __len__(self) -> int:
         return int(self.rss_dbm.size)
@@ -192,15 +230,24 @@ def _measurements(table: Table) -> Measurements:
 
 
 def write_measurements_csv(measurements: Measurements, path: str | os.PathLike[str]) -> None:
-    """Write measurements as an enrolment CSV (atomically)."""
-    write_table(
-        path,
-        {
-            "motor_azimuth_deg": measurements.motor_azimuth_deg,
-            "motor_elevation_deg": measurements.motor_elevation_deg,
-            "rss_dbm": measurements.rss_dbm,
-        },
-    )
+    """Write measurements as an enrolment CSV (atomically).
+
+    Raises
+    ------
+    InputError
+        ``path`` is a directory or cannot be written (one line naming it).
+    """
+    try:
+        write_table(
+            path,
+            {
+                "motor_azimuth_deg": measurements.motor_azimuth_deg,
+                "motor_elevation_deg": measurements.motor_elevation_deg,
+                "rss_dbm": measurements.rss_dbm,
+            },
+        )
+    except OSError as exc:
+        raise unwritable(path, exc) from None
 
 
 # ---------------------------------------------------------------------- kernels
@@ -218,17 +265,7 @@ class PolarStepError(InputError):
 
 def _grid_count(step_deg: float, span_deg: float, what: str, field: str) -> int:
     """Grid steps in ``span_deg``, checked from the numbers before any grid exists."""
-    if np.isfinite(step_deg) and step_deg > 0 and too_fine(step_deg):
-        most = MAX_AZIMUTHS if span_deg == 360.0 else MAX_POLAR_ANGLES - 1
-        raise InputError(
-            f"{what} {step_deg:g} deg is finer than the {MIN_GRID_STEP_DEG:g} deg limit "
-            f"(at most {most} steps over {span_deg:g} deg)",
-            column=field,
-        )
-    n = grid_steps(span_deg, step_deg)
-    if n is None:
-        raise InputError(f"{what} {step_deg:g} deg does not divide {span_deg:g}", column=field)
-    return n
+    return grid_count(step_deg, span_deg, what, field)
 
 
 def motor_to_pattern_deg(
@@ -532,9 +569,22 @@ def simulate_positioner_measurements(
     Measurements
         ``n_az · n_el · samples_per_direction`` packets.
     """
-    n_az = round(360.0 / azimuth_step_deg)
+    n_az = grid_count(azimuth_step_deg, 360.0, "positioner azimuth step")
+    theta = _elevations(elevations_deg)
+    spd = samples_per_direction
+    if isinstance(spd, (bool, np.bool_)) or not isinstance(spd, numbers.Integral) or spd < 1:
+        raise InputError(f"samples_per_direction {spd!r:.40} is not a positive integer")
+    if n_az * theta.size * int(spd) > MAX_SIMULATED_PACKETS:
+        raise InputError(
+            f"{n_az} azimuths × {theta.size} elevations × {spd} samples per direction "
+            f"is more than {MAX_SIMULATED_PACKETS} packets"
+        )
+    noise_db = finite_number(noise_db, "noise_db")
+    if noise_db < 0:
+        raise InputError(f"noise_db {noise_db:g} dB is negative")
+    tx_power_dbm = finite_number(tx_power_dbm, "tx_power_dbm")
+    path_loss_db = finite_number(path_loss_db, "path_loss_db")
     phi = np.arange(n_az) * (360.0 / n_az)
-    theta = np.asarray(elevations_deg, dtype=np.float64).reshape(-1)
     p, t = np.meshgrid(phi, theta, indexing="ij")
     p = np.repeat(p.ravel(), samples_per_direction)
     t = np.repeat(t.ravel(), samples_per_direction)
@@ -544,9 +594,28 @@ def simulate_positioner_measurements(
     return Measurements(motor_az, motor_el, rss)
 
 
+def _elevations(elevations_deg: ArrayLike) -> FloatArray:
+    """Positioner elevations (pattern polar angles): at least one, each in [0, 180]."""
+    try:
+        theta = np.asarray(elevations_deg, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"elevations_deg {elevations_deg!r:.40} is not an array of numbers"
+        ) from None
+    if theta.size == 0:
+        raise InputError("elevations_deg is empty: give at least one elevation")
+    ok = (theta >= 0.0) & (theta <= 180.0)  # False for NaN
+    if not ok.all():
+        r = int(np.argmin(ok))
+        raise InputError(f"elevations_deg[{r}] = {theta[r]:g} deg is not in [0, 180]")
+    return theta
+
+
 __all__ = [
+    "MAX_SIMULATED_PACKETS",
     "MEASUREMENT_COLUMNS",
     "EnrolConfig",
+    "MeasurementError",
     "Measurements",
     "PolarStepError",
     "average_per_direction",

@@ -15,6 +15,8 @@ nearest grid point), periodic in azimuth and clamped in polar angle.
 from __future__ import annotations
 
 import hashlib
+import math
+import numbers
 import os
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -22,7 +24,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, unreadable
 from radiopose.tables import Column, read_table, write_table
 from radiopose.units import FloatArray, db_to_linear, linear_to_db, wrap_deg
 
@@ -68,6 +70,73 @@ def too_fine(step_deg: ArrayLike) -> Any:
     return np.asarray(step_deg) < MIN_GRID_STEP_DEG - 1e-9
 
 
+def finite_number(value: object, what: str, column: str | None = None) -> float:
+    """``value`` as a float if it is a finite real number (not a bool, not text).
+
+    Raises
+    ------
+    InputError
+        ``"{what} VALUE is not a number"`` or ``"… is not a finite number"``.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputError(f"{what} {value!r:.40} is not a number", column=column)
+    x = float(value)
+    if not math.isfinite(x):
+        raise InputError(f"{what} {x:g} is not a finite number", column=column)
+    return x
+
+
+def grid_count(step_deg: object, span_deg: float, what: str, column: str | None = None) -> int:
+    """Steps of ``step_deg`` in ``span_deg`` (360 azimuth, 180 polar), checked from the
+    numbers before any grid is allocated.
+
+    Raises
+    ------
+    InputError
+        ``step_deg`` is not a finite number, is finer than :data:`MIN_GRID_STEP_DEG`
+        (at most :data:`MAX_AZIMUTHS` azimuths, :data:`MAX_POLAR_ANGLES` polar
+        angles) or does not divide ``span_deg`` (within 1e-6°).
+    """
+    step = finite_number(step_deg, what, column)
+    if step > 0 and too_fine(step):
+        most = MAX_AZIMUTHS if span_deg == 360.0 else MAX_POLAR_ANGLES - 1
+        raise InputError(
+            f"{what} {step:g} deg is finer than the {MIN_GRID_STEP_DEG:g} deg limit "
+            f"(at most {most} steps over {span_deg:g} deg)",
+            column=column,
+        )
+    n = grid_steps(span_deg, step)
+    if n is None:
+        raise InputError(f"{what} {step:g} deg does not divide {span_deg:g}", column=column)
+    return n
+
+
+def _first_bad(ok: np.ndarray) -> tuple[int, ...]:
+    """Index of the first False of a boolean array (C order)."""
+    return tuple(int(i) for i in np.unravel_index(int(np.argmin(ok)), ok.shape))
+
+
+def _angles(value: ArrayLike, what: str) -> FloatArray:
+    """Angles as float64 (no copy if already), InputError if not numbers or not finite.
+
+    One :func:`numpy.isfinite` reduction on the (unbroadcast) array: the lookup's
+    hot-path cost for good input.
+    """
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"pattern lookup: {what} {value!r:.60} is not an array of numbers"
+        ) from None
+    if not np.isfinite(a).all():
+        at = _first_bad(np.isfinite(a))
+        where = f"[{', '.join(map(str, at))}]" if at else ""
+        raise InputError(
+            f"pattern lookup: {what}{where} is {a[at]:g}, not a finite angle in degrees"
+        )
+    return a
+
+
 PATTERN_COLUMNS = (
     Column("azimuth_deg", low=0.0, high=360.0, high_open=True),
     Column("polar_deg", low=0.0, high=180.0),
@@ -90,6 +159,14 @@ class Pattern:
         covering ``[0, 180]``.
     directivity_dbi
         ``(n_azimuth, n_polar)`` directivity in dBi.
+
+    Raises
+    ------
+    InputError
+        Axes or grid that are not numbers, more than :data:`MAX_AZIMUTHS` ×
+        :data:`MAX_POLAR_ANGLES` points, a shape that does not match the axes,
+        a non-finite directivity, irregular axes, or a slice's polar angle
+        outside ``[0, 180]`` (one line naming the pattern).
     """
 
     name: str
@@ -99,29 +176,46 @@ class Pattern:
     _digest: str = field(default="", repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        az = np.array(self.azimuth_deg, dtype=np.float64).reshape(-1)
-        po = np.array(self.polar_deg, dtype=np.float64).reshape(-1)
-        d = np.array(self.directivity_dbi, dtype=np.float64)
+        what = f"pattern {self.name!r:.60}"
+        arrays = []
+        for label, value in (
+            ("azimuth_deg", self.azimuth_deg),
+            ("polar_deg", self.polar_deg),
+            ("directivity_dbi", self.directivity_dbi),
+        ):
+            try:
+                arrays.append(np.array(value, dtype=np.float64))
+            except (TypeError, ValueError):
+                raise InputError(f"{what}: {label} is not an array of numbers") from None
+        az, po, d = arrays[0].reshape(-1), arrays[1].reshape(-1), arrays[2]
+        if az.size > MAX_AZIMUTHS or po.size > MAX_POLAR_ANGLES:
+            raise InputError(
+                f"{what}: {az.size} azimuths × {po.size} polar angles, more than the "
+                f"{MAX_AZIMUTHS} × {MAX_POLAR_ANGLES} of the {MIN_GRID_STEP_DEG:g} deg grid limit"
+            )
         if d.ndim == 1 and po.size == 1:
             d = d.reshape(-1, 1)
-        if az.size < 1 or d.shape != (az.size, po.size):
-            raise ValueError(
-                f"pattern {self.name!r}: directivity shape {d.shape} does not match "
-                f"axes ({az.size}, {po.size})"
+        if az.size < 1 or po.size < 1 or d.shape != (az.size, po.size):
+            raise InputError(
+                f"{what}: directivity shape {d.shape} does not match axes ({az.size}, {po.size})"
             )
         if not np.all(np.isfinite(d)):
-            raise ValueError(f"pattern {self.name!r}: directivity has NaN/inf")
+            i, j = _first_bad(np.isfinite(d))
+            raise InputError(
+                f"{what}: directivity has NaN/inf ({d[i, j]:g} dBi at azimuth "
+                f"{az[i]:g}, polar {po[j]:g} deg)"
+            )
         step = 360.0 / az.size
         regular = np.allclose(np.diff(az), step, atol=_STEP_TOL)
-        if az[0] < 0 or az[0] >= step - _STEP_TOL or not regular:
-            raise ValueError(
-                f"pattern {self.name!r}: azimuths must be a constant step covering [0, 360)"
-            )
+        if not (0 <= az[0] < step - _STEP_TOL) or not regular:
+            raise InputError(f"{what}: azimuths must be a constant step covering [0, 360)")
+        if po.size == 1 and not 0.0 <= po[0] <= 180.0:
+            raise InputError(f"{what}: slice polar angle {po[0]:g} deg is not in [0, 180]")
         if po.size > 1:
             if po[0] != 0.0 or abs(po[-1] - 180.0) > _STEP_TOL:
-                raise ValueError(f"pattern {self.name!r}: polar angles must cover [0, 180]")
+                raise InputError(f"{what}: polar angles must cover [0, 180]")
             if not np.allclose(np.diff(po), 180.0 / (po.size - 1), atol=_STEP_TOL):
-                raise ValueError(f"pattern {self.name!r}: polar angles need a constant step")
+                raise InputError(f"{what}: polar angles need a constant step")
         for arr in (az, po, d):
             arr.setflags(write=False)
         object.__setattr__(self, "azimuth_deg", az)
@@ -160,7 +254,7 @@ class Pattern:
 
     def slice_dbi(self, polar_deg: float = 90.0) -> FloatArray:
         """Directivity ``(n_azimuth,)`` at one polar angle (interpolated), dBi."""
-        theta = np.full(self.azimuth_deg.shape, float(polar_deg))
+        theta = np.full(self.azimuth_deg.shape, finite_number(polar_deg, "slice polar angle"))
         return self.lookup_dbi(self.azimuth_deg, theta)
 
     def __eq__(self, other: object) -> bool:
@@ -189,10 +283,25 @@ class Pattern:
             slice (may be ``None`` then).
         method
             ``"bilinear"`` (linear in each axis, in dB) or ``"nearest"``.
+
+        Raises
+        ------
+        InputError
+            An angle that is NaN or infinite (naming the array and index), arrays
+            that do not broadcast, or an unknown method. Finite angles cost one
+            :func:`numpy.isfinite` reduction per array.
         """
-        phi = np.asarray(azimuth_deg, dtype=np.float64)
-        theta = phi * 0.0 + 90.0 if polar_deg is None else np.asarray(polar_deg, np.float64)
-        phi, theta = np.broadcast_arrays(phi, theta)
+        if method not in ("bilinear", "nearest"):
+            raise InputError(f"unknown lookup method {method!r:.40} (bilinear|nearest)")
+        phi = _angles(azimuth_deg, "azimuth")
+        theta = phi * 0.0 + 90.0 if polar_deg is None else _angles(polar_deg, "polar angle")
+        try:
+            phi, theta = np.broadcast_arrays(phi, theta)
+        except ValueError:
+            raise InputError(
+                f"pattern lookup: azimuth shape {phi.shape} and polar shape {theta.shape} "
+                "do not broadcast"
+            ) from None
         n_az = self.azimuth_deg.size
         u = wrap_deg(phi - self.azimuth_deg[0]) / self.azimuth_step_deg
         if self.is_slice:
@@ -204,8 +313,6 @@ class Pattern:
             i = np.rint(u).astype(np.int64) % n_az
             j = np.rint(w).astype(np.int64)
             return d[i, j]
-        if method != "bilinear":
-            raise ValueError(f"unknown lookup method {method!r}")
         i0 = np.floor(u).astype(np.int64)
         fu = u - i0
         i0 %= n_az
@@ -219,10 +326,15 @@ class Pattern:
 
     # ------------------------------------------------------------------ derived
     def resampled(self, azimuth_step_deg: float) -> Pattern:
-        """The pattern resampled (bilinearly) onto azimuths ``0, step, …``."""
-        n = round(360.0 / azimuth_step_deg)
-        if n < 1 or abs(n * azimuth_step_deg - 360.0) > 1e-6:
-            raise ValueError(f"azimuth step {azimuth_step_deg} does not divide 360")
+        """The pattern resampled (bilinearly) onto azimuths ``0, step, …``.
+
+        Raises
+        ------
+        InputError
+            ``azimuth_step_deg`` is not a number, finer than
+            :data:`MIN_GRID_STEP_DEG` or does not divide 360.
+        """
+        n = grid_count(azimuth_step_deg, 360.0, "pattern azimuth step")
         az = np.arange(n, dtype=np.float64) * (360.0 / n)
         phi, theta = np.meshgrid(az, self.polar_deg, indexing="ij")
         return Pattern(self.name, az, self.polar_deg, self.lookup_dbi(phi, theta))
@@ -268,17 +380,19 @@ _MAX_STEP_CANDIDATES = 8
 _MISSING_PENALTY = 0.2
 
 
-class GridError(ValueError):
+class GridError(InputError, ValueError):
     """Samples that do not form a complete regular grid (raised by :func:`pattern_from_samples`).
 
     ``row`` is the 0-based index of the sample the problem is reported at,
     ``axis`` (``"azimuth"`` or ``"polar"``) the angle that breaks the grid, and
     ``other_row`` the earlier sample a duplicate repeats. Loaders turn it into an
-    :class:`~radiopose.errors.InputError` with their own file line and column.
+    :class:`~radiopose.errors.InputError` with their own file line and column;
+    called from Python it is one itself (``column`` ``"AXIS_deg[ROW]"``), and
+    still a :class:`ValueError` as it always was.
     """
 
     def __init__(self, row: int, axis: str, message: str, other_row: int | None = None) -> None:
-        super().__init__(message)
+        super().__init__(message, column=f"{axis}_deg[{row}]")
         self.row = row
         self.axis = axis
         self.message = message
@@ -373,10 +487,11 @@ def pattern_from_samples(
         (in sample order), or a missing grid point (reported at the sample
         after which it belongs, in the samples' own azimuth- or polar-major
         order), saying which angle and which grid.
+    InputError
+        No samples, arrays of different lengths, or a value that is not a
+        finite number (naming the array and index).
     """
-    az = np.asarray(azimuth_deg, dtype=np.float64)
-    po = np.asarray(polar_deg, dtype=np.float64)
-    values = np.asarray(directivity_dbi, dtype=np.float64)
+    az, po, values = _sample_arrays(azimuth_deg, polar_deg, directivity_dbi)
     # exact repeats first: the clearest message
     seen: dict[tuple[float, float], int] = {}
     for r, key in enumerate(zip(az.tolist(), po.tolist(), strict=True)):
@@ -443,9 +558,40 @@ def pattern_from_samples(
     axis_p[pi] = po
     try:  # the file's own angles where they pass Pattern's checks
         return Pattern(name, axis_a, axis_p, grid)
-    except ValueError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
+    except InputError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
         grid_a = max(a_fit.first, 0.0) + np.arange(n_a, dtype=np.float64) * a_fit.step
         return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
+
+
+def _sample_arrays(
+    azimuth_deg: ArrayLike, polar_deg: ArrayLike, directivity_dbi: ArrayLike
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The three sample arrays of :func:`pattern_from_samples`, checked: 1-D, equal
+    non-zero lengths, finite values."""
+    names = ("azimuth_deg", "polar_deg", "directivity_dbi")
+    arrays = []
+    for label, value in zip(names, (azimuth_deg, polar_deg, directivity_dbi), strict=True):
+        try:
+            a = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"pattern samples: {label} is not an array of numbers") from None
+        if a.ndim != 1:
+            raise InputError(f"pattern samples: {label} has shape {a.shape}, expected (n,)")
+        arrays.append(a)
+    sizes = [a.size for a in arrays]
+    if len(set(sizes)) != 1:
+        raise InputError(
+            "pattern samples: azimuth_deg, polar_deg and directivity_dbi have "
+            f"{', '.join(map(str, sizes))} values, expected one each per sample"
+        )
+    if sizes[0] == 0:
+        raise InputError("pattern samples: no samples")
+    for label, a in zip(names, arrays, strict=True):
+        ok = np.isfinite(a)
+        if not ok.all():
+            r = int(np.argmin(ok))
+            raise InputError(f"pattern samples: {label}[{r}] is {a[r]:g}, not a finite number")
+    return arrays[0], arrays[1], arrays[2]
 
 
 def _check_mixed_slice(po: FloatArray, po_u: FloatArray, po_inv: np.ndarray) -> None:
@@ -564,14 +710,39 @@ def read_pattern_csv(path: str | os.PathLike[str], name: str | None = None) -> P
         raise table.error(exc.row, f"{exc.axis}_deg", msg) from None
 
 
+def unwritable(path: str | os.PathLike[str], exc: OSError) -> InputError:
+    """The one-line :class:`InputError` for a CSV file that cannot be written.
+
+    A directory at ``path`` is reported as :func:`radiopose.errors.unreadable`
+    does (``"is a directory, expected a CSV file"``); anything else by its
+    reason (``"cannot create: a parent is not a directory"``, ``"cannot write
+    (No space left on device)"``).
+    """
+    if isinstance(exc, IsADirectoryError):
+        return unreadable(path, exc, "a CSV file")
+    reason = exc.strerror or str(exc)
+    if not reason.startswith("cannot"):
+        reason = f"cannot write: {reason}"
+    return InputError(reason, path=path)
+
+
 def write_pattern_csv(pattern: Pattern, path: str | os.PathLike[str]) -> None:
-    """Write a pattern as a contract CSV (atomically), azimuth-major order."""
+    """Write a pattern as a contract CSV (atomically), azimuth-major order.
+
+    Raises
+    ------
+    InputError
+        ``path`` is a directory or cannot be written (one line naming it).
+    """
     phi, theta = np.meshgrid(pattern.azimuth_deg, pattern.polar_deg, indexing="ij")
-    write_table(
-        path,
-        {
-            "azimuth_deg": phi.ravel(),
-            "polar_deg": theta.ravel(),
-            "directivity_dbi": pattern.directivity_dbi.ravel(),
-        },
-    )
+    try:
+        write_table(
+            path,
+            {
+                "azimuth_deg": phi.ravel(),
+                "polar_deg": theta.ravel(),
+                "directivity_dbi": pattern.directivity_dbi.ravel(),
+            },
+        )
+    except OSError as exc:
+        raise unwritable(path, exc) from None

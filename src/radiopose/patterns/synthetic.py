@@ -15,19 +15,30 @@
 
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 
-from radiopose.patterns.pattern import Pattern, mean_intensity
+from radiopose.errors import InputError
+from radiopose.patterns.pattern import Pattern, finite_number, grid_count, mean_intensity
 from radiopose.units import FloatArray, db_to_linear, linear_to_db
+
+MAX_RANGE_DB = 200.0
+"""Largest ``range_db`` of :func:`smartphone_like` (a pattern CSV holds ±200 dBi)."""
+
+MAX_LOBES = 100
+"""Most lobes of :func:`smartphone_like`."""
 
 
 def _axes(azimuth_step_deg: float, polar_step_deg: float | None) -> tuple[FloatArray, FloatArray]:
-    n_az = round(360.0 / azimuth_step_deg)
+    """Grid axes; a step that is not a number, finer than 0.1° or does not divide
+    360 (180) is an :class:`InputError` before anything is allocated."""
+    n_az = grid_count(azimuth_step_deg, 360.0, "pattern azimuth step")
     az = np.arange(n_az, dtype=np.float64) * (360.0 / n_az)
     if polar_step_deg is None:
         po = np.array([90.0])
     else:
-        n_po = round(180.0 / polar_step_deg)
+        n_po = grid_count(polar_step_deg, 180.0, "pattern polar step")
         po = np.arange(n_po + 1, dtype=np.float64) * (180.0 / n_po)
     return az, po
 
@@ -63,7 +74,13 @@ def dipole(
     Not renormalised after flooring (the floor changes the mean by < 1e-4).
     """
     az, po = _axes(azimuth_step_deg, polar_step_deg)
-    a = np.asarray(axis, float)
+    floor_dbi = finite_number(floor_dbi, "dipole floor_dbi")
+    try:
+        a = np.asarray(axis, float).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.full(1, np.nan)
+    if a.size != 3 or not np.isfinite(a).all() or not np.any(a):
+        raise InputError(f"dipole axis {axis!r:.60} is not a finite non-zero 3-vector")
     a = a / np.linalg.norm(a)
     cos_g = _unit_vectors(az, po) @ a
     lin = 1.5 * (1.0 - cos_g**2)
@@ -97,6 +114,24 @@ def smartphone_like(
         Polar grid step for a full-sphere pattern; ``None`` gives a slice at
         polar 90° (the plane of the screen), used for every polar angle.
     """
+    if not isinstance(rng, np.random.Generator):
+        raise InputError(f"smartphone_like needs a numpy Generator, got {type(rng).__name__}")
+    # the checks that need no randomness first: a bad setting consumes none of rng
+    if range_db is not None:
+        range_db = finite_number(range_db, "smartphone_like range_db")
+        if not 0.0 <= range_db <= MAX_RANGE_DB:
+            raise InputError(
+                f"smartphone_like range_db {range_db:g} dB is out of range [0, {MAX_RANGE_DB:g}]"
+            )
+    if n_lobes is not None and (
+        isinstance(n_lobes, (bool, np.bool_))
+        or not isinstance(n_lobes, numbers.Integral)
+        or not 1 <= n_lobes <= MAX_LOBES
+    ):
+        raise InputError(
+            f"smartphone_like n_lobes {n_lobes!r:.40} is not an integer in [1, {MAX_LOBES}]"
+        )
+    _axes(azimuth_step_deg, polar_step_deg)
     if range_db is None:
         range_db = float(rng.uniform(14.0, 20.0))
     if n_lobes is None:

@@ -223,8 +223,23 @@ def _msi_sign(written: list[tuple[float, int, str]], path: Path) -> float:
 
 def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> None:
     """Angles of one cut (line ``first_line + k`` holds ``angles[k]``): a constant
-    step from 0 covering ``[0, 360)``, each once; errors name the offending line."""
+    step from 0 covering ``[0, 360)``, each once; errors name the offending line.
+
+    A repeated angle (equal to 1e-6 deg, 359.9999999 repeating 0) is reported
+    as a duplicate before the step is checked: the repeat makes the count, and
+    so the step the count implies, wrong.
+    """
     n = angles.size
+    first: dict[float, int] = {}
+    for j, key in enumerate(np.mod(np.round(angles, 6), 360.0).tolist()):
+        if key in first:
+            raise InputError(
+                f"duplicate angle {angles[j]:g} (first at line {first_line + first[key]})",
+                path=path,
+                line=first_line + j,
+                column=f"{cut} angle",
+            )
+        first[key] = j
     step = 360.0 / n
     k = np.round(angles / step)
     off = np.nonzero(np.abs(angles - k * step) > 1e-6)[0]
