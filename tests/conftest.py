@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
 import matplotlib
 import pytest
+
+# pytest rewrites (parses) on first import every module of a distribution that
+# ships a pytest plugin, anyio among them. Starlette serves a file through
+# anyio's thread pool, which imports anyio's asyncio backend lazily: in a
+# server thread, while the main thread parses a test module, CPython 3.11's
+# ast.parse is not thread-safe ("SystemError: AST constructor recursion depth
+# mismatch", a CI failure of the dashboard test on a fresh clone). Imported
+# here, once, in the main thread.
+with contextlib.suppress(ImportError):  # another anyio layout: nothing to pre-import
+    import anyio._backends._asyncio  # noqa: F401
 
 matplotlib.use("Agg")
 
