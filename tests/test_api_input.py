@@ -291,3 +291,88 @@ def _score_track(t_s):
     from radiopose.security.detection import score_track
 
     return score_track(np.asarray(t_s), np.full((len(t_s), 3), -50.0))
+
+
+# ------------------------------------------------------------------- importers, streaming sync
+@pytest.mark.parametrize(
+    ("kw", "message"),
+    [
+        ({"tolerance_s": math.nan}, "tolerance_s = nan must be a number"),
+        ({"tolerance_s": math.inf}, "tolerance_s = inf must be a number"),
+        ({"tolerance_s": -0.005}, "tolerance_s = -0.005"),
+        ({"max_lag_s": -1.0}, "max_lag_s = -1.0 must be a number in \\(0, 86400\\] s or inf"),
+        ({"max_lag_s": math.nan}, "max_lag_s = nan"),
+        ({"max_lag_s": True}, "max_lag_s = True"),
+        ({"receivers": ["A", "A", "B"]}, "must be distinct"),
+        ({"receivers": []}, "must be distinct and at least one"),
+    ],
+)
+def test_streaming_matcher_settings_are_checked(kw, message):
+    """NaN and inf crashed in int conversion, a negative lag dropped every frame
+    of the second receiver, a repeated receiver held every packet until flush."""
+    from radiopose.capture.streaming import StreamingMatcher
+
+    kw = {"receivers": ["A", "B"], **kw}
+    with pytest.raises(InputError, match=message):
+        StreamingMatcher(kw.pop("receivers"), **kw)
+
+
+def test_a_frame_of_an_unknown_receiver_is_an_input_error():
+    from radiopose.capture.streaming import StreamingMatcher
+
+    with pytest.raises(InputError, match="frame of unknown receiver 'rx1'"):
+        StreamingMatcher(["A", "B"]).push(_frame_records())
+
+
+def test_a_json_nested_too_deeply_is_an_input_error(tmp_path):
+    from radiopose.patterns.importers.basta import read_basta_json
+
+    p = tmp_path / "deep.json"
+    p.write_text("[" * 200_000 + "]" * 200_000, encoding="utf-8")
+    with pytest.raises(InputError, match="nested too deeply"):
+        read_basta_json(p)
+
+
+def _mitll_copy(tmp_path, shared_data, edit):
+    import shutil
+
+    src = shared_data / "phone-patterns-mitll" / "iPhone-11-2"
+    dst = tmp_path / "phone"
+    shutil.copytree(src, dst)
+    first = sorted(dst.glob("*.csv"))[0]
+    lines = first.read_text(encoding="utf-8").split("\n")
+    edit(lines)
+    first.write_text("\n".join(lines), encoding="utf-8")
+    return dst, first
+
+
+def test_a_mitll_field_beyond_csvs_limit_is_an_input_error(tmp_path, shared_data):
+    from radiopose.patterns.importers.mitll import read_mitll
+
+    def edit(lines):
+        lines[2] = lines[2] + ',"' + "x" * 200_000 + '"'
+
+    dst, first = _mitll_copy(tmp_path, shared_data, edit)
+    with pytest.raises(InputError, match=rf"{first.name}:3: not a CSV row: field larger"):
+        read_mitll(dst)
+
+
+def test_mitll_line_numbers_count_newlines_only(tmp_path, shared_data):
+    """A U+2028 in a line shifted every later line number by one."""
+    from radiopose.patterns.importers.mitll import read_mitll
+
+    bad = {}
+
+    def edit(lines):
+        lines[2] = lines[2] + "\u2028junk"
+        for k in range(4, len(lines)):
+            cells = lines[k].split(",")
+            if len(cells) > 3 and cells[1].strip() == "Bluetooth":
+                bad["line"] = k + 1
+                lines[k] = ",".join([*cells[:-1], "abc"])
+                return
+
+    dst, first = _mitll_copy(tmp_path, shared_data, edit)
+    with pytest.raises(InputError) as err:
+        read_mitll(dst)
+    assert f"{first.name}:{bad['line']}," in str(err.value), str(err.value)

@@ -26,6 +26,7 @@ from radiopose.capture.sync import (
     _reference_times,
     _rx_index,
 )
+from radiopose.errors import InputError
 from radiopose.packets import Packets
 
 __all__ = ["StreamingMatcher"]
@@ -74,6 +75,26 @@ class StreamingMatcher:
         max_lag_s: float = 30.0,
     ) -> None:
         self.receivers = tuple(receivers)
+        if not self.receivers or len(set(self.receivers)) != len(self.receivers):
+            raise InputError(
+                f"StreamingMatcher: receivers {list(self.receivers)!r} must be distinct and "
+                "at least one (a receiver listed twice never advances its watermark)"
+            )
+        for name, v, allow_inf in (
+            ("tolerance_s", tolerance_s, False),
+            ("max_lag_s", max_lag_s, True),
+        ):
+            number = isinstance(v, int | float) and not isinstance(v, bool)
+            if not (
+                number
+                and v > 0
+                and (allow_inf or math.isfinite(v))
+                and (v <= 86_400 or v == math.inf)
+            ):
+                raise InputError(
+                    f"StreamingMatcher: {name} = {v!r} must be a number in (0, 86400] s"
+                    + (" or inf (no limit)" if allow_inf else "")
+                )
         self._clocks = _clock_list(self.receivers, clocks)
         self._tol = round(tolerance_s * _NS_PER_S)
         self._lag = round(max_lag_s * _NS_PER_S) if math.isfinite(max_lag_s) else None

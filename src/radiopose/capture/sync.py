@@ -473,7 +473,9 @@ def _rx_index(frames: FrameRecords, receivers: Sequence[str]) -> NDArray[np.intp
     try:
         return np.fromiter((lookup[r] for r in frames.receiver_id), np.intp, len(frames))
     except KeyError as exc:
-        raise ValueError(f"frame of unknown receiver {exc.args[0]!r}") from None
+        raise InputError(
+            f"frame of unknown receiver {exc.args[0]!r} (receivers: {', '.join(receivers)})"
+        ) from None
 
 
 def _ns_to_s(t_ns: NDArray[np.int64]) -> NDArray[np.float64]:

@@ -291,6 +291,8 @@ def read_basta_json(
         raise InputError(
             f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
         ) from None
+    except RecursionError:
+        raise InputError("invalid JSON: nested too deeply", path=p) from None
     where = _JsonText(text)
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", path=p, line=where.line(where.start()))

@@ -7,6 +7,7 @@ enrolled with :func:`~radiopose.patterns.enrol.enrol`.
 from __future__ import annotations
 
 import csv
+import io
 import os
 from collections import Counter, defaultdict
 from collections.abc import Sequence
@@ -52,8 +53,17 @@ def _read_mitll_file(path: Path) -> tuple[float, int, dict[str, dict[int, list[f
     first_packet_line = 0
     packets: dict[str, dict[int, list[float]]] = defaultdict(lambda: defaultdict(list))
     text = _read_text(path)
-    reader = csv.reader(text.splitlines())
-    for row in reader:
+    # split on newlines only (str.splitlines also splits on U+2028, form feeds …,
+    # which shifted every later line number); csv's field limit is an error here
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows = iter(reader)
+    while True:
+        try:
+            row = next(rows)
+        except StopIteration:
+            break
+        except csv.Error as exc:
+            raise InputError(f"not a CSV row: {exc}", path=path, line=reader.line_num) from None
         line = reader.line_num
         if len(row) < 2:
             continue
