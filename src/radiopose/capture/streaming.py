@@ -18,6 +18,8 @@ import numpy as np
 from radiopose.capture.records import FrameRecords
 from radiopose.capture.sync import (
     _NS_PER_S,
+    MAX_LAG_S,
+    MAX_TOLERANCE_S,
     ClockModel,
     MatchCounts,
     _clock_list,
@@ -25,6 +27,7 @@ from radiopose.capture.sync import (
     _ns_to_s,
     _reference_times,
     _rx_index,
+    seconds_in_range,
 )
 from radiopose.errors import InputError
 from radiopose.packets import Packets
@@ -80,21 +83,16 @@ class StreamingMatcher:
                 f"StreamingMatcher: receivers {list(self.receivers)!r} must be distinct and "
                 "at least one (a receiver listed twice never advances its watermark)"
             )
-        for name, v, allow_inf in (
-            ("tolerance_s", tolerance_s, False),
-            ("max_lag_s", max_lag_s, True),
-        ):
-            number = isinstance(v, int | float) and not isinstance(v, bool)
-            if not (
-                number
-                and v > 0
-                and (allow_inf or math.isfinite(v))
-                and (v <= 86_400 or v == math.inf)
-            ):
-                raise InputError(
-                    f"StreamingMatcher: {name} = {v!r} must be a number in (0, 86400] s"
-                    + (" or inf (no limit)" if allow_inf else "")
-                )
+        if not seconds_in_range(tolerance_s, MAX_TOLERANCE_S):
+            raise InputError(
+                f"StreamingMatcher: tolerance_s = {tolerance_s!r} must be a number in "
+                f"(0, {MAX_TOLERANCE_S:g}] s"
+            )
+        if not seconds_in_range(max_lag_s, MAX_LAG_S, allow_inf=True):
+            raise InputError(
+                f"StreamingMatcher: max_lag_s = {max_lag_s!r} must be a number in "
+                f"(0, {MAX_LAG_S:g}] s or inf (no limit)"
+            )
         self._clocks = _clock_list(self.receivers, clocks)
         self._tol = round(tolerance_s * _NS_PER_S)
         self._lag = round(max_lag_s * _NS_PER_S) if math.isfinite(max_lag_s) else None

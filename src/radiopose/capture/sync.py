@@ -113,8 +113,8 @@ class SyncConfig:
     def __post_init__(self) -> None:
         check_setting_types(self, "sync")
         for name, ok, allowed in (
-            ("tolerance_s", 0 < self.tolerance_s <= 60.0, "(0, 60] s"),
-            ("max_lag_s", 0 < self.max_lag_s <= 86_400.0, "(0, 86400] s"),
+            ("tolerance_s", seconds_in_range(self.tolerance_s, MAX_TOLERANCE_S), "(0, 60] s"),
+            ("max_lag_s", seconds_in_range(self.max_lag_s, MAX_LAG_S), "(0, 86400] s"),
             ("max_drift_ppm", 0 <= self.max_drift_ppm <= 1e6, "[0, 1e6] ppm"),
             ("min_pairs", 1 <= self.min_pairs <= 1_000_000, "[1, 1000000]"),
             ("min_drift_span_s", self.min_drift_span_s >= 0, ">= 0 s"),
@@ -125,6 +125,22 @@ class SyncConfig:
                     f"sync setting {name} = {getattr(self, name)!r} is out of range "
                     f"(allowed: {allowed})"
                 )
+
+
+MAX_TOLERANCE_S = 60.0
+"""Largest matching tolerance, seconds (:class:`SyncConfig`, :func:`match_packets`,
+the streaming matcher)."""
+MAX_LAG_S = 86_400.0
+"""Largest streaming lag, seconds (``max_lag_s``)."""
+
+
+def seconds_in_range(value: object, high_s: float, allow_inf: bool = False) -> bool:
+    """Whether ``value`` is a number of seconds in ``(0, high_s]`` (or ``inf``
+    when ``allow_inf``: no limit); a bool is not a number here. The one test
+    of the sync settings' tolerance and lag, wherever they are given."""
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        return False
+    return 0 < value <= high_s or (allow_inf and value == float("inf"))
 
 
 @dataclass(frozen=True)
@@ -520,8 +536,8 @@ def match_packets(
     packets, counts, hashes
         The ``packets.csv`` rows, the counts and what became of the hashes.
     """
-    if not (isinstance(tolerance_s, int | float) and 0 < tolerance_s <= 60.0):
-        raise InputError(f"tolerance_s = {tolerance_s!r} must be in (0, 60] s")
+    if not seconds_in_range(tolerance_s, MAX_TOLERANCE_S):
+        raise InputError(f"tolerance_s = {tolerance_s!r} must be in (0, {MAX_TOLERANCE_S:g}] s")
     n = len(frames)
     if n == 0:
         return _empty_packets(), MatchCounts(), HashCounts()

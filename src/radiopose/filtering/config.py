@@ -33,6 +33,15 @@ the smoother holds every particle of every packet within the lag, so its
 memory grows with lag × packet rate × particles (about 0.4 GB at 10 s, 200
 packets/s and the 2-D default)."""
 
+
+def lag_in_range(lag_s: object) -> bool:
+    """Whether ``lag_s`` is a smoothing lag: a number of seconds in [0,
+    :data:`MAX_LAG_S`] (a bool is not); ``None`` (causal) is the caller's case."""
+    if not isinstance(lag_s, int | float) or isinstance(lag_s, bool):
+        return False
+    return 0 <= lag_s <= MAX_LAG_S
+
+
 MIN_REENTRY_INTERVAL_S = 1e-3
 """Shortest :attr:`FilterConfig.reentry_interval_s`, seconds (a re-entry per
 millisecond is already one per packet at any real rate)."""

@@ -8,7 +8,7 @@ from typing import Literal
 
 from radiopose.errors import InputError, check_setting_types
 from radiopose.filtering import FilterConfig
-from radiopose.filtering.config import MAX_LAG_S
+from radiopose.filtering.config import MAX_LAG_S, lag_in_range
 from radiopose.filtering.particle3d import Pose3dConfig
 from radiopose.motion import MovementModel, RotationModel
 
@@ -149,7 +149,7 @@ class TrackerConfig:
             ("seed", 0 <= self.seed < 2**63),
         ]
         lag = self.smoothing_lag_s
-        if lag is not None and not 0 <= lag <= MAX_LAG_S:
+        if lag is not None and not lag_in_range(lag):
             raise InputError(
                 f"tracker setting smoothing_lag_s = {lag!r} must be in [0, {MAX_LAG_S:g}] s "
                 "(or None: causal)"

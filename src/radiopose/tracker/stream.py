@@ -16,10 +16,11 @@ from typing import Any
 
 from radiopose.errors import InputError
 from radiopose.estimates import PoseEstimate
+from radiopose.filtering.config import MAX_LAG_S, lag_in_range
 from radiopose.likelihood import HeardRss, Scorer, candidate_space, make_scorer
 from radiopose.packets import PacketObservation, check_observation
 from radiopose.site import Site
-from radiopose.tracker.config import MAX_LAG_S, TrackerConfig
+from radiopose.tracker.config import TrackerConfig
 from radiopose.tracker.filter import reads_site_scorer
 from radiopose.tracker.protocol import Delayed, Device, LooksAhead, Method, Outcome
 from radiopose.tracker.reasons import SKIP_DUPLICATE, SKIP_UNKNOWN_TRANSMITTER
@@ -65,10 +66,7 @@ class Tracker:
         offline: bool = False,
     ) -> None:
         self.impl: Method = get_method(method) if isinstance(method, str) else method
-        if lag_s is not None and not (
-            isinstance(lag_s, int | float) and not isinstance(lag_s, bool)
-            and 0 <= lag_s <= MAX_LAG_S
-        ):  # fmt: skip
+        if lag_s is not None and not lag_in_range(lag_s):
             raise InputError(f"lag_s = {lag_s!r} must be in [0, {MAX_LAG_S:g}] s (or None)")
         self.site = site
         self.method = self.impl.name
