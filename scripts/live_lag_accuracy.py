@@ -11,7 +11,10 @@ receivers, a packet every 5 ms, 2 s traces), held-out seeds (default
   ``offline_reverse_pass``, ``offline_refine``), which is exactly what the
   streaming tracker with that lag gives (``tests/test_server_live_lag.py``); the
   live server never runs those passes;
-* ``offline, lag 1 s`` — batch ``locate``'s default (with the offline passes).
+* ``offline, lag 1 s`` — batch ``locate``'s default (with the offline passes);
+* ``textbook`` — issue 15's anchor, not ``filter``: a plain textbook particle
+  filter told the scenario's σ and the device's power
+  (:mod:`radiopose.evaluate.textbook_pf`), causal. Not in the default rows.
 
 Before 2026-11-27 (session 10) the live rows left the offline passes on, so
 since they became the default (docs/filter.md, "Round 6 as the default") those
@@ -44,6 +47,7 @@ from dataclasses import replace
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
+from radiopose.evaluate.textbook_pf import register_textbook
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.simulate import ScenarioConfig, simulate
@@ -57,6 +61,9 @@ VARIANTS: dict[str, tuple[float | None, bool]] = {
 }
 """Variant → (the smoother's lag, seconds (``None``: causal); whether batch
 ``locate``'s offline-only passes run)."""
+
+ANCHOR = "textbook"
+"""The anchor's row (``--variants textbook``): :mod:`radiopose.evaluate.textbook_pf`."""
 
 LIVE_FILTER = replace(
     FilterConfig(),
@@ -73,8 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-seed", type=int, default=1000)
     ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])
     ap.add_argument(
-        "--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
-        help="which rows (default: all)",
+        "--variants", nargs="+", default=list(VARIANTS), choices=[*VARIANTS, ANCHOR],
+        help="which rows (default: the filter's four; 'textbook' adds issue 15's anchor)",
     )  # fmt: skip
     ap.add_argument(
         "--set", nargs="*", default=[], metavar="FIELD=VALUE",
@@ -91,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
     overrides = overrides_or_exit(ap, args.set)
-    variants = {v: VARIANTS[v] for v in args.variants}
+    variants = {v: VARIANTS.get(v, (None, False)) for v in args.variants}
     base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
     if args.duration_s is not None:
         if not args.duration_s > 0:
@@ -116,7 +123,10 @@ def main(argv: list[str] | None = None) -> int:
             for name, (lag_s, offline) in variants.items():
                 fcfg = FilterConfig() if offline else LIVE_FILTER
                 cfg = TrackerConfig(smoothing_lag_s=lag_s, filter=replace(fcfg, **overrides))
-                run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
+                method = "filter"
+                if name == ANCHOR:  # told this scenario's σ (and the power, as every run is)
+                    method = register_textbook(sigma).name
+                run = run_methods(sim, (method,), cfg, scorer)[method]
                 t_s = sim.truth.timestamp_s
                 per[name].append((run, t_s[run.truth_index] - t_s[0]))
                 print(

@@ -80,6 +80,10 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv += ["--settle-s", "0.1", "--duration-s", "0.3"]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert "after 0.1 s" in rows[0] and rows[2].count("|") == 15
+    # issue 15's anchor beside the filter's rows
+    argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--variants", "causal", "textbook"]
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert [r.split("|")[2].strip() for r in rows[2:]] == ["causal", "textbook"]
     for bad, said in (
         (["--set", "no_such_field=1"], "no_such_field"),
         (["--settle-s", "0.2"], "--settle-s must be in [0, 0.2)"),
