@@ -47,7 +47,7 @@ from dataclasses import replace
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.evaluate.textbook_pf import register_textbook
+from radiopose.evaluate.textbook_pf import registered_textbook
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.simulate import ScenarioConfig, simulate
@@ -123,10 +123,11 @@ def main(argv: list[str] | None = None) -> int:
             for name, (lag_s, offline) in variants.items():
                 fcfg = FilterConfig() if offline else LIVE_FILTER
                 cfg = TrackerConfig(smoothing_lag_s=lag_s, filter=replace(fcfg, **overrides))
-                method = "filter"
                 if name == ANCHOR:  # told this scenario's σ (and the power, as every run is)
-                    method = register_textbook(sigma).name
-                run = run_methods(sim, (method,), cfg, scorer)[method]
+                    with registered_textbook(sigma) as anchor:
+                        run = run_methods(sim, (anchor.name,), cfg, scorer)[anchor.name]
+                else:
+                    run = run_methods(sim, ("filter",), cfg, scorer)["filter"]
                 t_s = sim.truth.timestamp_s
                 per[name].append((run, t_s[run.truth_index] - t_s[0]))
                 print(

@@ -11,7 +11,7 @@ import pytest
 
 from radiopose.errors import InputError
 from radiopose.evaluate.demo import build_scorer, run_methods
-from radiopose.evaluate.textbook_pf import NAME, TextbookConfig, register_textbook
+from radiopose.evaluate.textbook_pf import NAME, TextbookConfig, registered_textbook
 from radiopose.packets import PacketObservation, group_packets
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import METHOD_NAMES, METHODS, Tracker, TrackerConfig
@@ -30,15 +30,9 @@ def sims():
     return out
 
 
-@pytest.fixture(autouse=True)
-def _unregister():
-    yield
-    METHODS.pop(NAME, None)
-
-
 def _errors(sims, sigma_db: float = 1.0, **settings) -> tuple[float, float]:
-    register_textbook(sigma_db, **settings)
-    runs = [run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME] for sim, sc in sims]
+    with registered_textbook(sigma_db, **settings):
+        runs = [run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME] for sim, sc in sims]
     assert all(len(r.estimates) == r.n_packets for r in runs)  # every packet answered
     pos = float(np.mean([r.position_error_m.mean() for r in runs]))
     ori = float(np.mean([r.orientation_error_deg.mean() for r in runs]))
@@ -71,9 +65,9 @@ def test_re_drawn_particles_leave_a_decoy_start(sims) -> None:
         ]
         t_s, xy = sim.truth.timestamp_s, sim.truth.position_m[:, :2]
         for frac, errors in late.items():
-            register_textbook(1.0, reentry_fraction=frac)
-            tracker = Tracker(sim.site, NAME)
-            for o in fed:
+            with registered_textbook(1.0, reentry_fraction=frac):
+                tracker = Tracker(sim.site, NAME)
+            for o in fed:  # (the tracker keeps its method object)
                 est, _ = tracker.update(o)
                 if o.timestamp_s - t0 >= 0.5:
                     j = int(np.argmin(np.abs(t_s - o.timestamp_s)))
@@ -82,24 +76,29 @@ def test_re_drawn_particles_leave_a_decoy_start(sims) -> None:
     assert with_redraw < 0.35 and without > 2.0 * with_redraw + 0.15, (with_redraw, without)
 
 
-def test_registered_only_on_request_and_deterministic(sims) -> None:
+def test_registered_only_inside_its_block_and_deterministic(sims) -> None:
     assert NAME not in METHOD_NAMES and NAME not in METHODS
     sim, sc = sims[0]
-    a = register_textbook(1.0)
-    assert METHODS[NAME] is a and not a.lagged and a.estimates_orientation
-    first = run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME]
-    second = run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME]
+    with registered_textbook(1.0) as a:
+        assert METHODS[NAME] is a and not a.lagged and a.estimates_orientation
+        first = run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME]
+        second = run_methods(sim, (NAME,), TrackerConfig(), sc)[NAME]
+        with registered_textbook(2.0) as b:  # nested: replaced, then restored
+            assert METHODS[NAME] is b and b.config.sigma_db == 2.0
+        assert METHODS[NAME] is a
+    assert NAME not in METHODS  # gone after the block (the demo lists METHODS)
     np.testing.assert_array_equal(first.position_error_m, second.position_error_m)
     est = first.estimates
     assert np.all(est.position_std_m >= 0) and np.all(est.azimuth_std_deg >= 0)
-    register_textbook(2.0)  # replaces, no "already registered"
-    assert METHODS[NAME].config.sigma_db == 2.0
+    with pytest.raises(InputError), registered_textbook(-1.0):
+        pass
+    assert NAME not in METHODS
 
 
 def test_a_packet_out_of_time_order_is_skipped(sims) -> None:
     sim = sims[0][0]
-    register_textbook(1.0)
-    tracker = Tracker(sim.site, NAME)
+    with registered_textbook(1.0):
+        tracker = Tracker(sim.site, NAME)
     tx = sim.site.devices[0].transmitter
     ids = tuple(r.receiver_id for r in sim.site.receivers)
     rss = np.full(len(ids), -60.0)

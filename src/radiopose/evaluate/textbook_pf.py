@@ -11,9 +11,9 @@ docs/filter.md, "The issue's anchor").
 It is an *evaluation anchor*, not a method a site would run: it is told the
 readings' noise σ (:attr:`TextbookConfig.sigma_db`) and takes ``devices.csv``'s
 transmit power as exact, two things ``filter`` must estimate. So it is not in
-the built-in registry; a caller registers it (:func:`register_textbook`) for
-one σ and runs it through the registry like any method (``locate``,
-``run_methods``).
+the built-in registry; a caller registers it for
+one σ (:func:`registered_textbook`, a context manager) and runs it through
+the registry like any method (``locate``, ``run_methods``, ``Tracker``).
 
 The model, per packet at time ``t`` (``dt`` since the last packet):
 
@@ -43,6 +43,8 @@ starts a new one.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,11 +56,11 @@ from radiopose.likelihood import HeardRss
 from radiopose.tracker.filter import filter_seed
 from radiopose.tracker.protocol import Device, Evidence, Outcome, Step
 from radiopose.tracker.reasons import SKIP_NO_TRACK, SKIP_OUT_OF_ORDER, SKIP_TOO_FEW_RECEIVERS
-from radiopose.tracker.registry import register_method
+from radiopose.tracker.registry import METHODS, register_method
 from radiopose.units import FloatArray
 
 NAME = "textbook"
-"""The anchor's name in the registry once :func:`register_textbook` ran."""
+"""The anchor's name in the registry inside :func:`registered_textbook`."""
 
 
 @dataclass(frozen=True)
@@ -272,13 +274,28 @@ def _estimate(st: TextbookState) -> Outcome:
     )
 
 
-def register_textbook(sigma_db: float, **settings: object) -> TextbookPF:
-    """Register the textbook filter told ``sigma_db`` (dB) under :data:`NAME`,
-    replacing an earlier registration; ``settings`` are other
-    :class:`TextbookConfig` fields. Returns the registered method."""
+@contextmanager
+def registered_textbook(sigma_db: float, **settings: object) -> Iterator[TextbookPF]:
+    """The textbook filter told ``sigma_db`` (dB), registered under :data:`NAME`
+    for the ``with`` block only (the registry is the process's: a method left
+    registered would join every later listing of :data:`METHODS`, such as the
+    demo's table); ``settings`` are other :class:`TextbookConfig` fields.
+
+    Raises
+    ------
+    InputError
+        A setting out of range (:class:`TextbookConfig`).
+    """
     method = TextbookPF(TextbookConfig(sigma_db=sigma_db, **settings))  # type: ignore[arg-type]
+    previous = METHODS.get(NAME)
     register_method(method, replace=True)
-    return method
+    try:
+        yield method
+    finally:
+        if previous is None:
+            METHODS.pop(NAME, None)
+        else:
+            METHODS[NAME] = previous
 
 
-__all__ = ["NAME", "TextbookConfig", "TextbookPF", "TextbookState", "register_textbook"]
+__all__ = ["NAME", "TextbookConfig", "TextbookPF", "TextbookState", "registered_textbook"]
