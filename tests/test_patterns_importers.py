@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,7 @@ from radiopose.patterns.importers import (
     read_mitll_measurements,
     read_msi,
 )
-from radiopose.patterns.pattern import read_pattern_csv
+from radiopose.patterns.pattern import read_pattern_csv, write_pattern_csv
 
 REPO = Path(__file__).resolve().parents[1]
 MSI_NAME = "python_antenna_pattern_simulated_05T.msi"
@@ -740,3 +741,267 @@ def test_mitll_real_phones_match_shipped_patterns(shared_data, folder, shipped, 
     assert p.range_dbi == pytest.approx((low, high), abs=0.01)
     ship = read_pattern_csv(REPO / "src" / "radiopose" / "data" / "patterns" / f"{shipped}.csv")
     np.testing.assert_allclose(ship.directivity_dbi, p.directivity_dbi, atol=2e-6)
+
+
+# ---------------------------------------------------------------- BASTA Gain
+def _flat_basta(gain_value: object, unit: str = "dBi") -> dict:
+    """A 30° sphere with attenuation 0 everywhere: directivity = the gain."""
+    d = _basta(Gain={"value": gain_value, "unit": unit})
+    d["Data_Set"] = [[0.0] for _ in d["Data_Set"]]
+    return d
+
+
+@pytest.mark.parametrize(
+    ("value", "unit", "match"),
+    [
+        (1e308, "dBi", r"Gain 1e\+308 dBi is out of range \[-200, 200\] dBi"),
+        (-201, "dBi", r"Gain -201 dBi is out of range \[-200, 200\] dBi"),
+        (199, "dBd", r"Gain 199 dBd \(201.15 dBi\) is out of range \[-200, 200\] dBi"),
+        (10**400, "dBi", r"Gain 1000000000\d* dBi is out of range"),
+        ("15.1", "dBi", r'Gain value "15.1" is not a number'),
+        (True, "dBi", "Gain value true is not a number"),
+        (None, "dBi", "Gain value null is not a number"),
+        ([15.1], "dBi", "Gain value a list is not a number"),
+        (float("nan"), "dBi", "Gain value NaN is not a finite number"),
+        (15.1, "dB", 'Gain unit "dB" is not dBi or dBd'),
+    ],
+)
+def test_basta_gain_must_be_a_number_within_the_pattern_csv_range(tmp_path, value, unit, match):
+    path = tmp_path / "g.json"
+    text = json.dumps(_flat_basta(value, unit), indent=2)
+    path.write_text(text)
+    with pytest.raises(InputError, match=match) as err:
+        read_basta_json(path)
+    assert (err.value.line, err.value.column) == (_line_of(text, '"Gain"'), "Gain")
+    assert str(err.value).startswith(f"{path}:{err.value.line}, column 'Gain': ")
+    assert "\n" not in str(err.value)
+
+
+@settings(
+    max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    value=st.one_of(
+        st.floats(allow_nan=True, allow_infinity=True),
+        st.integers(-(10**30), 10**30),
+        st.booleans(),
+        st.text(max_size=6),
+        st.none(),
+    ),
+    unit=st.sampled_from(["dBi", "dBd"]),
+)
+def test_basta_gain_either_round_trips_or_is_an_error_at_gain(tmp_path_factory, value, unit):
+    """An imported gain is written and read back by the project's own reader, or refused."""
+    folder = tmp_path_factory.mktemp("gain")
+    path = folder / "g.json"
+    path.write_text(json.dumps(_flat_basta(value, unit)))
+    number = isinstance(value, (int, float)) and not isinstance(value, bool)
+    dbi = float(value) + (2.15 if unit == "dBd" else 0.0) if number else math.nan
+    try:
+        p = read_basta_json(path)
+    except InputError as exc:
+        assert exc.column == "Gain" and exc.line == 1, str(exc)
+        assert not abs(dbi) <= 200.0  # refused only outside [-200, 200] dBi (or not a number)
+        return
+    assert abs(dbi) <= 200.0
+    write_pattern_csv(p, folder / "g.csv")
+    assert read_pattern_csv(folder / "g.csv").range_dbi == pytest.approx((dbi, dbi))
+
+
+# ---------------------------------------------------------------- enough angles
+@pytest.mark.parametrize(
+    ("change", "column", "match"),
+    [
+        (
+            {"Theta_Sampling": [0, 30, 0], "Data_Set": [[1.0]] * 12},
+            "Theta_Sampling",
+            r"Theta_Sampling: 1 distinct angle \(0 deg\), a sphere needs at least 3 polar angles",
+        ),
+        (
+            {"Theta_Sampling": [-90, 180, 90], "Data_Set": [[1.0]] * 24},
+            "Theta_Sampling",
+            r"Theta_Sampling: 2 distinct angles \(-90, 90 deg\), a sphere needs at least 3 polar",
+        ),
+        (
+            {"Phi_Sampling": [0, 30, 0], "Data_Set": [[1.0]] * 7},
+            "Phi_Sampling",
+            r"Phi_Sampling: 1 distinct angle \(0 deg\), a sphere needs at least 3 azimuths",
+        ),
+        (
+            {"Phi_Sampling": [0, 180, 180], "Data_Set": [[1.0]] * 14},
+            "Phi_Sampling",
+            r"Phi_Sampling: 2 distinct angles \(0, 180 deg\), a sphere needs at least 3 azimuths",
+        ),
+    ],
+)
+def test_basta_sampling_of_one_or_two_angles_is_rejected(tmp_path, change, column, match):
+    path = tmp_path / "b.json"
+    text = json.dumps(_basta() | change, indent=1)
+    path.write_text(text)
+    with pytest.raises(InputError, match=match) as err:
+        read_basta_json(path)
+    assert (err.value.line, err.value.column) == (_line_of(text, f'"{column}"'), column)
+    assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_basta_explicit_angles_need_three_of_each(tmp_path):
+    path = tmp_path / "e.json"
+    for rows, column, match in (
+        ([[t, 0.0, 1.0] for t in (-90.0, 0.0, 90.0)], "Phi", r"Data_Set Phi: 1 distinct angle"),
+        (
+            [[t, ph, 1.0] for t in (-90.0, 90.0) for ph in (0.0, 120.0, 240.0)],
+            "Theta",
+            r"Data_Set Theta: 2 distinct angles \(-90, 90 deg\)",
+        ),
+    ):
+        text = json.dumps(_explicit(rows), indent=2)
+        path.write_text(text)
+        with pytest.raises(InputError, match=match) as err:
+            read_basta_json(path)
+        assert (err.value.line, err.value.column) == (_line_of(text, '"Data_Set"'), column)
+    rows = [[t, ph, 1.0] for t in (-90.0, 0.0, 90.0) for ph in (0.0, 120.0, 240.0)]
+    path.write_text(json.dumps(_explicit(rows)))
+    assert read_basta_json(path).directivity_dbi.shape == (3, 3)  # the minimum sphere
+
+
+def _msi_cuts(h_angles: list[float], v_angles: list[float], gain: str = "10 dBi") -> str:
+    lines = ["NAME t", f"GAIN {gain}", f"HORIZONTAL {len(h_angles)}"]
+    lines += [f"{a:g} {k}" for k, a in enumerate(h_angles)]
+    lines += [f"VERTICAL {len(v_angles)}"] + [f"{a:g} {k}" for k, a in enumerate(v_angles)]
+    return "\n".join(lines) + "\n"
+
+
+@pytest.mark.parametrize(
+    ("h", "v", "line", "column", "match"),
+    [
+        ([0.0], [0.0, 120.0, 240.0], 3, "HORIZONTAL", r"HORIZONTAL: 1 distinct angle \(0 deg\)"),
+        ([0.0, 180.0], [0.0, 120.0, 240.0], 3, "HORIZONTAL", r"2 distinct angles \(0, 180 deg\)"),
+        ([0.0, 120.0, 240.0], [0.0, 180.0], 7, "VERTICAL", r"VERTICAL: 2 distinct angles"),
+    ],
+)
+def test_msi_cut_of_one_or_two_angles_is_rejected(tmp_path, h, v, line, column, match):
+    path = tmp_path / "c.msi"
+    path.write_text(_msi_cuts(h, v))
+    for mode in ("horizontal", "sphere"):
+        with pytest.raises(InputError, match=match) as err:
+            read_msi(path, mode=mode)
+        assert (err.value.line, err.value.column) == (line, column)
+        assert str(err.value).endswith("a cut needs at least 3 around the circle")
+    path.write_text(_msi_cuts([0.0, 120.0, 240.0], [0.0, 120.0, 240.0]))
+    assert read_msi(path, mode="sphere").directivity_dbi.shape == (360, 181)  # the minimum
+
+
+def test_mitll_captures_of_one_or_two_angles_are_rejected(tmp_path):
+    d = tmp_path / "two"
+    d.mkdir()
+    for k, angle in enumerate((0.0, 45.0)):
+        _mitll_file(d / f"c{k}.csv", angle, {37: -60.0 - k})
+    msg = r"capture Angle in 2 files: 2 distinct angles \(0, 45 deg\), a pattern needs at least 3"
+    for source in (d, sorted(d.glob("*.csv"))):
+        with pytest.raises(InputError, match=msg) as err:
+            read_mitll(source)
+        assert (err.value.line, err.value.column) == (None, "Angle")
+        assert err.value.path == str(d if source == d else d / "c0.csv")
+    with pytest.raises(InputError, match=r"in 1 file: 1 distinct angle \(45 deg\)") as err:
+        read_mitll_measurements(d / "c1.csv")
+    assert (err.value.path, err.value.line, err.value.column) == (str(d / "c1.csv"), 4, "Angle")
+    _mitll_file(d / "c2.csv", 90.0, {37: -65.0})
+    assert read_mitll(d).azimuth_deg.size == 360  # three angles: the minimum
+
+
+# ---------------------------------------------------------------- large BASTA files
+def _compact_basta(theta_step: float, phi_step: float) -> str:
+    """A BASTA JSON as compact as such files get: no spaces, one decimal."""
+    th = np.arange(-90.0, 90.0 + theta_step / 2, theta_step)
+    ph = np.arange(0.0, 360.0 - phi_step / 2, phi_step)
+    rows = np.round(np.random.default_rng(1).uniform(0, 40, (th.size * ph.size, 2)), 1)
+    d = {
+        "Coordinate_System": "SPCS_CW",
+        "Gain": {"value": 15.0, "unit": "dBi"},
+        "Theta_Sampling": [-90.0, theta_step, 90.0],
+        "Phi_Sampling": [0.0, phi_step, float(ph[-1])],
+        "Data_Set_Row_Structure": ["MagAttenuationCo", "MagAttenuationCr"],
+        "Data_Set": rows.tolist(),
+    }
+    return json.dumps(d, separators=(",", ":"))
+
+
+def test_basta_peak_memory_is_a_small_multiple_of_the_file(tmp_path):
+    """Data_Set goes straight into a float array: no list and float objects per row
+    (47x the file's size before, 15x now, measured by tracemalloc)."""
+    import tracemalloc
+
+    path = tmp_path / "large.json"
+    text = _compact_basta(0.5, 1.0)  # 361 × 360 directions, 1.5 MB
+    path.write_text(text)
+    tracemalloc.start()
+    try:
+        p = read_basta_json(path)
+        peak_bytes = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert p.directivity_dbi.shape == (360, 361)
+    assert peak_bytes < 25 * len(text), peak_bytes / len(text)
+
+
+_ROW_JUNK = st.one_of(
+    st.floats(-2000, 2000),
+    st.integers(-5, 5),
+    st.sampled_from([float("nan"), float("inf"), 10**400, True, False, None, "1.5", [1.0], {}]),
+)
+
+
+@settings(
+    max_examples=100, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(
+    rows=st.lists(st.lists(_ROW_JUNK, min_size=0, max_size=3), min_size=0, max_size=6),
+    indent=st.sampled_from([None, 0, 2]),
+    tail=st.sampled_from(["", " ", "\n", ",", "]", " x", '{"a": 1}']),
+    twice=st.booleans(),
+)
+def test_basta_row_decoder_reads_what_json_loads_reads(tmp_path_factory, rows, indent, tail, twice):
+    """The row-by-row decoder gives json.loads's document with Data_Set as an array,
+    or leaves the file to json.loads (None): it never reads a file differently."""
+    from radiopose.patterns.importers.basta import _decode
+
+    d = {"Coordinate_System": "SPCS_CW", "Data_Set": rows, "Gain": {"value": 1, "unit": "dBi"}}
+    text = json.dumps(d, indent=indent)
+    if twice:  # a repeated key: the last one wins
+        text = text[:-1] + ', "Data_Set": [[1.5, 2]]}'
+    text += tail
+    try:
+        expected = json.loads(text)
+    except ValueError:
+        assert _decode(text) is None
+        return
+    got = _decode(text)
+    if got is None:
+        return
+    table = expected.pop("Data_Set")
+    assert np.array_equal(got.pop("Data_Set"), np.array(table, dtype=np.float64), equal_nan=True)
+    assert all(type(v) in (int, float) for row in table for v in row)
+    assert got == expected
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.sampled_from([0.0, -0.0, 1.0, 1e-300, 5e-324]), st.sampled_from([0.0, 90.0])),
+        min_size=1,
+        max_size=10,
+    )
+)
+def test_grid_duplicate_search_agrees_with_a_dict_walk(pairs):
+    """pattern_from_samples finds repeats by one sort instead of a dict of every sample."""
+    from radiopose.patterns.pattern import _first_repeat
+
+    seen: dict[tuple[float, float], int] = {}
+    expected = None
+    for r, key in enumerate(pairs):
+        if key in seen:
+            expected = (r, seen[key])
+            break
+        seen[key] = r
+    az, po = (np.array(v) for v in zip(*pairs, strict=True))
+    assert _first_repeat(az, po) == expected

@@ -137,10 +137,13 @@ def _angles(value: ArrayLike, what: str) -> FloatArray:
     return a
 
 
+MAX_ABS_DIRECTIVITY_DBI = 200.0
+"""Largest ``|directivity_dbi|`` of a pattern CSV, dBi (:func:`read_pattern_csv` rejects more)."""
+
 PATTERN_COLUMNS = (
     Column("azimuth_deg", low=0.0, high=360.0, high_open=True),
     Column("polar_deg", low=0.0, high=180.0),
-    Column("directivity_dbi", low=-200.0, high=200.0),
+    Column("directivity_dbi", low=-MAX_ABS_DIRECTIVITY_DBI, high=MAX_ABS_DIRECTIVITY_DBI),
 )
 
 
@@ -493,16 +496,15 @@ def pattern_from_samples(
     """
     az, po, values = _sample_arrays(azimuth_deg, polar_deg, directivity_dbi)
     # exact repeats first: the clearest message
-    seen: dict[tuple[float, float], int] = {}
-    for r, key in enumerate(zip(az.tolist(), po.tolist(), strict=True)):
-        if key in seen:
-            raise GridError(
-                r,
-                "azimuth",
-                f"duplicate grid point azimuth {key[0]:g}, polar {key[1]:g} deg",
-                seen[key],
-            )
-        seen[key] = r
+    repeat = _first_repeat(az, po)
+    if repeat is not None:
+        r, first = repeat
+        raise GridError(
+            r,
+            "azimuth",
+            f"duplicate grid point azimuth {float(az[r]):g}, polar {float(po[r]):g} deg",
+            first,
+        )
     az_u, az_inv = np.unique(az, return_inverse=True)
     po_u, po_inv = np.unique(po, return_inverse=True)
     az_inv, po_inv = az_inv.reshape(-1), po_inv.reshape(-1)
@@ -533,18 +535,17 @@ def pattern_from_samples(
             )
     n_a, n_p = a_fit.n, p_fit.n
     flat = ai * n_p + pi
-    first_row = np.full(n_a * n_p, -1, np.int64)
-    for r, f in enumerate(flat.tolist()):
-        if first_row[f] >= 0:
-            raise GridError(
-                r,
-                "azimuth",
-                f"duplicate grid point azimuth {az[r]:g}, polar {po[r]:g} deg: the same "
-                f"as azimuth {az[first_row[f]]:g}, polar {po[first_row[f]]:g} within "
-                f"{GRID_TOL_DEG:g} deg",
-                int(first_row[f]),
-            )
-        first_row[f] = r
+    repeat = _first_repeat(flat)
+    if repeat is not None:
+        r, first = repeat
+        raise GridError(
+            r,
+            "azimuth",
+            f"duplicate grid point azimuth {az[r]:g}, polar {po[r]:g} deg: the same "
+            f"as azimuth {az[first]:g}, polar {po[first]:g} within "
+            f"{GRID_TOL_DEG:g} deg",
+            first,
+        )
     grid_a = a_fit.first + np.arange(n_a, dtype=np.float64) * a_fit.step
     grid_p = p_fit.first + np.arange(n_p, dtype=np.float64) * p_fit.step
     if flat.size != n_a * n_p:
@@ -561,6 +562,30 @@ def pattern_from_samples(
     except InputError:  # within GRID_TOL_DEG but not Pattern's tolerance: exact angles
         grid_a = max(a_fit.first, 0.0) + np.arange(n_a, dtype=np.float64) * a_fit.step
         return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
+
+
+def _first_repeat(*keys: np.ndarray) -> tuple[int, int] | None:
+    """``(row, first_row)`` of the earliest sample whose keys all equal (``==``) those of
+    an earlier sample, and that earlier sample's first row; ``None`` if every sample
+    is distinct.
+
+    The answer of walking the samples with a ``dict`` of seen keys, from one stable
+    sort (keys, then row) instead of a Python object per sample.
+    """
+    rows = np.arange(keys[0].size)
+    order = np.lexsort((rows, *keys[::-1]))  # first key primary, ties by row
+    same = np.ones(order.size, bool)  # same keys as the sample sorted before it
+    same[0] = False
+    for k in keys:
+        ks = k[order]
+        same[1:] &= ks[1:] == ks[:-1]
+    if not same.any():
+        return None
+    # sorted position of each group's first sample (its lowest row)
+    start = np.maximum.accumulate(np.where(same, 0, np.arange(order.size)))
+    repeats = np.nonzero(same)[0]
+    at = repeats[np.argmin(order[repeats])]
+    return int(order[at]), int(order[start[at]])
 
 
 def _sample_arrays(

@@ -10,6 +10,9 @@ import math
 import os
 from pathlib import Path
 
+import numpy as np
+from numpy.typing import ArrayLike
+
 from radiopose.errors import InputError, unreadable
 from radiopose.patterns.pattern import Pattern
 
@@ -68,3 +71,47 @@ def _is_number(text: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+MIN_CIRCLE_ANGLES = 3
+"""Fewest distinct angles around a circle an imported pattern is built from: the
+azimuths of a sphere, each MSI cut, the MIT LL capture angles. The periodic cubic
+spline of :func:`~radiopose.patterns.enrol.fill_periodic` needs 3; with 2 it draws a
+line between them and with 1 a constant, not a measured pattern."""
+
+MIN_SPHERE_POLAR_ANGLES = 3
+"""Fewest polar angles of an imported sphere: both poles and one between them (a pole
+is one direction whatever its azimuth, so poles alone carry no azimuth pattern)."""
+
+
+def _require_angles(
+    angles_deg: ArrayLike,
+    minimum: int,
+    what: str,
+    needs: str,
+    path: Path,
+    line: int | None = None,
+    column: str | None = None,
+) -> None:
+    """Check that ``angles_deg`` holds at least ``minimum`` distinct values.
+
+    The one check of :data:`MIN_CIRCLE_ANGLES` and :data:`MIN_SPHERE_POLAR_ANGLES`
+    for every importer.
+
+    Raises
+    ------
+    InputError
+        ``"{what}: N distinct angle(s) (a, b deg), {needs}"`` at ``path``, ``line``,
+        ``column``.
+    """
+    distinct = np.unique(np.asarray(angles_deg, dtype=np.float64))
+    if distinct.size >= minimum:
+        return
+    listed = ", ".join(f"{a:g}" for a in distinct)
+    plural = "" if distinct.size == 1 else "s"
+    raise InputError(
+        f"{what}: {distinct.size} distinct angle{plural} ({listed} deg), {needs}",
+        path=path,
+        line=line,
+        column=column,
+    )

@@ -1,7 +1,9 @@
 """NGMN BASTA 3-D antenna pattern JSON (WP3.0 ``3drp``).
 
-The JSON is parsed twice: once by :mod:`json` for the values and once by a
-small offset scanner (:class:`_JsonText`) so every error names its line.
+The JSON is parsed twice: once for the values (:func:`_decode`: ``Data_Set``
+row by row into a float array, else :func:`json.loads`) and, only once something
+is wrong, by a small offset scanner (:class:`_JsonText`) so every error names its
+line.
 See :mod:`radiopose.patterns.importers` for the coordinate conventions.
 """
 
@@ -11,6 +13,8 @@ import json
 import math
 import os
 import re
+from array import array
+from itertools import chain
 from pathlib import Path
 from typing import Any
 
@@ -21,11 +25,15 @@ from radiopose.patterns.importers._common import (
     _ROUND,
     DBD_TO_DBI,
     MAX_ABS_DB,
+    MIN_CIRCLE_ANGLES,
+    MIN_SPHERE_POLAR_ANGLES,
     _normalised,
     _read_text,
+    _require_angles,
     _stem,
 )
 from radiopose.patterns.pattern import (
+    MAX_ABS_DIRECTIVITY_DBI,
     MIN_GRID_STEP_DEG,
     GridError,
     Pattern,
@@ -40,6 +48,12 @@ from radiopose.units import (
 )
 
 _JSON_WS = re.compile(r"[ \t\n\r]*")
+
+
+def _skip_ws(text: str, i: int) -> int:
+    """Offset of the first non-whitespace (JSON whitespace) character at or after ``i``."""
+    m = _JSON_WS.match(text, i)
+    return i if m is None else m.end()
 
 
 class _JsonText:
@@ -58,8 +72,7 @@ class _JsonText:
         self._rows: list[int] | None = None
 
     def _skip(self, i: int) -> int:
-        m = _JSON_WS.match(self.text, i)
-        return i if m is None else m.end()
+        return _skip_ws(self.text, i)
 
     def _end(self, i: int) -> int:
         return self._decoder.raw_decode(self.text, i)[1]
@@ -194,15 +207,189 @@ def _basta_to_polar(
     return polar, wrap_deg(az)
 
 
+def _json_literal(value: Any) -> str:
+    """A decoded JSON scalar as written (``"15.1"``, ``true``, ``null``), else its kind."""
+    if isinstance(value, list):
+        return "a list"
+    if isinstance(value, dict):
+        return "an object"
+    return json.dumps(value)[:40]
+
+
+def _basta_gain_dbi(gain: Any, path: Path, line: int) -> float:
+    """``Gain`` (``{"value": number, "unit": "dBi"|"dBd"}``) in dBi.
+
+    The value must be a JSON number (not a string, not ``true``/``false``), finite,
+    and in dBi within ``±MAX_ABS_DIRECTIVITY_DBI`` — the ``directivity_dbi`` range
+    :func:`~radiopose.patterns.pattern.read_pattern_csv` accepts, so the peak of an
+    imported pattern can be written and read back.
+
+    Raises
+    ------
+    InputError
+        At ``line`` (the ``Gain`` value), column ``Gain``.
+    """
+
+    def bad(message: str) -> InputError:
+        return InputError(message, path=path, line=line, column="Gain")
+
+    if not isinstance(gain, dict) or "value" not in gain or "unit" not in gain:
+        raise bad("expected {value: number, unit: dBi|dBd}")
+    value, unit = gain["value"], gain["unit"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise bad(
+            f"Gain value {_json_literal(value)} is not a number "
+            "(expected {value: number, unit: dBi|dBd})"
+        )
+    if unit not in ("dBi", "dBd"):
+        raise bad(f"Gain unit {_json_literal(unit)} is not dBi or dBd")
+    if isinstance(value, float) and not math.isfinite(value):  # NaN, Infinity, 1e400
+        raise bad(f"Gain value {_json_literal(value)} is not a finite number")
+    try:
+        gain_dbi = float(value) + (DBD_TO_DBI if unit == "dBd" else 0.0)
+    except OverflowError:  # an integer beyond float
+        gain_dbi = math.inf
+    if abs(gain_dbi) > MAX_ABS_DIRECTIVITY_DBI:
+        in_dbi = "" if unit == "dBi" else f" ({gain_dbi:g} dBi)"
+        raise bad(
+            f"Gain {str(value)[:40]} {unit}{in_dbi} is out of range "
+            f"[-{MAX_ABS_DIRECTIVITY_DBI:g}, {MAX_ABS_DIRECTIVITY_DBI:g}] dBi "
+            "(the pattern CSV's directivity_dbi range)"
+        )
+    return gain_dbi
+
+
+def _decode_rows(text: str, i: int, decoder: json.JSONDecoder) -> tuple[FloatArray | None, int]:
+    """The ``Data_Set`` array starting at ``text[i] == "["``, one row at a time, as an
+    ``(n_rows, n_values)`` float64 array and the offset after it.
+
+    ``None`` for an empty array, a row that is not a list of JSON numbers (``true``,
+    ``"1.5"``, ``null``, an integer beyond float) or rows of different lengths:
+    :func:`_decode` then falls back to :func:`json.loads` and the checks that name
+    the row.
+    """
+    values = array("d")
+    n_rows, width = 0, -1
+    i = _skip_ws(text, i + 1)
+    while True:
+        row, i = decoder.raw_decode(text, i)
+        if type(row) is not list or not row or (width >= 0 and len(row) != width):
+            return None, i
+        if not all(type(v) is float or type(v) is int for v in row):  # bool is not int
+            return None, i
+        values.extend(row)  # OverflowError for an integer beyond float
+        n_rows, width = n_rows + 1, len(row)
+        i = _skip_ws(text, i)
+        if text[i] == "]":
+            return np.frombuffer(values, dtype=np.float64).reshape(n_rows, width), i + 1
+        if text[i] != ",":
+            return None, i
+        i = _skip_ws(text, i + 1)
+
+
+def _decode(text: str) -> dict[str, Any] | None:
+    """``json.loads(text)`` of a BASTA object, with ``Data_Set`` decoded straight into
+    a float array (:func:`_decode_rows`) instead of a list of lists: 8 bytes a value
+    instead of about 60 (a float object and a list slot, plus a list per row).
+
+    Each member is decoded by :meth:`json.JSONDecoder.raw_decode` (the same scanner
+    as :func:`json.loads`, the last of repeated keys wins as there). ``None`` for
+    anything else — not an object, a syntax error, a ``Data_Set`` that is not a
+    plain table of numbers — so :func:`json.loads` reads the file again and its
+    error, or the row checks, say what is wrong.
+    """
+    decoder = json.JSONDecoder()
+    out: dict[str, Any] = {}
+    try:
+        i = _skip_ws(text, 0)
+        if text[i] != "{":
+            return None
+        i = _skip_ws(text, i + 1)
+        while text[i] != "}":
+            if text[i] != '"':
+                return None
+            key, i = decoder.raw_decode(text, i)
+            i = _skip_ws(text, i)
+            if text[i] != ":":
+                return None
+            i = _skip_ws(text, i + 1)
+            if key == "Data_Set" and text[i] == "[":
+                out[key], i = _decode_rows(text, i, decoder)
+                if out[key] is None:
+                    return None
+            else:
+                out[key], i = decoder.raw_decode(text, i)
+            i = _skip_ws(text, i)
+            if text[i] == ",":
+                i = _skip_ws(text, i + 1)
+                if text[i] == "}":  # a trailing comma
+                    return None
+            elif text[i] != "}":
+                return None
+        if _skip_ws(text, i + 1) != len(text):
+            return None
+    except (ValueError, IndexError, OverflowError, RecursionError):  # JSONDecodeError too
+        return None
+    return out
+
+
 def _basta_rows(rows: Any, structure: list[str], path: Path, where: _JsonText) -> FloatArray:
-    """``Data_Set`` as an ``(n_rows, n_columns)`` array; the first bad row/value is named."""
-    if not isinstance(rows, list) or not rows:
+    """``Data_Set`` (a float array from :func:`_decode`, or the rows :func:`json.loads`
+    made) as an ``(n_rows, n_columns)`` array; the first bad row/value is named.
+
+    The list is checked in bulk (row types and lengths, value types) and walked
+    value by value only when that fails; finite values and the range are checked
+    on the array.
+    """
+    ncol = len(structure)
+    if isinstance(rows, np.ndarray):
+        table = rows  # equal-length rows of JSON numbers
+        if table.shape[1] != ncol:
+            _raise_first_bad_row([[0.0] * table.shape[1]], structure, path, where)
+    elif not isinstance(rows, list) or not rows:
         raise InputError(
             "expected a non-empty list of rows",
             path=path,
             line=where.key_line("Data_Set"),
             column="Data_Set",
         )
+    else:
+        plain = (
+            set(map(type, rows)) == {list}
+            and set(map(len, rows)) == {ncol}
+            and set(map(type, chain.from_iterable(rows))) <= {float, int}  # no bool, str, None
+        )
+        try:
+            table = np.array(rows if plain else [], dtype=np.float64)
+        except OverflowError:  # an integer beyond float
+            plain = False
+        if not plain:
+            _raise_first_bad_row(rows, structure, path, where)
+    bad = ~(np.abs(table) <= MAX_ABS_DB)  # NaN too
+    if bad.any():
+        r, k = (int(x) for x in np.argwhere(bad)[0])  # the first in file order
+        finite = bool(np.isfinite(table[r, k]))
+        what = f"out of range [-{MAX_ABS_DB:g}, {MAX_ABS_DB:g}]" if finite else None
+        _raise_bad_value(r, k, what or "not a finite number", structure, path, where)
+    return table
+
+
+def _raise_bad_value(
+    r: int, k: int, what: str, structure: list[str], path: Path, where: _JsonText
+) -> None:
+    raise InputError(
+        f"Data_Set row {r}: {what}: {where.literal(r, k)[:40]}",
+        path=path,
+        line=where.row_line(r, k),
+        column=structure[k],
+    )
+
+
+def _raise_first_bad_row(
+    rows: list[Any], structure: list[str], path: Path, where: _JsonText
+) -> None:
+    """Walk ``Data_Set`` row by row and raise at the first row or value that is not
+    a list of ``len(structure)`` JSON numbers (an integer beyond float is not finite)."""
     ncol = len(structure)
     for r, row in enumerate(rows):
         if not isinstance(row, list) or len(row) != ncol:
@@ -214,26 +401,12 @@ def _basta_rows(rows: Any, structure: list[str], path: Path, where: _JsonText) -
                 column="Data_Set",
             )
         for k, v in enumerate(row):
-            finite = False
-            if isinstance(v, (int, float)) and not isinstance(v, bool):
-                try:
-                    finite = math.isfinite(float(v))
-                except OverflowError:
-                    finite = False
-                what = "not a finite number"
-                if finite and abs(float(v)) > MAX_ABS_DB:
-                    finite = False
-                    what = f"out of range [-{MAX_ABS_DB:g}, {MAX_ABS_DB:g}]"
-            else:
-                what = "not a number"
-            if not finite:
-                raise InputError(
-                    f"Data_Set row {r}: {what}: {where.literal(r, k)[:40]}",
-                    path=path,
-                    line=where.row_line(r, k),
-                    column=structure[k],
-                )
-    return np.array(rows, dtype=np.float64)
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                _raise_bad_value(r, k, "not a number", structure, path, where)
+            try:
+                float(v)
+            except OverflowError:
+                _raise_bad_value(r, k, "not a finite number", structure, path, where)
 
 
 def read_basta_json(
@@ -285,14 +458,16 @@ def read_basta_json(
     """
     p = Path(path)
     text = _read_text(p)
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise InputError(
-            f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
-        ) from None
-    except RecursionError:
-        raise InputError("invalid JSON: nested too deeply", path=p) from None
+    data: Any = _decode(text)
+    if data is None:  # json.loads names the syntax error; the row checks a bad row
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise InputError(
+                f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
+            ) from None
+        except RecursionError:
+            raise InputError("invalid JSON: nested too deeply", path=p) from None
     where = _JsonText(text)
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", path=p, line=where.line(where.start()))
@@ -304,25 +479,7 @@ def read_basta_json(
             line=where.key_line("Coordinate_System"),
             column="Coordinate_System",
         )
-    gain = _basta_key(data, "Gain", p, where)
-    try:
-        g_value = float(gain["value"])
-        g_unit = str(gain["unit"])
-    except (TypeError, KeyError, ValueError, OverflowError):
-        raise InputError(
-            "expected {value: number, unit: dBi|dBd}",
-            path=p,
-            line=where.key_line("Gain"),
-            column="Gain",
-        ) from None
-    if not math.isfinite(g_value) or g_unit not in ("dBi", "dBd"):
-        raise InputError(
-            "expected a finite value and unit dBi or dBd",
-            path=p,
-            line=where.key_line("Gain"),
-            column="Gain",
-        )
-    gain_dbi = g_value + (DBD_TO_DBI if g_unit == "dBd" else 0.0)
+    gain_dbi = _basta_gain_dbi(_basta_key(data, "Gain", p, where), p, where.key_line("Gain"))
 
     structure = _basta_key(data, "Data_Set_Row_Structure", p, where)
     s_line = where.key_line("Data_Set_Row_Structure")
@@ -353,6 +510,7 @@ def read_basta_json(
             column="Data_Set_Row_Structure",
         )
     table = _basta_rows(_basta_key(data, "Data_Set", p, where), structure, p, where)
+    del data["Data_Set"]  # json.loads's rows (about 60 bytes a value), now in table
     col = {s: table[:, k] for k, s in enumerate(structure)}
 
     t_lo, t_hi = _basta_theta_range(system)
@@ -416,4 +574,21 @@ def read_basta_json(
         else:
             line, column = where.key_line(f"{key}_Sampling"), f"{key}_Sampling"
         raise InputError(msg, path=p, line=line, column=column) from None
+    # a complete grid, but enough of one? (file angles and grid axes correspond one to one)
+    for key, angles, n_grid, minimum, noun in (
+        ("Theta", theta, pattern.polar_deg.size, MIN_SPHERE_POLAR_ANGLES, "polar angles"),
+        ("Phi", phi, pattern.azimuth_deg.size, MIN_CIRCLE_ANGLES, "azimuths"),
+    ):
+        if n_grid < minimum:
+            column = key if explicit else f"{key}_Sampling"
+            _require_angles(
+                angles,
+                minimum,
+                f"Data_Set {key}" if explicit else column,
+                f"a sphere needs at least {minimum} {noun}"
+                + (" (both poles and one between)" if key == "Theta" else ""),
+                p,
+                where.key_line("Data_Set" if explicit else column),
+                column,
+            )
     return _normalised(pattern, normalise)

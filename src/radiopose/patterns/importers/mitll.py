@@ -19,8 +19,10 @@ from radiopose.errors import InputError
 from radiopose.patterns.enrol import EnrolConfig, Measurements, enrol
 from radiopose.patterns.importers._common import (
     MAX_ABS_DB,
+    MIN_CIRCLE_ANGLES,
     _finite,
     _read_text,
+    _require_angles,
     _stem,
 )
 from radiopose.patterns.pattern import Pattern
@@ -167,8 +169,9 @@ def read_mitll_measurements(
     ------
     InputError
         Unreadable file, bad number (file, line, column), missing or repeated
-        Angle (within a file or across files), no packets, or no channel heard
-        at every angle.
+        Angle (within a file or across files), fewer than
+        :data:`~radiopose.patterns.importers._common.MIN_CIRCLE_ANGLES` (3)
+        distinct angles, no packets, or no channel heard at every angle.
     """
     files = _mitll_files(path)
     wanted = None if mac is None else {m.strip().lower() for m in mac.split(",") if m.strip()}
@@ -200,6 +203,19 @@ def read_mitll_measurements(
             for ch, rss in packets[m].items():
                 per_angle[key][ch].extend(rss)
     angles = sorted(per_angle)
+    # one file: its Angle row; several: the directory given (else the first file)
+    at, at_line = seen[angles[0]] if len(files) == 1 else (files[0], None)
+    if len(files) > 1 and isinstance(path, (str, os.PathLike)):
+        at = Path(path)
+    _require_angles(
+        angles,
+        MIN_CIRCLE_ANGLES,
+        f"capture Angle in {len(files)} file{'' if len(files) == 1 else 's'}",
+        f"a pattern needs at least {MIN_CIRCLE_ANGLES} around the circle (one file each)",
+        at,
+        at_line,
+        "Angle",
+    )
     channels = [c for c in MITLL_CHANNELS if all(c in per_angle[a] for a in angles)]
     if not channels:
         raise InputError("no BLE channel was heard at every angle", path=files[0])

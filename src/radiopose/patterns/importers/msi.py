@@ -16,10 +16,12 @@ from radiopose.errors import InputError
 from radiopose.patterns.importers._common import (
     DBD_TO_DBI,
     MAX_ABS_DB,
+    MIN_CIRCLE_ANGLES,
     _finite,
     _is_number,
     _normalised,
     _read_text,
+    _require_angles,
     _stem,
 )
 from radiopose.patterns.pattern import Pattern
@@ -190,6 +192,16 @@ def _parse_msi(
             line=end_line,
             column="GAIN",
         )
+    for cut in ("HORIZONTAL", "VERTICAL"):
+        _require_angles(
+            cuts[cut][0],
+            MIN_CIRCLE_ANGLES,
+            cut,
+            f"a cut needs at least {MIN_CIRCLE_ANGLES} around the circle",
+            path,
+            cuts_line[cut],
+            cut,
+        )
     sign = _msi_sign(written, path)
     h_ang, h_att = (np.array(v) for v in cuts["HORIZONTAL"])
     v_ang, v_att = (np.array(v) for v in cuts["VERTICAL"])
@@ -321,8 +333,9 @@ def read_msi(
     ------
     InputError
         Missing section or GAIN, bad number, angle out of range/duplicated/
-        irregular, a data line outside a section, mixed attenuation signs —
-        naming file, line and key.
+        irregular, a cut of fewer than :data:`MIN_CIRCLE_ANGLES` (3) angles, a
+        data line outside a section, mixed attenuation signs — naming file,
+        line and key.
     """
     p = Path(path)
     _, gain_dbi, h_ang, h_att, v_ang, v_att = _parse_msi(p)
