@@ -805,7 +805,8 @@ def test_basta_gain_either_round_trips_or_is_an_error_at_gain(tmp_path_factory, 
         return
     assert abs(dbi) <= 200.0
     write_pattern_csv(p, folder / "g.csv")
-    assert read_pattern_csv(folder / "g.csv").range_dbi == pytest.approx((dbi, dbi))
+    # the CSV keeps 6 decimals
+    assert read_pattern_csv(folder / "g.csv").range_dbi == pytest.approx((dbi, dbi), abs=1e-6)
 
 
 # ---------------------------------------------------------------- enough angles
@@ -1005,3 +1006,51 @@ def test_grid_duplicate_search_agrees_with_a_dict_walk(pairs):
         seen[key] = r
     az, po = (np.array(v) for v in zip(*pairs, strict=True))
     assert _first_repeat(az, po) == expected
+
+
+# ------------------------------------- the directivity's range, reached by gain - attenuation
+def test_gain_minus_attenuation_beyond_the_pattern_csv_range_is_refused_naming_the_file(
+    tmp_path,
+):
+    """A gain and an attenuation each within their own bounds can give a
+    directivity the pattern CSV refuses (15 dBi − 300 dB = −285 dBi): refused
+    on import, naming the file and the direction (it used to be imported and
+    written, and the written file then refused)."""
+    d = _basta()
+    d["Data_Set"][5] = [300.0]
+    path = tmp_path / "deep.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(
+        InputError, match=r"directivity -285 dBi at azimuth .* out of \[-200, 200\]"
+    ) as err:
+        read_basta_json(path)
+    assert err.value.path == str(path) and "\n" not in str(err.value)
+    h, v = _asymmetric_cuts()
+    h[100] = 250.0  # 10 dBi − 250 dB
+    msi = tmp_path / "deep.msi"
+    msi.write_text(_msi_text(h, v))
+    for mode in ("horizontal", "sphere"):
+        with pytest.raises(
+            InputError, match=r"directivity -240 dBi .* out of \[-200, 200\]"
+        ) as err:
+            read_msi(msi, mode=mode)
+        assert err.value.path == str(msi)
+
+
+def test_pattern_beyond_the_csv_range_is_refused_in_python():
+    from radiopose.patterns.pattern import Pattern
+
+    d = np.zeros((4, 1))
+    d[2, 0] = -200.5
+    with pytest.raises(InputError, match=r"directivity -200.5 dBi at azimuth 180, polar 90 deg"):
+        Pattern("p", np.arange(4) * 90.0, np.array([90.0]), d)
+    d[2, 0] = -200.0  # the bound itself is the CSV's, accepted
+    assert Pattern("p", np.arange(4) * 90.0, np.array([90.0]), d).range_dbi[0] == -200.0
+
+
+def test_basta_integer_beyond_pythons_digit_limit_is_an_input_error(tmp_path):
+    path = tmp_path / "long.json"
+    path.write_text(json.dumps(_basta()).replace('"value": 15.0', '"value": ' + "1" * 5000))
+    with pytest.raises(InputError, match="invalid JSON: Exceeds the limit") as err:
+        read_basta_json(path)
+    assert err.value.path == str(path) and "\n" not in str(err.value)

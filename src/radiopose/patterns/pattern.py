@@ -208,6 +208,13 @@ class Pattern:
                 f"{what}: directivity has NaN/inf ({d[i, j]:g} dBi at azimuth "
                 f"{az[i]:g}, polar {po[j]:g} deg)"
             )
+        if np.abs(d).max() > MAX_ABS_DIRECTIVITY_DBI:
+            i, j = _first_bad(np.abs(d) <= MAX_ABS_DIRECTIVITY_DBI)
+            raise InputError(
+                f"{what}: directivity {d[i, j]:g} dBi at azimuth {az[i]:g}, polar "
+                f"{po[j]:g} deg is out of [-{MAX_ABS_DIRECTIVITY_DBI:g}, "
+                f"{MAX_ABS_DIRECTIVITY_DBI:g}] dBi (the pattern CSV's range)"
+            )
         step = 360.0 / az.size
         regular = np.allclose(np.diff(az), step, atol=_STEP_TOL)
         if not (0 <= az[0] < step - _STEP_TOL) or not regular:

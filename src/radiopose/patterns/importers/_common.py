@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +61,20 @@ def _finite(
             column=column,
         )
     return value
+
+
+@contextmanager
+def _in_file(path: Path) -> Iterator[None]:
+    """Give ``path`` to an :class:`InputError` raised without a file: the
+    :class:`Pattern` checks (e.g. a directivity beyond the pattern CSV's
+    ±200 dBi, which a gain and an attenuation each in range can reach) name
+    the pattern and the angle, not the file it was imported from."""
+    try:
+        yield
+    except InputError as exc:
+        if exc.path is not None:
+            raise
+        raise InputError(exc.reason, path=path, column=exc.column) from None
 
 
 def _normalised(pattern: Pattern, normalise: bool) -> Pattern:

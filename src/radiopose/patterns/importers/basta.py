@@ -27,6 +27,7 @@ from radiopose.patterns.importers._common import (
     MAX_ABS_DB,
     MIN_CIRCLE_ANGLES,
     MIN_SPHERE_POLAR_ANGLES,
+    _in_file,
     _normalised,
     _read_text,
     _require_angles,
@@ -468,6 +469,8 @@ def read_basta_json(
             ) from None
         except RecursionError:
             raise InputError("invalid JSON: nested too deeply", path=p) from None
+        except ValueError as exc:  # e.g. an integer beyond Python's 4,300-digit limit
+            raise InputError(f"invalid JSON: {str(exc).split(';')[0]}", path=p) from None
     where = _JsonText(text)
     if not isinstance(data, dict):
         raise InputError("expected a JSON object", path=p, line=where.line(where.start()))
@@ -561,19 +564,20 @@ def read_basta_json(
     polar = np.round(polar, _ROUND)
     az = np.round(az, _ROUND)
     az = np.where(az >= 360.0, 0.0, az)
-    try:
-        pattern = pattern_from_samples(name or _stem(p), az, polar, gain_dbi - atten)
-    except GridError as exc:
-        r = exc.row
-        msg = f"Data_Set row {r} (Theta {theta[r]:g}, Phi {phi[r]:g}): {exc.message}"
-        if exc.other_row is not None:
-            msg += f" (first in row {exc.other_row})"
-        key = "Phi" if exc.axis == "azimuth" else "Theta"
-        if explicit:
-            line, column = where.row_line(r, structure.index(key)), key
-        else:
-            line, column = where.key_line(f"{key}_Sampling"), f"{key}_Sampling"
-        raise InputError(msg, path=p, line=line, column=column) from None
+    with _in_file(p):  # a GridError gets its row below; Pattern's own checks the file
+        try:
+            pattern = pattern_from_samples(name or _stem(p), az, polar, gain_dbi - atten)
+        except GridError as exc:
+            r = exc.row
+            msg = f"Data_Set row {r} (Theta {theta[r]:g}, Phi {phi[r]:g}): {exc.message}"
+            if exc.other_row is not None:
+                msg += f" (first in row {exc.other_row})"
+            key = "Phi" if exc.axis == "azimuth" else "Theta"
+            if explicit:
+                line, column = where.row_line(r, structure.index(key)), key
+            else:
+                line, column = where.key_line(f"{key}_Sampling"), f"{key}_Sampling"
+            raise InputError(msg, path=p, line=line, column=column) from None
     # a complete grid, but enough of one? (file angles and grid axes correspond one to one)
     for key, angles, n_grid, minimum, noun in (
         ("Theta", theta, pattern.polar_deg.size, MIN_SPHERE_POLAR_ANGLES, "polar angles"),

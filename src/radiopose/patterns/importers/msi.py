@@ -18,6 +18,7 @@ from radiopose.patterns.importers._common import (
     MAX_ABS_DB,
     MIN_CIRCLE_ANGLES,
     _finite,
+    _in_file,
     _is_number,
     _normalised,
     _read_text,
@@ -344,7 +345,8 @@ def read_msi(
     # pattern azimuth phi looks at horizontal angle h = 360 − phi
     a_h = _cut_at(h_ang, h_att, 360.0 - az)
     if mode == "horizontal":
-        return _normalised(Pattern(pname, az, np.array([90.0]), gain_dbi - a_h), normalise)
+        with _in_file(p):
+            return _normalised(Pattern(pname, az, np.array([90.0]), gain_dbi - a_h), normalise)
     if mode != "sphere":
         raise ValueError(f"unknown MSI mode {mode!r}")
     theta = np.arange(181, dtype=np.float64) * 1.0
@@ -355,4 +357,5 @@ def read_msi(
     lin = db_to_linear(-atten)
     for j in (0, 180):  # each pole is one direction
         lin[:, j] = lin[:, j].mean()
-    return _normalised(Pattern(pname, az, theta, gain_dbi + linear_to_db(lin)), normalise)
+    with _in_file(p):
+        return _normalised(Pattern(pname, az, theta, gain_dbi + linear_to_db(lin)), normalise)
