@@ -10,7 +10,10 @@ receivers, a packet every 5 ms, 2 s traces), held-out seeds (default
   equal to the lag and the offline-only passes off (``offline_offset_selection``,
   ``offline_reverse_pass``, ``offline_refine``), which is exactly what the
   streaming tracker with that lag gives (``tests/test_server_live_lag.py``); the
-  live server never runs those passes;
+  live server never runs those passes over the whole file, only over a track's
+  first half second (the live re-solve, ``FilterConfig.live_resolve_times_s``,
+  the default since session 25; ``--set "live_resolve_times_s=()"`` gives the
+  rows before it; ``tests/test_live_resolve.py``);
 * ``offline, lag 1 s`` — batch ``locate``'s default (with the offline passes);
 * ``textbook`` — issue 15's anchor, not ``filter``: a plain textbook particle
   filter told the scenario's σ and the device's power

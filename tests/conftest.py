@@ -75,6 +75,7 @@ TIERS: dict[str, str] = {
     "test_evaluate_report": "e2e",
     "test_evaluate_runner": "e2e",
     "test_filter": "e2e",
+    "test_live_resolve": "e2e",
     "test_textbook_pf": "e2e",
     "test_filter_offline_workers": "e2e",
     "test_filter_offset": "e2e",

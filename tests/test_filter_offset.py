@@ -71,8 +71,14 @@ def scorer(sim_loud):
 
 def _run(sim, scorer, **filter_settings: object):
     # round 4's selection on its own: without round 6's reversed pass and arbiter,
-    # which leave this run's wrong lock even without the selection
-    settings = {"offline_reverse_pass": False, "offline_refine": False, **filter_settings}
+    # which leave this run's wrong lock even without the selection, nor the live
+    # re-solve (session 25), which runs them on the first 0.5 s when none is on
+    settings = {
+        "offline_reverse_pass": False,
+        "offline_refine": False,
+        "live_resolve_times_s": (),
+        **filter_settings,
+    }
     cfg = tracker_before_angular_noise(**settings)  # the case's wrong lock (filter_support)
     return run_methods(sim, ("filter",), cfg, scorer)["filter"]
 

@@ -55,7 +55,9 @@ _STRING_CHOICES: dict[str, tuple[str, ...]] = {"likelihood": LIKELIHOODS, "smoot
 FILTER_ZERO_ALLOWED_INTS = frozenset({"offset_scans_per_reentry", "difference_memory"})
 """Integer ``[filter]`` keys for which 0 is a value (it switches the part off)."""
 
-FILTER_EMPTY_ALLOWED_LISTS = frozenset({"offset_scan_db", "offset_selection_grid_db"})
+FILTER_EMPTY_ALLOWED_LISTS = frozenset(
+    {"offset_scan_db", "offset_selection_grid_db", "live_resolve_times_s"}
+)
 """List-valued ``[filter]`` keys that may be empty (``[]`` switches the part off)."""
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,6 +33,15 @@ MAX_LAG_S = 10.0
 the smoother holds every particle of every packet within the lag, so its
 memory grows with lag × packet rate × particles (about 0.4 GB at 10 s, 200
 packets/s and the 2-D default)."""
+
+LIVE_RESOLVE_TIMES_S = (0.25, 0.3, 0.35, 0.4, 0.45, 0.5)
+"""The live filter's re-solves of a track's start, seconds after its first
+packet (``FilterConfig.live_resolve_times_s``; the default since session 25:
+docs/filter.md, "The live re-solve")."""
+
+MAX_LIVE_RESOLVES = 20
+"""Most re-solves of a track's start the live filter may be set to
+(``FilterConfig.live_resolve_times_s``)."""
 
 
 def lag_in_range(lag_s: object) -> bool:
@@ -293,6 +303,23 @@ class FilterConfig:
         evidence over the offsets stays on the 1 m grid
         (``CoarseSettings.path_position_step_m``; docs/filter.md, "Coarse-grid
         HMM: a finer path"); positive, at most 5.
+    live_resolve_times_s
+        Live only (the streaming ``Tracker`` with a lag, as the live server
+        runs it; 2-D sites): at each of these times after a track's first
+        packet, seconds, the track so far is re-solved by the offline passes
+        (forward, reversed, coarse HMM, arbiter; serial), the estimates the
+        smoother still holds are replaced by the re-solve's and, where its
+        last pose is more than 1 m or 30° from the filter's, the particles
+        are re-seeded there (:mod:`radiopose.tracker.resolve`). Default
+        ``LIVE_RESOLVE_TIMES_S`` (every 0.05 s from 0.25 to 0.5 s); empty: off.
+        Batch ``locate`` with its offline passes and the causal filter never
+        re-solve. At most ``MAX_LIVE_RESOLVES`` increasing times in
+        (0, ``MAX_LAG_S``]; a re-solve costs 0.2–0.5 s of CPU.
+    live_resolve_max_sigma_db
+        A re-solve runs only while the filter's σ estimate is at most this,
+        dB: on a third of a second of packets the offline passes are more
+        often right than the filter at σ = 0.5–1 dB and less often at 2 dB
+        (docs/filter.md, "The live re-solve"); positive.
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -382,6 +409,11 @@ class FilterConfig:
     coarse_track_margin: float = 2.0
     coarse_track_paths: int = 1
     coarse_track_path_step_m: float = 0.5
+    # issue 15 (live acquisition, session 25): times after a track's start, s,
+    # at which the live (lagged, streaming) filter re-solves the track so far
+    # with the offline passes (radiopose.tracker.resolve; () turns it off)
+    live_resolve_times_s: tuple[float, ...] = LIVE_RESOLVE_TIMES_S
+    live_resolve_max_sigma_db: float = 1.5
 
     def __post_init__(self) -> None:
         check_setting_types(self, "filter")
@@ -392,7 +424,7 @@ class FilterConfig:
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
             "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
-            "offset_profile_tolerance_db",
+            "offset_profile_tolerance_db", "live_resolve_max_sigma_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -452,6 +484,16 @@ class FilterConfig:
             raise InputError(
                 "filter settings: initial_offsets_db must list an offset and "
                 "min_acquisition_receivers must be >= 1"
+            )
+        times = self.live_resolve_times_s
+        if (
+            len(times) > MAX_LIVE_RESOLVES
+            or not all(0 < v <= MAX_LAG_S for v in times)
+            or any(b <= a for a, b in itertools.pairwise(times))
+        ):
+            raise InputError(
+                f"filter setting live_resolve_times_s = {times!r} must be at most "
+                f"{MAX_LIVE_RESOLVES} increasing times in (0, {MAX_LAG_S:g}] s"
             )
         if not 1 <= self.k <= 100_000:
             raise InputError(f"filter setting k = {self.k!r} must be in [1, 100000]")

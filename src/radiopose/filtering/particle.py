@@ -130,6 +130,9 @@ class FilterState:
     forward_kept: list | None = None
     forward_evidence: dict | None = None  # and each packet's log evidence by key
     backward: BackwardStore | None = None  # smoother: FilterConfig.smoother = "backward"
+    # live re-solve of a track's start (FilterConfig.live_resolve_times_s;
+    # radiopose.tracker.resolve.LiveResolve), None when off or not started
+    resolve: Any = None
 
 
 class ParticleFilter:
@@ -598,6 +601,80 @@ class ParticleFilter:
         """Emit every pending smoothed estimate (end of the data)."""
         if st.particles is not None and st.log_weights is not None:
             self._flush_into(st, _normalised(st.log_weights))
+
+    def reseed(
+        self,
+        st: FilterState,
+        t_s: float,
+        pose: FilterEstimate,
+        velocity_mps: tuple[float, float],
+        rate_dps: float,
+        share: float = 0.5,
+        prior: float = 0.5,
+    ) -> None:
+        """Replace a ``share`` of the particles by draws around ``pose`` at
+        ``t_s`` (a live re-solve's estimate, :mod:`radiopose.tracker.resolve`),
+        weighted like re-entered hypotheses: each by its likelihood over the
+        evidence window against the filter's own evidence there, times
+        ``prior`` (the probability that the re-solve, not the filter, holds the
+        device), so the packets decide between the two.
+
+        The draws: position spread ``pose.position_std_m`` clipped to
+        [0.05, 0.5] m, azimuth spread ``pose.azimuth_std_deg`` clipped to
+        [2, 15]°, velocity ``velocity_mps`` (m/s) ± 0.2 m/s, turn rate
+        ``rate_dps`` (°/s) ± 20 °/s, the power offset ``pose.offset_db`` ± 0.5 dB.
+        In the smoother's genealogy each has its own pose moved back along its
+        motion as its past (a re-entry that inherits nothing)."""
+        S, logw = st.particles, st.log_weights
+        if S is None or logw is None or not math.isfinite(pose.offset_db):
+            return
+        n, rng, box = S.shape[0], st.rng, self.model.box_m
+        m = max(1, min(n, round(share * n)))
+        sd_m = min(max(pose.position_std_m, 0.05), 0.5)
+        sd_az = math.radians(min(max(pose.azimuth_std_deg, 2.0), 15.0))
+        x, y, z = pose.position_m
+        az, pitch, roll = (math.radians(a) for a in pose.orientation_deg)
+        new = np.zeros((m, S.shape[1]))
+        new[:, K.X_M] = np.clip(x + rng.normal(0.0, sd_m, m), box[0], box[1])
+        new[:, K.Y_M] = np.clip(y + rng.normal(0.0, sd_m, m), box[2], box[3])
+        new[:, K.Z_M] = z
+        new[:, K.VX_MPS] = velocity_mps[0] + rng.normal(0.0, 0.2, m)
+        new[:, K.VY_MPS] = velocity_mps[1] + rng.normal(0.0, 0.2, m)
+        new[:, K.AZIMUTH_RAD] = (az + rng.normal(0.0, sd_az, m)) % (2.0 * math.pi)
+        new[:, K.RATE_RAD_S] = math.radians(rate_dps) + rng.normal(0.0, math.radians(20.0), m)
+        new[:, K.PITCH_RAD] = pitch
+        new[:, K.ROLL_RAD] = roll
+        off = pose.offset_db + rng.normal(0.0, 0.5, m)
+        new[:, K.OFFSET_DB] = off
+        new[:, K.OFFSET_VAR_DB2] = 0.25
+        ll = np.zeros(m)
+        sigma = math.sqrt(st.sigma2_db2)
+        back = np.empty_like(new)
+        for tau, hd, _ in st.window:
+            back[:] = new
+            lag = t_s - tau
+            back[:, K.X_M] -= new[:, K.VX_MPS] * lag
+            back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
+            back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
+            self._window_loglik(self.model.expected(back, hd.receiver_index), hd.rss_dbm, off,
+                                sigma, ll)  # fmt: skip
+        evidence = sum(lz for _, _, lz in st.window)
+        slots = rng.choice(n, size=m, replace=False)
+        lse = float(K.log_sum_exp(logw))
+        # the filter's own particles keep 1 − prior of the mass, the new ones prior
+        keep = np.ones(n, dtype=bool)
+        keep[slots] = False
+        if keep.any():
+            logw[keep] += math.log(1.0 - prior) + lse - float(K.log_sum_exp(logw[keep]))
+        S[slots] = new
+        logw[slots] = lse + math.log(prior / m) + ll - evidence
+        if st.lineage is not None:
+            st.lineage.inject(
+                t_s, self.config.proposal_window_s, new, slots, slots,
+                inherit=np.zeros(m, dtype=bool), box_m=box,
+            )  # fmt: skip
+        if st.backward is not None:
+            st.backward.reentered(slots)
 
     def take_smoothed(self) -> list[tuple[object, FilterEstimate]]:
         """The smoothed estimates emitted since the last call, as ``(key, estimate)``."""

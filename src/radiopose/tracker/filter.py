@@ -115,6 +115,13 @@ class FilterMethod:
         if _refines(device):
             _record_members(device, state)
         before = state.log_evidence
+        starts = _live_resolves(device) and (
+            state.particles is None
+            or (
+                state.last_time_s is not None
+                and t_s - state.last_time_s > pf.config.reacquire_gap_s
+            )
+        )
         est = pf.step(state, t_s, heard, (packet_id, t_s))
         if _replays(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
@@ -122,6 +129,12 @@ class FilterMethod:
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.beliefs_db.append(est.offset_db if est is not None else math.nan)
         smoothed = pf.take_smoothed()
+        if _live_resolves(device):  # session 25: the live re-solve of a track's start
+            from radiopose.tracker.resolve import live_resolve_step
+
+            smoothed = live_resolve_step(
+                device, state, t_s, heard, packet_id, est, starts, smoothed
+            )
         if _refines(device):  # 3-D, offline: the batch refinement's record
             if state.records is None or state.refine_smoothed is None:
                 state.records, state.refine_smoothed = [], []
@@ -178,22 +191,30 @@ class FilterMethod:
             device.shared[_ahead_key(device)] = _LookAhead(records)
 
     def flush(self, device: Device, state: FilterState) -> tuple[Delayed, ...]:
+        return _as_delayed(self.flush_estimates(device, state))
+
+    def flush_estimates(
+        self, device: Device, state: FilterState
+    ) -> list[tuple[object, FilterEstimate]]:
+        """:meth:`flush` as the filter's ``((packet_id, t_s), estimate)`` pairs
+        (with their power offsets), for :mod:`radiopose.tracker.resolve`."""
         ahead = device.shared.pop(_ahead_key(device), None)
         try:
-            return self._flush(device, state, ahead if isinstance(ahead, _LookAhead) else None)
+            out = self._flush(device, state, ahead if isinstance(ahead, _LookAhead) else None)
+            return live_overridden(state, out)
         finally:
             if isinstance(ahead, _LookAhead):
                 ahead.cancel()  # not taken (or taken: then a no-op)
 
     def _flush(
         self, device: Device, state: FilterState, ahead: _LookAhead | None
-    ) -> tuple[Delayed, ...]:
+    ) -> list[tuple[object, FilterEstimate]]:
         pf: ParticleFilter = device.engine
         pf.flush(state)
         if _refines(device) and state.records:
-            return _as_delayed(_refine(device, state))
+            return _refine(device, state)
         if not (_replays(device) and state.records):
-            return _delayed(pf)
+            return pf.take_smoothed()
         # issue 15: offline, the device-level offset chosen by the whole file's
         # marginal likelihood (radiopose.filtering.offset); re-emits every packet
         records, beliefs = state.records, np.asarray(state.beliefs_db, dtype=float)
@@ -219,7 +240,7 @@ class FilterMethod:
         else:
             chosen, passes = first, [OffsetPass(math.nan, state.log_evidence)]
         if not (_reverses(device) or _arbitrates(device)):
-            return _as_delayed(chosen)
+            return list(chosen)
         kept, state.forward_kept = state.forward_kept or [], None
         evidence, state.forward_evidence = state.forward_evidence or {}, None
         best = max(range(len(passes)), key=lambda i: (passes[i].log_evidence, -i))
@@ -264,7 +285,7 @@ class FilterMethod:
                     tight_evidence if best > 0 else evidence, rev, pre,
                 )  # fmt: skip
                 if not _arbitrates(device):
-                    return _as_delayed(combined)
+                    return list(combined)
                 candidates += [dict(combined), rev]
                 # session 11 (off by default): reversed passes at the runner-up
                 # passes' offsets too, as more candidates of the arbiter
@@ -297,7 +318,7 @@ class FilterMethod:
             pf, records, candidates, sigma_db, passes, seed, workers=workers, cache=cache,
             handicaps_nats=hand,
         )  # fmt: skip
-        return _as_delayed(out)
+        return list(out)
 
 
 def _more_reversed(
@@ -509,10 +530,6 @@ def _outcome(est: FilterEstimate) -> Outcome:
     )
 
 
-def _delayed(pf: ParticleFilter) -> tuple[Delayed, ...]:
-    return _as_delayed(pf.take_smoothed())
-
-
 def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed, ...]:
     return tuple(
         Delayed(t_s, packet_id, _outcome(est))
@@ -520,6 +537,30 @@ def _as_delayed(smoothed: list[tuple[object, FilterEstimate]]) -> tuple[Delayed,
             "list[tuple[tuple[str, float], FilterEstimate]]", smoothed
         )
     )
+
+
+def _live_resolves(device: Device) -> bool:
+    """Whether the live re-solve of a track's start runs for ``device``: the
+    filter with a lag at a 2-D site, ``live_resolve_times_s`` set, and no pass
+    over the whole file (the live server; batch ``locate`` with the offline
+    passes off gives the same, as for the lag itself)."""
+    return (
+        device.lag_s is not None
+        and device.lag_s > 0.0  # lag 0 is the causal filter, as lag None
+        and bool(filter_config(device.config).live_resolve_times_s)
+        and type(device.engine) is ParticleFilter
+        and not _replays(device)
+    )
+
+
+def live_overridden(
+    state: FilterState, estimates: list[tuple[object, FilterEstimate]]
+) -> list[tuple[object, FilterEstimate]]:
+    """``estimates`` with those a live re-solve replaced (:mod:`radiopose.tracker.resolve`)."""
+    rs = getattr(state, "resolve", None)
+    if rs is None or not rs.overrides:
+        return estimates
+    return [(key, rs.overrides.pop(key, est)) for key, est in estimates]
 
 
 def _replays(device: Device) -> bool:
