@@ -305,19 +305,7 @@ class ParticleFilter:
         new[rest, K.RATE_RAD_S] = 0.0
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 1.0 / (prec + 1.0 / cfg.offset_prior_sd_db**2)
-        # evidence of each hypothesis over the window (moved back along its velocity)
-        ll = np.zeros(m)
-        sigma = math.sqrt(st.sigma2_db2)
-        back = np.empty_like(new)
-        for tau, hd, _ in st.window:
-            back[:] = new
-            lag = t_s - tau
-            back[:, K.X_M] -= new[:, K.VX_MPS] * lag
-            back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
-            back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
-            pred = mod.expected(back, hd.receiver_index)
-            self._window_loglik(pred, hd.rss_dbm, off, sigma, ll)
-        evidence = sum(lz for _, _, lz in st.window)
+        ll, evidence = self._window_evidence(st, t_s, new, off)
         prior = (
             -0.5
             * ((off - st.offset_prior_db) ** 2 - (b - st.offset_prior_db) ** 2)
@@ -496,6 +484,26 @@ class ParticleFilter:
             return self.config.huber_c
         return self._log_eps(sigma_db)
 
+    def _window_evidence(
+        self, st: FilterState, t_s: float, new: FloatArray, offset_db: FloatArray
+    ) -> tuple[FloatArray, float]:
+        """Each row of ``new`` (particles at ``t_s``, power offsets ``offset_db``)
+        scored over the evidence window, moved back along its velocity and turn
+        rate to each packet's time: ``(log-likelihood per row, the filter's own
+        log evidence over the same packets)``, nats."""
+        ll = np.zeros(new.shape[0])
+        sigma = math.sqrt(st.sigma2_db2)
+        back = np.empty_like(new)
+        for tau, hd, _ in st.window:
+            back[:] = new
+            lag = t_s - tau
+            back[:, K.X_M] -= new[:, K.VX_MPS] * lag
+            back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
+            back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
+            pred = self.model.expected(back, hd.receiver_index)
+            self._window_loglik(pred, hd.rss_dbm, offset_db, sigma, ll)
+        return ll, sum(lz for _, _, lz in st.window)
+
     def _window_loglik(
         self, pred: FloatArray, rss: FloatArray, offset_db: FloatArray, sigma_db: float,
         out: FloatArray,
@@ -647,18 +655,7 @@ class ParticleFilter:
         off = pose.offset_db + rng.normal(0.0, 0.5, m)
         new[:, K.OFFSET_DB] = off
         new[:, K.OFFSET_VAR_DB2] = 0.25
-        ll = np.zeros(m)
-        sigma = math.sqrt(st.sigma2_db2)
-        back = np.empty_like(new)
-        for tau, hd, _ in st.window:
-            back[:] = new
-            lag = t_s - tau
-            back[:, K.X_M] -= new[:, K.VX_MPS] * lag
-            back[:, K.Y_M] -= new[:, K.VY_MPS] * lag
-            back[:, K.AZIMUTH_RAD] -= new[:, K.RATE_RAD_S] * lag
-            self._window_loglik(self.model.expected(back, hd.receiver_index), hd.rss_dbm, off,
-                                sigma, ll)  # fmt: skip
-        evidence = sum(lz for _, _, lz in st.window)
+        ll, evidence = self._window_evidence(st, t_s, new, off)
         slots = rng.choice(n, size=m, replace=False)
         lse = float(K.log_sum_exp(logw))
         # the filter's own particles keep 1 − prior of the mass, the new ones prior
