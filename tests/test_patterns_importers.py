@@ -1021,10 +1021,13 @@ def test_gain_minus_attenuation_beyond_the_pattern_csv_range_is_refused_naming_t
     path = tmp_path / "deep.json"
     path.write_text(json.dumps(d))
     with pytest.raises(
-        InputError, match=r"directivity -285 dBi at azimuth .* out of \[-200, 200\]"
+        InputError,
+        match=r"Data_Set row 5: directivity -285 dBi \(Gain 15 dBi − attenuation 300 dB\) "
+        r"is out of \[-200, 200\]",
     ) as err:
         read_basta_json(path)
     assert err.value.path == str(path) and "\n" not in str(err.value)
+    assert err.value.column == "MagAttenuationTP" and err.value.line is not None
     h, v = _asymmetric_cuts()
     h[100] = 250.0  # 10 dBi − 250 dB
     msi = tmp_path / "deep.msi"

@@ -559,6 +559,21 @@ def read_basta_json(
         if "MagAttenuationCr" in col:
             lin = lin + db_to_linear(-col["MagAttenuationCr"])
         atten = -linear_to_db(lin)
+    # the gain and each attenuation within their own ranges can still give a
+    # directivity the pattern CSV refuses (15 dBi − 300 dB): named at its row
+    directivity = gain_dbi - atten
+    beyond = np.flatnonzero(~(np.abs(directivity) <= MAX_ABS_DIRECTIVITY_DBI))
+    if beyond.size:
+        r = int(beyond[0])
+        key = "MagAttenuationTP" if "MagAttenuationTP" in col else "MagAttenuationCo"
+        raise InputError(
+            f"Data_Set row {r}: directivity {directivity[r]:g} dBi (Gain {gain_dbi:g} dBi − "
+            f"attenuation {atten[r]:g} dB) is out of [-{MAX_ABS_DIRECTIVITY_DBI:g}, "
+            f"{MAX_ABS_DIRECTIVITY_DBI:g}] dBi (the pattern CSV's range)",
+            path=p,
+            line=where.row_line(r, structure.index(key)),
+            column=key,
+        )
 
     polar, az = _basta_to_polar(system, theta, phi)
     polar = np.round(polar, _ROUND)
