@@ -547,8 +547,8 @@ def _live_resolves(device: Device) -> bool:
     return (
         device.lag_s is not None
         and device.lag_s > 0.0  # lag 0 is the causal filter, as lag None
-        and bool(filter_config(device.config).live_resolve_times_s)
         and type(device.engine) is ParticleFilter
+        and bool(device.engine.config.live_resolve_times_s)
         and not _replays(device)
     )
 

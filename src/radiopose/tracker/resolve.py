@@ -145,7 +145,8 @@ def live_resolve_step(
     rs: LiveResolve | None = state.resolve
     if rs is None or est is None:
         return smoothed
-    times = filter_config(device.config).live_resolve_times_s
+    cfg = device.engine.config  # the filter's FilterConfig (filter_config's)
+    times = cfg.live_resolve_times_s
     if rs.done >= len(times):
         return smoothed
     rs.records.append((t_s, heard, packet_id))
@@ -157,7 +158,7 @@ def live_resolve_step(
         records, rs.records = rs.records, []
     else:
         records = rs.records
-    if math.sqrt(state.sigma2_db2) > filter_config(device.config).live_resolve_max_sigma_db:
+    if math.sqrt(state.sigma2_db2) > cfg.live_resolve_max_sigma_db:
         return smoothed  # too noisy for a third of a second to beat the filter
     solved = resolve_track(device, records)
     rs.overrides.update(solved)
