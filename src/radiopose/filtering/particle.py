@@ -348,15 +348,20 @@ class ParticleFilter:
             box_m=self.model.box_m,
         )  # fmt: skip
 
+    def starts_track(self, st: FilterState, t_s: float) -> bool:
+        """Whether a packet at ``t_s`` starts a new track: none yet, or a silence
+        longer than ``reacquire_gap_s`` since the last packet."""
+        return st.particles is None or (
+            st.last_time_s is not None and t_s - st.last_time_s > self.config.reacquire_gap_s
+        )
+
     def _advance_clock(self, st: FilterState, t_s: float, heard: HeardRss) -> float | None:
         """Start of :meth:`step`: the time since the last packet, seconds (0 for a
         new track), or ``None`` when no track could be started. A gap longer than
         ``reacquire_gap_s`` ends the track (flushed to the smoother, its power
         offset kept as the next prior) and acquires anew from this packet."""
         cfg = self.config
-        new_track = st.particles is None or (
-            st.last_time_s is not None and t_s - st.last_time_s > cfg.reacquire_gap_s
-        )
+        new_track = self.starts_track(st, t_s)
         dt = 0.0
         if new_track:
             if st.particles is not None:
@@ -617,8 +622,8 @@ class ParticleFilter:
         pose: FilterEstimate,
         velocity_mps: tuple[float, float],
         rate_dps: float,
-        share: float = 0.5,
-        prior: float = 0.5,
+        share: float,
+        prior: float,
     ) -> None:
         """Replace a ``share`` of the particles by draws around ``pose`` at
         ``t_s`` (a live re-solve's estimate, :mod:`radiopose.tracker.resolve`),

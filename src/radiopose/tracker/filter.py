@@ -115,13 +115,8 @@ class FilterMethod:
         if _refines(device):
             _record_members(device, state)
         before = state.log_evidence
-        starts = _live_resolves(device) and (
-            state.particles is None
-            or (
-                state.last_time_s is not None
-                and t_s - state.last_time_s > pf.config.reacquire_gap_s
-            )
-        )
+        resolves = _live_resolves(device)
+        starts = resolves and pf.starts_track(state, t_s)
         est = pf.step(state, t_s, heard, (packet_id, t_s))
         if _replays(device):  # issue 15: the offline offset selection's record
             if state.records is None or state.beliefs_db is None:
@@ -129,7 +124,7 @@ class FilterMethod:
             state.records.append((t_s, heard, (packet_id, t_s)))
             state.beliefs_db.append(est.offset_db if est is not None else math.nan)
         smoothed = pf.take_smoothed()
-        if _live_resolves(device):  # session 25: the live re-solve of a track's start
+        if resolves:  # session 25: the live re-solve of a track's start
             from radiopose.tracker.resolve import live_resolve_step
 
             smoothed = live_resolve_step(

@@ -34,6 +34,7 @@ from radiopose.filtering import FilterEstimate, FilterState, ParticleFilter
 from radiopose.likelihood import HeardRss
 from radiopose.tracker.config import filter_config
 from radiopose.tracker.protocol import Device
+from radiopose.units import angle_diff_deg
 
 if TYPE_CHECKING:
     from radiopose.tracker.filter import FilterMethod
@@ -166,18 +167,18 @@ def live_resolve_step(
     now = solved.get((packet_id, t_s))
     if now is not None and _far(now, est):
         pf: ParticleFilter = device.engine
-        velocity, rate = _motion(solved, t_s)
+        velocity, rate = _motion(solved)
         pf.reseed(state, t_s, now, velocity, rate, RESEED_SHARE, RESEED_PRIOR)
     return smoothed
 
 
 def _far(a: FilterEstimate, b: FilterEstimate) -> bool:
     d_m = math.hypot(a.position_m[0] - b.position_m[0], a.position_m[1] - b.position_m[1])
-    d_deg = abs((a.orientation_deg[0] - b.orientation_deg[0] + 180.0) % 360.0 - 180.0)
+    d_deg = abs(float(angle_diff_deg(a.orientation_deg[0], b.orientation_deg[0])))
     return d_m > RESEED_M or d_deg > RESEED_DEG
 
 
-def _motion(solved: dict[object, FilterEstimate], t_s: float) -> tuple[tuple[float, float], float]:
+def _motion(solved: dict[object, FilterEstimate]) -> tuple[tuple[float, float], float]:
     """Velocity (m/s) and turn rate (°/s) of the re-solved track over its last
     :data:`VELOCITY_SPAN_S` (zero when it is shorter)."""
     timed = sorted(
@@ -193,7 +194,7 @@ def _motion(solved: dict[object, FilterEstimate], t_s: float) -> tuple[tuple[flo
         return (0.0, 0.0), 0.0
     vx = (e1.position_m[0] - e0.position_m[0]) / dt
     vy = (e1.position_m[1] - e0.position_m[1]) / dt
-    turn = (e1.orientation_deg[0] - e0.orientation_deg[0] + 180.0) % 360.0 - 180.0
+    turn = float(angle_diff_deg(e1.orientation_deg[0], e0.orientation_deg[0]))
     return (vx, vy), turn / dt
 
 
