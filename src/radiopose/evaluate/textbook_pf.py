@@ -201,16 +201,8 @@ def _draw(
         return None
     mse = np.asarray(top.mse_db2, dtype=float)
     p = np.exp(-(mse - mse.min()) * heard.n_heard / (2.0 * cfg.sigma_db**2))
-    pick = top.candidate_idx[rng.choice(mse.size, size=m, p=p / p.sum())]
-    S = np.zeros((m, K.N_COLUMNS))
-    S[:, K.X_M : K.Z_M + 1] = mod.space.candidate_positions_m(pick)
-    ori = np.deg2rad(mod.space.candidate_orientations_deg(pick))
-    S[:, K.AZIMUTH_RAD], S[:, K.PITCH_RAD], S[:, K.ROLL_RAD] = ori[:, 0], ori[:, 1], ori[:, 2]
-    dx, dy, daz_deg = mod.cell
-    S[:, K.X_M] += rng.uniform(-0.5, 0.5, m) * dx
-    S[:, K.Y_M] += rng.uniform(-0.5, 0.5, m) * dy
-    S[:, K.AZIMUTH_RAD] += np.deg2rad(rng.uniform(-0.5, 0.5, m) * daz_deg)
-    S[:, K.AZIMUTH_RAD] %= 2.0 * math.pi
+    S = mod.candidate_states(top.candidate_idx[rng.choice(mse.size, size=m, p=p / p.sum())])
+    mod.jitter_in_cell(S, rng)
     return S
 
 

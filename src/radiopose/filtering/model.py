@@ -105,6 +105,28 @@ class FilterModel:
             return list(many(heards, k, slots))
         return [self.scorer.score_heard(h, k) for h in heards]
 
+    def candidate_states(self, candidate_idx: np.ndarray) -> FloatArray:
+        """Particle rows ``(n, kernels.N_COLUMNS)`` at the candidates' poses
+        (position, azimuth, pitch, roll in radians), at rest, offset 0."""
+        S = np.zeros((candidate_idx.size, K.N_COLUMNS))
+        S[:, K.X_M : K.Z_M + 1] = self.space.candidate_positions_m(candidate_idx)
+        ori = np.deg2rad(self.space.candidate_orientations_deg(candidate_idx))
+        S[:, K.AZIMUTH_RAD] = ori[:, 0]
+        S[:, K.PITCH_RAD] = ori[:, 1]
+        S[:, K.ROLL_RAD] = ori[:, 2]
+        return S
+
+    def jitter_in_cell(self, S: FloatArray, rng: np.random.Generator) -> None:
+        """Spread rows drawn at grid candidates uniformly over their cell (x, y,
+        azimuth; :attr:`cell`), in place; azimuth wrapped to ``[0, 2π)``."""
+        m = S.shape[0]
+        dx, dy, daz = self.cell
+        S[:, K.X_M] += rng.uniform(-0.5, 0.5, m) * dx
+        S[:, K.Y_M] += rng.uniform(-0.5, 0.5, m) * dy
+        S[:, K.AZIMUTH_RAD] = (
+            S[:, K.AZIMUTH_RAD] + np.deg2rad(rng.uniform(-0.5, 0.5, m) * daz)
+        ) % (2 * np.pi)
+
     def expected(self, S: FloatArray, heard_index: np.ndarray) -> FloatArray:
         """Expected RSS ``(n, h)`` dBm without the offset."""
         heard = np.ascontiguousarray(heard_index, dtype=np.int64)

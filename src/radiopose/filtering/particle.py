@@ -208,14 +208,7 @@ class ParticleFilter:
         cand = np.unique(np.concatenate([top.candidate_idx for top in tops]))
         if cand.size == 0:
             return None
-        space = mod.space
-        pos = space.candidate_positions_m(cand)
-        ori = np.deg2rad(space.candidate_orientations_deg(cand))
-        T = np.zeros((cand.size, K.N_COLUMNS))
-        T[:, K.X_M : K.Z_M + 1] = pos
-        T[:, K.AZIMUTH_RAD] = ori[:, 0]
-        T[:, K.PITCH_RAD] = ori[:, 1]
-        T[:, K.ROLL_RAD] = ori[:, 2]
+        T = mod.candidate_states(cand)
         e = heard.rss_dbm[None, :] - mod.expected(T, heard.receiver_index)
         # each candidate's offset profiled out (n_packets·h readings, with the prior)
         best, cost, prec = profile_offset_db(
@@ -231,12 +224,7 @@ class ParticleFilter:
         p = np.where(ok, np.exp(-(cost - cost[ok].min())), 0.0)
         pick = st.rng.choice(cand.size, size=m, p=p / p.sum())
         S = T[pick]
-        dx, dy, daz = mod.cell
-        S[:, K.X_M] += st.rng.uniform(-0.5, 0.5, m) * dx
-        S[:, K.Y_M] += st.rng.uniform(-0.5, 0.5, m) * dy
-        S[:, K.AZIMUTH_RAD] = (
-            S[:, K.AZIMUTH_RAD] + np.deg2rad(st.rng.uniform(-0.5, 0.5, m) * daz)
-        ) % (2 * np.pi)
+        mod.jitter_in_cell(S, st.rng)
         return S, best[pick], prec
 
     def _initialise(self, st: FilterState, heard: HeardRss) -> bool:
