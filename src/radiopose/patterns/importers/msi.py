@@ -243,16 +243,21 @@ def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> Non
     so the step the count implies, wrong.
     """
     n = angles.size
-    first: dict[float, int] = {}
-    for j, key in enumerate(np.mod(np.round(angles, 6), 360.0).tolist()):
-        if key in first:
-            raise InputError(
-                f"duplicate angle {angles[j]:g} (first at line {first_line + first[key]})",
-                path=path,
-                line=first_line + j,
-                column=f"{cut} angle",
-            )
-        first[key] = j
+
+    def no_repeat(keys: list[float] | list[int]) -> None:
+        """The first angle whose ``key`` repeats an earlier one is a duplicate."""
+        first: dict[float, int] = {}
+        for j, key in enumerate(keys):
+            if key in first:
+                raise InputError(
+                    f"duplicate angle {angles[j]:g} (first at line {first_line + first[key]})",
+                    path=path,
+                    line=first_line + j,
+                    column=f"{cut} angle",
+                )
+            first[key] = j
+
+    no_repeat(np.mod(np.round(angles, 6), 360.0).tolist())
     step = 360.0 / n
     k = np.round(angles / step)
     off = np.nonzero(np.abs(angles - k * step) > 1e-6)[0]
@@ -265,16 +270,7 @@ def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> Non
             line=first_line + j,
             column=f"{cut} angle",
         )
-    seen: dict[int, int] = {}
-    for j, idx in enumerate(np.mod(k.astype(np.int64), n).tolist()):  # 359.9999999 is 0
-        if idx in seen:
-            raise InputError(
-                f"duplicate angle {angles[j]:g} (first at line {first_line + seen[idx]})",
-                path=path,
-                line=first_line + j,
-                column=f"{cut} angle",
-            )
-        seen[idx] = j
+    no_repeat(np.mod(k.astype(np.int64), n).tolist())  # the grid index: 359.9999999 is 0
 
 
 def _cut_at(angles: FloatArray, values: FloatArray, at_deg: FloatArray) -> FloatArray:
