@@ -131,3 +131,6 @@ def test_tracker_toml_turns_it_off_or_sets_it(tmp_path, lock) -> None:
     with pytest.raises(InputError) as exc:
         load_site_settings(tmp_path / "site")
     assert "tracker.toml:2" in str(exc.value) and "filter.live_resolve_times_s" in str(exc.value)
+    toml.write_text("[filter]\nlive_resolve_times_s = [100]\n", encoding="utf-8")
+    with pytest.raises(InputError, match=r"item 0 = 100 out of range \[0, 10\]"):
+        load_site_settings(tmp_path / "site")  # seconds, not the offsets' ±60 dB

@@ -61,6 +61,11 @@ FILTER_EMPTY_ALLOWED_LISTS = frozenset(
 """List-valued ``[filter]`` keys that may be empty (``[]`` switches the part off)."""
 
 
+FILTER_LIST_RANGES: dict[str, tuple[float, float]] = {"live_resolve_times_s": (0.0, MAX_LAG_S)}
+"""List-valued ``[filter]`` keys that are not dB offsets (±60 dB): their items'
+range, in their own units (seconds here; ``FilterConfig`` refuses 0 itself)."""
+
+
 POSE3D_TABLE = "pose3d"
 """The sub-table of ``[filter]`` holding :class:`Pose3dConfig` fields (``[filter.pose3d]``)."""
 
@@ -180,11 +185,10 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
             overrides[key] = sec.integer(key, low=low, high=10_000_000)
         elif kind is float:
             overrides[key] = sec.number(key, low=-1e6, high=1e6)
-        elif kind is tuple:  # offsets in dB from devices.csv's power
+        elif kind is tuple:  # offsets in dB from devices.csv's power (or times)
             empty_ok = key in FILTER_EMPTY_ALLOWED_LISTS
-            overrides[key] = sec.numbers(
-                key, low=-60.0, high=60.0, nonempty=not empty_ok, scalar=False
-            )
+            lo, hi = FILTER_LIST_RANGES.get(key, (-60.0, 60.0))
+            overrides[key] = sec.numbers(key, low=lo, high=hi, nonempty=not empty_ok, scalar=False)
         elif kind is bool:
             overrides[key] = sec.boolean(key)
         elif kind is str:
