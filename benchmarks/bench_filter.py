@@ -30,6 +30,13 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    site load, packets CSV parsing, scorer tables, the filter's model, the
    first packet (the kernels' cache loads, the track's acquisition) and the
    next 49 packets, each timed (CPU) inside one process (second of two runs).
+1b. **The live path** (``Tracker`` with the live server's 0.25 s lag, warm,
+   the same trace, one track): ``filter`` with the live re-solve of the
+   track's first half second (the default since session 25,
+   docs/filter.md "The live re-solve") and without it
+   (``live_resolve_times_s = ()``), alternating, ``R`` repeats, median; the
+   ratio is with / without, and the slowest single ``update`` (ms) shows the
+   re-solves' stall.
 4. **Where a warm packet spends its CPU time** (``--parts``): each part of
    ``filter`` (the fused kernel, the re-entry and its searches, σ, moments,
    smoother, the adapter) timed by a wrapper around its calls, batch and
@@ -55,6 +62,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmarks.common import emit, machine, table
+from radiopose.filtering import FilterConfig
 from radiopose.likelihood import candidate_space
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets, write_packets_csv
@@ -121,6 +129,52 @@ def section_warm(n_packets: int, repeat: int) -> list[dict]:
                 }
             )
     return out
+
+
+def section_live(n_packets: int, repeat: int) -> list[dict]:
+    """Section 1b: the live path with and without the live re-solve."""
+    sim = standard_trace(n_packets)
+    scorer = ShiftScorer(candidate_space(sim.site, TX))
+    obs = group_packets(sim.packets)
+    variants = {
+        "filter, live re-solve (default)": FilterConfig(),
+        "filter, live_resolve_times_s = ()": replace(FilterConfig(), live_resolve_times_s=()),
+    }
+
+    def run(fcfg: FilterConfig) -> tuple[float, float]:
+        cfg = TrackerConfig(kernel="numba", filter=fcfg)
+        tracker = Tracker(sim.site, "filter", cfg, scorers={TX: scorer}, lag_s=LIVE_LAG_S)
+        tracker.update(obs[0])  # site preparation outside the timing
+        slowest, t0 = 0.0, time.perf_counter()
+        for o in obs[1:]:
+            t1 = time.perf_counter()
+            tracker.update(o)
+            tracker.take_delayed()
+            slowest = max(slowest, time.perf_counter() - t1)
+        return (len(obs) - 1) / (time.perf_counter() - t0), slowest
+
+    run(variants["filter, live re-solve (default)"])  # warm the offline passes' kernels
+    rates: dict[str, list[tuple[float, float]]] = {label: [] for label in variants}
+    for _ in range(repeat):
+        for label, fcfg in variants.items():
+            rates[label].append(run(fcfg))
+    base = float(np.median([r[0] for r in rates["filter, live_resolve_times_s = ()"]]))
+    return [
+        {
+            "mode": f"streaming Tracker, lag {LIVE_LAG_S:g} s",
+            "variant": label,
+            "packets": len(obs),
+            "packets_per_s": float(np.median([r[0] for r in rs])),
+            "range": f"{min(r[0] for r in rs):.0f}-{max(r[0] for r in rs):.0f}",
+            "ratio_vs_without": float(np.median([r[0] for r in rs])) / base,
+            "slowest_update_ms": 1e3 * float(np.median([r[1] for r in rs])),
+        }
+        for label, rs in rates.items()
+    ]
+
+
+LIVE_LAG_S = 0.25
+"""The live server's default lag, seconds (``LiveConfig.live_lag_s``)."""
 
 
 _LAUNCH = """
@@ -395,6 +449,11 @@ def main(argv: list[str] | None = None) -> int:
             "packets_per_cpu_s": ".0f",
             "cpu_ratio_vs_full": ".2f",
         },
+    )
+    lines += [f"### 1b. The live path ({args.packets} packets, lag {LIVE_LAG_S:g} s)", ""]
+    lines += table(
+        section_live(args.packets, args.repeat),
+        {"packets_per_s": ".0f", "ratio_vs_without": ".2f", "slowest_update_ms": ".0f"},
     )
     if not args.skip_process:
         with tempfile.TemporaryDirectory() as tmp:
