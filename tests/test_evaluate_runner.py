@@ -137,6 +137,17 @@ def test_bad_workers_write_nothing(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_an_unreachable_scheduler_writes_nothing(tmp_path):
+    """The part files begin with the first finished run: a scheduler that cannot
+    be reached leaves no directory or header-only file behind (it once left
+    ``parts/<experiment>.csv`` with only its header)."""
+    from radiopose.errors import InputError
+
+    with pytest.raises(InputError, match="--scheduler notaurl: cannot connect"):
+        run_experiments([_tiny()], tmp_path / "out", scheduler="notaurl")
+    assert not (tmp_path / "out").exists()
+
+
 def test_changed_config_does_not_reuse_stale_rows(serial, tmp_path):
     run_experiments([_tiny()], tmp_path, workers=0)
     doc = {**DOC, "scenario": {**DOC["scenario"], "duration_s": 0.04}}

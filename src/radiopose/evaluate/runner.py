@@ -333,9 +333,9 @@ class PartFile:
             header = self._header()
             if header != self.columns or self._torn:
                 self._rewrite()
-        else:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._write_text(self._csv_text([self.columns]), mode="w")
+        # else: the directory and the header are written with the first rows, so a
+        # command that fails before any run ends (a scheduler that cannot be
+        # reached) leaves nothing behind.
 
     def _header(self) -> list[str]:
         with open(self.path, newline="", encoding="utf-8") as fh:
@@ -391,8 +391,13 @@ class PartFile:
         return {k for k, n in n_rows.items() if count.get(k, 0) >= n}
 
     def append(self, rows: Sequence[dict[str, Any]]) -> None:
-        """Append one task's rows in one synced write."""
-        self._write_text(self._csv_text([[r.get(c, "") for c in self.columns] for r in rows]))
+        """Append one task's rows in one synced write (the header first in a new file)."""
+        body = [[r.get(c, "") for c in self.columns] for r in rows]
+        if not self.path.exists():
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._write_text(self._csv_text([self.columns, *body]), mode="w")
+        else:
+            self._write_text(self._csv_text(body))
         self.rows.extend({c: str(r.get(c, "")) for c in self.columns} for r in rows)
 
 
