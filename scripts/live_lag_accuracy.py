@@ -18,6 +18,13 @@ receivers, a packet every 5 ms, 2 s traces), held-out seeds (default
 * ``textbook`` — issue 15's anchor, not ``filter``: a plain textbook particle
   filter told the scenario's σ and the device's power
   (:mod:`radiopose.evaluate.textbook_pf`), causal. Not in the default rows.
+* ``re-solved at every emission`` — what the live re-solve could give at most
+  with this machinery (session 26): every 0.1 s the offline passes
+  (:func:`radiopose.tracker.resolve.resolve_track`) over all the packets up to
+  that time, each packet's estimate taken from the first such re-solve at
+  least 0.25 s after it (the live lag). Not a live method (about 20 re-solves
+  of up to the whole trace per run: ten times the live filter's time); not in
+  the default rows.
 
 Before 2026-11-27 (session 10) the live rows left the offline passes on, so
 since they became the default (docs/filter.md, "Round 6 as the default") those
@@ -43,18 +50,23 @@ whole-trace columns.
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.evaluate.textbook_pf import registered_textbook
-from radiopose.filtering import FilterConfig
+from radiopose.filtering import FilterConfig, FilterEstimate
 from radiopose.filtering.config import overrides_or_exit
-from radiopose.simulate import ScenarioConfig, simulate
-from radiopose.tracker import TrackerConfig
+from radiopose.geometry import orientation_error_deg
+from radiopose.likelihood import Scorer
+from radiopose.packets import group_packets
+from radiopose.simulate import ScenarioConfig, Simulation, simulate
+from radiopose.tracker import Tracker, TrackerConfig
+from radiopose.tracker.resolve import resolve_track
 
 VARIANTS: dict[str, tuple[float | None, bool]] = {
     "causal": (None, False),
@@ -68,6 +80,12 @@ VARIANTS: dict[str, tuple[float | None, bool]] = {
 ANCHOR = "textbook"
 """The anchor's row (``--variants textbook``): :mod:`radiopose.evaluate.textbook_pf`."""
 
+BOUND = "re-solved at every emission"
+"""The bound's row (module docstring; :func:`prefix_bound`)."""
+
+BOUND_STEP_S = 0.1
+"""The bound's re-solve interval, seconds."""
+
 LIVE_FILTER = replace(
     FilterConfig(),
     offline_offset_selection=False,
@@ -77,14 +95,64 @@ LIVE_FILTER = replace(
 """The filter as the live server runs it: no pass that needs the whole file."""
 
 
+@dataclass(frozen=True)
+class BoundRun:
+    """The bound's errors, shaped as the fields of a ``MethodRun`` the table reads."""
+
+    estimates: list[FilterEstimate]
+    position_error_m: np.ndarray
+    orientation_error_deg: np.ndarray
+    truth_index: np.ndarray
+    n_packets: int
+
+
+def prefix_bound(sim: Simulation, scorer: Scorer, fcfg: FilterConfig, lag_s: float) -> BoundRun:
+    """:data:`BOUND`: each packet's estimate from the offline passes over every
+    packet up to its emission (module docstring), re-solved every
+    :data:`BOUND_STEP_S`; the packets left at the end of the trace from the last
+    re-solve (over the whole trace), as the live server's flush."""
+    tx = sim.site.devices[0].transmitter
+    device = Tracker(
+        sim.site, "filter", TrackerConfig(filter=fcfg), {tx: scorer}, lag_s=lag_s
+    ).device(tx)
+    records = [(float(o.timestamp_s), device.space.heard(o), o.packet_id)
+               for o in group_packets(sim.packets)]  # fmt: skip
+    times = np.array([r[0] for r in records])
+    chosen: dict[object, FilterEstimate] = {}
+    eps_s = 1e-9  # packet times are multiples of the interval: no rounding at a boundary
+    for k in itertools.count():
+        emit_s = times[0] + lag_s + k * BOUND_STEP_S
+        solved = resolve_track(device, records[: int(np.searchsorted(times, emit_s + eps_s))])
+        last = emit_s + eps_s >= times[-1]
+        for key, est in solved.items():
+            t_s = key[1]  # type: ignore[index]
+            if key not in chosen and (last or t_s <= emit_s - lag_s + eps_s):
+                chosen[key] = est
+        if last:
+            break
+    row = {float(t): i for i, t in enumerate(sim.truth.timestamp_s)}
+    keys = sorted(chosen, key=lambda k: k[1])  # type: ignore[index]
+    idx = np.array([row[float(k[1])] for k in keys], dtype=int)  # type: ignore[index]
+    pos = np.array([chosen[k].position_m for k in keys])
+    ori = np.array([chosen[k].orientation_deg for k in keys])
+    return BoundRun(
+        [chosen[k] for k in keys],
+        np.linalg.norm(pos - sim.truth.position_m[idx], axis=1),
+        orientation_error_deg(ori, sim.truth.orientation_deg[idx]),
+        idx,
+        len(records),
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=1000)
     ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])
     ap.add_argument(
-        "--variants", nargs="+", default=list(VARIANTS), choices=[*VARIANTS, ANCHOR],
-        help="which rows (default: the filter's four; 'textbook' adds issue 15's anchor)",
+        "--variants", nargs="+", default=list(VARIANTS), choices=[*VARIANTS, ANCHOR, BOUND],
+        help="which rows (default: the filter's four; 'textbook' adds issue 15's anchor, "
+        f"{BOUND!r} the live re-solve's bound)",
     )  # fmt: skip
     ap.add_argument(
         "--set", nargs="*", default=[], metavar="FIELD=VALUE",
@@ -126,7 +194,10 @@ def main(argv: list[str] | None = None) -> int:
             for name, (lag_s, offline) in variants.items():
                 fcfg = FilterConfig() if offline else LIVE_FILTER
                 cfg = TrackerConfig(smoothing_lag_s=lag_s, filter=replace(fcfg, **overrides))
-                if name == ANCHOR:  # told this scenario's σ (and the power, as every run is)
+                if name == BOUND:
+                    live = replace(LIVE_FILTER, **overrides)
+                    run = prefix_bound(sim, scorer, live, VARIANTS["live, lag 0.25 s"][0])
+                elif name == ANCHOR:  # told this scenario's σ (and the power, as every run is)
                     with registered_textbook(sigma) as anchor:
                         run = run_methods(sim, (anchor.name,), cfg, scorer)[anchor.name]
                 else:

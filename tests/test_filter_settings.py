@@ -24,9 +24,9 @@ from hypothesis import strategies as st
 
 from radiopose.errors import InputError
 from radiopose.filtering import FilterConfig
-from radiopose.tracker_settings import read_tracker_settings, write_tracker_toml
+from radiopose.tracker_settings import _filter_fields, read_tracker_settings, write_tracker_toml
 
-FIELDS = {f.name: type(f.default) for f in dataclasses.fields(FilterConfig)}
+FIELDS = _filter_fields()  # the reader's type of each FilterConfig field
 
 
 def _write(tmp: Path, body: str) -> Path:
@@ -37,8 +37,11 @@ def _write(tmp: Path, body: str) -> Path:
 
 def test_every_field_has_a_reader():
     """No FilterConfig field is of a type the reader cannot read (it would be an
-    'unknown key', which is what the list fields were before)."""
+    'unknown key', which is what the list fields were before; an optional number,
+    ``float | None``, is read as a number)."""
+    assert set(FIELDS) == {f.name for f in dataclasses.fields(FilterConfig)}
     assert set(FIELDS.values()) <= {int, float, bool, str, tuple}
+    assert FIELDS["live_resolve_max_sigma_db"] is float
 
 
 def test_offset_lists_read_as_tuples(tmp_path: Path):

@@ -103,6 +103,42 @@ def test_streaming_equals_batch_emulation_and_survives_a_checkpoint(lock) -> Non
     np.testing.assert_allclose([e.orientation_deg for e in out], batch.orientation_deg, atol=1e-9)
 
 
+def test_the_periodic_option_streams_as_batch_and_resumes_an_old_checkpoint(lock) -> None:
+    """``live_resolve_every_s`` (an option, off): after the start's re-solves the
+    track's last ``live_resolve_window_s`` is re-solved periodically. It changes
+    the estimates; the streaming tracker equals batch ``locate``'s live
+    emulation, also from a state pickled before the option existed (no
+    ``last_s``: the periodic clock starts again from the schedule's end)."""
+    sim, scorer = lock
+    tx = sim.site.devices[0].transmitter
+    fcfg = replace(
+        LIVE, live_resolve_times_s=(0.25,), live_resolve_every_s=0.2, live_resolve_window_s=0.4
+    )
+    cfg = TrackerConfig(smoothing_lag_s=0.25, filter=fcfg)
+    batch = locate(sim.site, sim.packets, "filter", cfg, scorers={tx: scorer}).estimates
+    once = replace(fcfg, live_resolve_every_s=0.0)
+    only_start = locate(
+        sim.site, sim.packets, "filter", TrackerConfig(smoothing_lag_s=0.25, filter=once),
+        scorers={tx: scorer},
+    ).estimates  # fmt: skip
+    assert not np.array_equal(batch.position_m, only_start.position_m)
+    obs = group_packets(sim.packets)
+    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=fcfg), {tx: scorer}, lag_s=0.25)
+    out = []
+    for i, o in enumerate(obs):
+        if i == 60:  # 0.3 s: after the start's re-solve, before the first periodic one
+            (state,) = tracker.states.values()
+            rs = state.resolve
+            assert rs is not None and rs.last_s == pytest.approx(rs.start_s + 0.25, abs=0.01)
+            del rs.__dict__["last_s"]  # as a state pickled before session 26
+            tracker.states = pickle.loads(pickle.dumps(tracker.states))
+        tracker.update(o)
+        out += tracker.take_delayed()
+    out += tracker.flush()
+    assert [e.packet_id for e in out] == list(batch.packet_id)
+    np.testing.assert_allclose([e.position_m for e in out], batch.position_m, atol=1e-9)
+
+
 @pytest.mark.parametrize(
     ("settings", "said"),
     [
@@ -111,6 +147,10 @@ def test_streaming_equals_batch_emulation_and_survives_a_checkpoint(lock) -> Non
         ({"live_resolve_times_s": (11.0,)}, "increasing times in (0, 10] s"),
         ({"live_resolve_times_s": tuple(0.1 * (i + 1) for i in range(21))}, "at most 20"),
         ({"live_resolve_max_sigma_db": 0.0}, "live_resolve_max_sigma_db = 0.0 must be a positive"),
+        ({"live_resolve_max_sigma_db": float("nan")}, "live_resolve_max_sigma_db = nan must be"),
+        ({"live_resolve_every_s": -1.0}, "live_resolve_every_s = -1.0 must be in [0, 10] s"),
+        ({"live_resolve_every_s": 11.0}, "live_resolve_every_s = 11.0 must be in [0, 10] s"),
+        ({"live_resolve_window_s": 0.0}, "live_resolve_window_s = 0.0 must be in (0, 10] s"),
     ],
 )
 def test_bad_settings_are_one_line_errors(settings, said) -> None:
@@ -131,6 +171,10 @@ def test_tracker_toml_turns_it_off_or_sets_it(tmp_path, lock) -> None:
     with pytest.raises(InputError) as exc:
         load_site_settings(tmp_path / "site")
     assert "tracker.toml:2" in str(exc.value) and "filter.live_resolve_times_s" in str(exc.value)
+    toml.write_text("[filter]\nlive_resolve_max_sigma_db = 1.5\n", encoding="utf-8")
+    got = load_site_settings(tmp_path / "site")[0].filter_overrides
+    assert got == {"live_resolve_max_sigma_db": 1.5}  # a gate (the default, None, has none)
+    assert FilterConfig().live_resolve_max_sigma_db is None
     toml.write_text("[filter]\nlive_resolve_times_s = [100]\n", encoding="utf-8")
     with pytest.raises(InputError, match=r"item 0 = 100 out of range \[0, 10\]"):
         load_site_settings(tmp_path / "site")  # seconds, not the offsets' ±60 dB

@@ -84,6 +84,11 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--variants", "causal", "textbook"]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert [r.split("|")[2].strip() for r in rows[2:]] == ["causal", "textbook"]
+    # the live re-solve's bound: every packet answered from a re-solve of its prefix
+    bound = "re-solved at every emission"
+    argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--duration-s", "0.4", "--variants", bound]
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert rows[2].split("|")[2].strip() == bound and "| 100.0 % |" in rows[2]
     for bad, said in (
         (["--set", "no_such_field=1"], "no_such_field"),
         (["--settle-s", "0.2"], "--settle-s must be in [0, 0.2)"),

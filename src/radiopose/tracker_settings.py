@@ -127,7 +127,11 @@ _POSE3D_STRING_CHOICES: dict[str, tuple[str, ...]] = {"estimate": POSE3D_ESTIMAT
 
 
 def _filter_fields() -> dict[str, type]:
-    return {f.name: type(f.default) for f in dataclasses.fields(FilterConfig)}
+    # an optional number (``float | None``, default None) is read as a number
+    return {
+        f.name: float if str(f.type) == "float | None" else type(f.default)
+        for f in dataclasses.fields(FilterConfig)
+    }
 
 
 def _pose3d_fields() -> dict[str, type]:
@@ -344,6 +348,8 @@ def _toml_lines(
     for key, value in values.items():
         if key not in kinds:
             raise ValueError(f"{key!r} is not a {owner} field")
+        if value is None:  # an optional number at its default: the key left out
+            continue
         if kinds[key] is bool:
             lines.append(f"{key} = {'true' if value else 'false'}")
             continue

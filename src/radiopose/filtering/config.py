@@ -34,10 +34,10 @@ the smoother holds every particle of every packet within the lag, so its
 memory grows with lag × packet rate × particles (about 0.4 GB at 10 s, 200
 packets/s and the 2-D default)."""
 
-LIVE_RESOLVE_TIMES_S = (0.25, 0.3, 0.35, 0.4, 0.45, 0.5)
+LIVE_RESOLVE_TIMES_S = (0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.75, 1.0, 1.25, 1.5)
 """The live filter's re-solves of a track's start, seconds after its first
-packet (``FilterConfig.live_resolve_times_s``; the default since session 25:
-docs/filter.md, "The live re-solve")."""
+packet (``FilterConfig.live_resolve_times_s``; the default since session 25,
+extended to 1.5 s in session 26: docs/filter.md, "The live re-solve")."""
 
 MAX_LIVE_RESOLVES = 20
 """Most re-solves of a track's start the live filter may be set to
@@ -311,15 +311,29 @@ class FilterConfig:
         smoother still holds are replaced by the re-solve's and, where its
         last pose is more than 1 m or 30° from the filter's, the particles
         are re-seeded there (:mod:`radiopose.tracker.resolve`). Default
-        ``LIVE_RESOLVE_TIMES_S`` (every 0.05 s from 0.25 to 0.5 s); empty: off.
-        Batch ``locate`` with its offline passes and the causal filter never
-        re-solve. At most ``MAX_LIVE_RESOLVES`` increasing times in
-        (0, ``MAX_LAG_S``]; a re-solve costs 0.2–0.5 s of CPU.
+        ``LIVE_RESOLVE_TIMES_S`` (every 0.05 s from 0.25 to 0.5 s, then every
+        0.25 s to 1.5 s); empty: off. Batch ``locate`` with its offline passes
+        and the causal filter never re-solve. At most ``MAX_LIVE_RESOLVES``
+        increasing times in (0, ``MAX_LAG_S``]; a re-solve of n packets costs
+        about 2–3 ms × n of CPU.
     live_resolve_max_sigma_db
         A re-solve runs only while the filter's σ estimate is at most this,
-        dB: on a third of a second of packets the offline passes are more
-        often right than the filter at σ = 0.5–1 dB and less often at 2 dB
-        (docs/filter.md, "The live re-solve"); positive.
+        dB; positive, default ``None`` (no gate; in ``tracker.toml`` a number or
+        the key left out). Session 25's 1.5 dB gate
+        (re-solves of the first half second only were as often wrong as the
+        filter at σ = 2–3 dB) was dropped in session 26 when the re-solves
+        went on to 1.5 s (docs/filter.md, "The live re-solve").
+    live_resolve_every_s
+        Live only, an option (default 0: off): after the last of
+        ``live_resolve_times_s``, re-solve the track's last
+        ``live_resolve_window_s`` of packets every this many seconds, as
+        above, for the whole track. On 10 s walks at σ = 3 dB (tuning seeds)
+        every 1 s over 3 s took the live error after the first 2 s from
+        5.26° to 4.27°, at about 1.5 s of CPU per second of a 200-packet/s
+        track; seconds in [0, ``MAX_LAG_S``].
+    live_resolve_window_s
+        The periodic re-solve's window, seconds in (0, ``MAX_LAG_S``]
+        (default 1.5).
     offset_profile_track
         Whether the profile's pass is an arbiter candidate: ``"winner"``
         (default) only when it wins the evidence test (then it is the chosen
@@ -413,7 +427,9 @@ class FilterConfig:
     # at which the live (lagged, streaming) filter re-solves the track so far
     # with the offline passes (radiopose.tracker.resolve; () turns it off)
     live_resolve_times_s: tuple[float, ...] = LIVE_RESOLVE_TIMES_S
-    live_resolve_max_sigma_db: float = 1.5
+    live_resolve_max_sigma_db: float | None = None
+    live_resolve_every_s: float = 0.0
+    live_resolve_window_s: float = 1.5
 
     def __post_init__(self) -> None:
         check_setting_types(self, "filter")
@@ -424,7 +440,7 @@ class FilterConfig:
             "offset_selection_sd_db",
             "smoother_position_bandwidth_m", "smoother_azimuth_bandwidth_deg", "smoother_reach",
             "reverse_disagree_m", "reverse_disagree_deg", "offset_refit_tolerance_db",
-            "offset_profile_tolerance_db", "live_resolve_max_sigma_db",
+            "offset_profile_tolerance_db",
         )  # fmt: skip
         for name in positive:
             v = getattr(self, name)
@@ -485,6 +501,22 @@ class FilterConfig:
                 "filter settings: initial_offsets_db must list an offset and "
                 "min_acquisition_receivers must be >= 1"
             )
+        gate = self.live_resolve_max_sigma_db
+        if gate is not None and not gate > 0:
+            raise InputError(
+                f"filter setting live_resolve_max_sigma_db = {gate!r} must be a positive "
+                "number of dB (or None: no gate)"
+            )
+        for name, v, lo_open in (
+            ("live_resolve_every_s", self.live_resolve_every_s, False),
+            ("live_resolve_window_s", self.live_resolve_window_s, True),
+        ):
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and v <= MAX_LAG_S
+            if not ok or not (v > 0 if lo_open else v >= 0):
+                bracket = "(" if lo_open else "["
+                raise InputError(
+                    f"filter setting {name} = {v!r} must be in {bracket}0, {MAX_LAG_S:g}] s"
+                )
         times = self.live_resolve_times_s
         if (
             len(times) > MAX_LIVE_RESOLVES

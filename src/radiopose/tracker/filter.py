@@ -543,7 +543,10 @@ def _live_resolves(device: Device) -> bool:
         device.lag_s is not None
         and device.lag_s > 0.0  # lag 0 is the causal filter, as lag None
         and type(device.engine) is ParticleFilter
-        and bool(device.engine.config.live_resolve_times_s)
+        and (
+            bool(device.engine.config.live_resolve_times_s)
+            or device.engine.config.live_resolve_every_s > 0
+        )
         and not _replays(device)
     )
 

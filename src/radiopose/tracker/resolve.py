@@ -21,7 +21,12 @@ within the lag:
   <radiopose.filtering.particle.ParticleFilter.reseed>`), so the track goes on
   from the re-solved pose.
 
-Off by default. A re-solve of 50–100 packets costs 0.2–0.25 s of one core.
+The default times are every 0.05 s from 0.25 to 0.5 s, then every 0.25 s to
+1.5 s, with no gate on the filter's σ estimate (session 26; session 25's
+default stopped at 0.5 s and ran only at σ ≤ 1.5 dB).
+``FilterConfig.live_resolve_every_s`` (an option, off) goes on re-solving the
+track's last ``live_resolve_window_s`` periodically. A re-solve costs about
+2–3 ms of one core per packet.
 """
 
 from __future__ import annotations
@@ -73,18 +78,23 @@ class LiveResolve:
         The track's first packet time, seconds.
     records
         ``(t_s, heard, packet_id)`` of the track's packets up to its last
-        re-solve time (then cleared).
+        re-solve time (then cleared; with the periodic re-solve, those of its
+        window).
     done
         How many of the re-solve times have passed.
     overrides
         Re-solved estimates by ``(packet_id, t_s)``, used when the smoother
         emits that packet (then removed).
+    last_s
+        The periodic re-solve's last time, seconds (NaN before it; a state
+        pickled before session 26 has no such attribute and reads as NaN).
     """
 
     start_s: float
     records: list[tuple[float, HeardRss, str]] = field(default_factory=list)
     done: int = 0
     overrides: dict[object, FilterEstimate] = field(default_factory=dict)
+    last_s: float = math.nan
 
 
 def resolve_track(
@@ -148,18 +158,35 @@ def live_resolve_step(
         return smoothed
     cfg = device.engine.config  # the filter's FilterConfig (filter_config's)
     times = cfg.live_resolve_times_s
+    every_s = cfg.live_resolve_every_s
     if rs.done >= len(times):
-        return smoothed
-    rs.records.append((t_s, heard, packet_id))
-    if t_s - rs.start_s < times[rs.done]:
-        return smoothed
-    while rs.done < len(times) and t_s - rs.start_s >= times[rs.done]:
-        rs.done += 1
-    if rs.done >= len(times):
-        records, rs.records = rs.records, []
+        if not every_s > 0:
+            return smoothed
+        # periodic: the last live_resolve_window_s of the track, every every_s
+        rs.records.append((t_s, heard, packet_id))
+        last_s = getattr(rs, "last_s", math.nan)
+        if math.isnan(last_s):
+            last_s = rs.start_s + (times[-1] if times else 0.0)
+        if t_s - last_s < every_s:
+            return smoothed
+        rs.last_s = t_s
+        lo = t_s - cfg.live_resolve_window_s
+        rs.records = [r for r in rs.records if r[0] >= lo]
+        records = list(rs.records)
     else:
-        records = rs.records
-    if math.sqrt(state.sigma2_db2) > cfg.live_resolve_max_sigma_db:
+        rs.records.append((t_s, heard, packet_id))
+        if t_s - rs.start_s < times[rs.done]:
+            return smoothed
+        while rs.done < len(times) and t_s - rs.start_s >= times[rs.done]:
+            rs.done += 1
+        if rs.done >= len(times) and not every_s > 0:
+            records, rs.records = rs.records, []
+        else:
+            records = list(rs.records)
+        if rs.done >= len(times):
+            rs.last_s = t_s
+    gate = cfg.live_resolve_max_sigma_db
+    if gate is not None and math.sqrt(state.sigma2_db2) > gate:
         return smoothed  # too noisy for a third of a second to beat the filter
     solved = resolve_track(device, records)
     rs.overrides.update(solved)

@@ -106,6 +106,13 @@ class Tracker:
             self._devices[key] = dev
         return dev
 
+    def device(self, transmitter: str) -> Device:
+        """The method's context for ``transmitter`` (its site, candidate space,
+        scorer and prepared engine), built on first use as its first packet
+        would build it; for tools that drive a method's parts directly (the
+        live re-solve's bound in ``scripts/live_lag_accuracy.py``)."""
+        return self._device(transmitter)
+
     def is_enrolled(self, transmitter: str) -> bool:
         key = transmitter.lower()
         return any(d.transmitter.lower() == key for d in self.site.devices)
