@@ -139,6 +139,31 @@ def test_the_periodic_option_streams_as_batch_and_resumes_an_old_checkpoint(lock
     np.testing.assert_allclose([e.position_m for e in out], batch.position_m, atol=1e-9)
 
 
+def test_the_solver_goes_on_from_its_prefix_with_a_fresh_solves_results(lock) -> None:
+    """The start's re-solves step each packet once (``Solver``): over a growing
+    prefix its results equal a fresh ``resolve_track`` of each prefix; records
+    that do not extend its previous ones are refused."""
+    from radiopose.tracker.resolve import Solver, resolve_track
+
+    sim, scorer = lock
+    tx = sim.site.devices[0].transmitter
+    cfg = TrackerConfig(filter=LIVE)
+    device = Tracker(sim.site, "filter", cfg, {tx: scorer}, lag_s=0.25).device(tx)
+    records = [
+        (float(o.timestamp_s), device.space.heard(o), o.packet_id)
+        for o in group_packets(sim.packets)
+    ][:100]
+    solver = Solver(device)
+    for n in (50, 80, 100):
+        kept, fresh = solver.solve(records[:n]), resolve_track(device, records[:n])
+        assert kept.keys() == fresh.keys() and len(kept) == n
+        for key, est in fresh.items():
+            np.testing.assert_array_equal(kept[key].position_m, est.position_m)
+            np.testing.assert_array_equal(kept[key].orientation_deg, est.orientation_deg)
+    with pytest.raises(ValueError, match="must extend"):
+        solver.solve(records[1:])
+
+
 @pytest.mark.parametrize(
     ("settings", "said"),
     [

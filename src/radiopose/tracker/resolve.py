@@ -31,6 +31,7 @@ track's last ``live_resolve_window_s`` periodically. A re-solve costs about
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
@@ -88,6 +89,9 @@ class LiveResolve:
     last_s
         The periodic re-solve's last time, seconds (NaN before it; a state
         pickled before session 26 has no such attribute and reads as NaN).
+    solver
+        The start's re-solves' :class:`Solver` over ``records`` (not pickled;
+        ``None`` outside the schedule).
     """
 
     start_s: float
@@ -95,43 +99,89 @@ class LiveResolve:
     done: int = 0
     overrides: dict[object, FilterEstimate] = field(default_factory=dict)
     last_s: float = math.nan
+    solver: Solver | None = field(default=None, repr=False, compare=False)
+
+    def __getstate__(self) -> dict[str, object]:
+        # the solver (the re-solve's forward state, with the site's model) is
+        # not checkpointed: a restored track steps its records again, with the
+        # same results (Solver)
+        return {**self.__dict__, "solver": None}
+
+
+class Solver:
+    """The offline passes of batch ``locate`` over a growing prefix of one
+    device's packets, without stepping the prefix again (:func:`resolve_track`
+    re-steps it).
+
+    :meth:`solve` steps the records not yet stepped through the forward pass
+    and runs the whole-file passes on a copy of its state, so the next call
+    goes on from where this one stopped: the results equal a fresh
+    :func:`resolve_track` over the same records (the steps are the same calls
+    on the same state), at the cost of one forward pass over the track in all
+    instead of one per re-solve (the forward steps are about half a
+    re-solve's time). The settings: the device's filter settings with the
+    offset selection, the reversed pass and the arbiter on (the live server's
+    settings may say off: they are batch ``locate``'s switches), and no forked
+    child.
+    """
+
+    def __init__(self, device: Device) -> None:
+        from radiopose.tracker.filter import FILTER
+
+        fcfg = replace(
+            filter_config(device.config),
+            offline_offset_selection=True,
+            offline_reverse_pass=True,
+            offline_refine=True,
+            offline_workers=1,
+            live_resolve_times_s=(),
+            live_resolve_every_s=0.0,
+        )
+        self.device = Device(
+            device.site,
+            device.transmitter,
+            device.key,
+            device.space,
+            device.scorer,
+            replace(device.config, filter=fcfg),
+            RESOLVE_LAG_S,
+            {},
+            offline=True,
+        )
+        self.method: FilterMethod = FILTER
+        self.method.prepare(self.device)
+        self.state: FilterState = self.method.new_state(self.device)
+        self.n_stepped = 0
+        self.last_key: object = None
+
+    def solve(self, records: list[tuple[float, HeardRss, str]]) -> dict[object, FilterEstimate]:
+        """``{(packet_id, t_s): estimate}`` over ``records``, of which the first
+        :attr:`n_stepped` must be the records of the previous calls.
+
+        Raises
+        ------
+        ValueError
+            ``records`` does not extend the previous calls' records.
+        """
+        n = self.n_stepped
+        if len(records) < n or (n and (records[n - 1][2], records[n - 1][0]) != self.last_key):
+            raise ValueError("a Solver's records must extend its previous calls' records")
+        for t_s, heard, packet_id in records[n:]:
+            self.method.step(self.device, self.state, heard, t_s, packet_id)
+        self.n_stepped = len(records)
+        if records:
+            self.last_key = (records[-1][2], records[-1][0])
+        state = copy.deepcopy(self.state)  # the whole-file passes consume their state
+        return dict(self.method.flush_estimates(self.device, state))
 
 
 def resolve_track(
     device: Device, records: list[tuple[float, HeardRss, str]]
 ) -> dict[object, FilterEstimate]:
     """The offline passes of batch ``locate`` over ``records`` (one device's
-    packets in time order), run serially, as ``{(packet_id, t_s): estimate}``:
-    the device's filter settings with the offset selection, the reversed pass
-    and the arbiter on (the live server's settings may say off: they are
-    batch ``locate``'s switches) and no forked child."""
-    from radiopose.tracker.filter import FILTER
-
-    fcfg = replace(
-        filter_config(device.config),
-        offline_offset_selection=True,
-        offline_reverse_pass=True,
-        offline_refine=True,
-        offline_workers=1,
-        live_resolve_times_s=(),
-    )
-    sub = Device(
-        device.site,
-        device.transmitter,
-        device.key,
-        device.space,
-        device.scorer,
-        replace(device.config, filter=fcfg),
-        RESOLVE_LAG_S,
-        {},
-        offline=True,
-    )
-    method: FilterMethod = FILTER
-    method.prepare(sub)
-    st = method.new_state(sub)
-    for t_s, heard, packet_id in records:
-        method.step(sub, st, heard, t_s, packet_id)
-    return dict(method.flush_estimates(sub, st))
+    packets in time order), run serially, as ``{(packet_id, t_s): estimate}``
+    (:class:`Solver`'s settings; a fresh one)."""
+    return Solver(device).solve(records)
 
 
 def live_resolve_step(
@@ -159,7 +209,8 @@ def live_resolve_step(
     cfg = device.engine.config  # the filter's FilterConfig (filter_config's)
     times = cfg.live_resolve_times_s
     every_s = cfg.live_resolve_every_s
-    if rs.done >= len(times):
+    periodic = rs.done >= len(times)
+    if periodic:
         if not every_s > 0:
             return smoothed
         # periodic: the last live_resolve_window_s of the track, every every_s
@@ -185,10 +236,19 @@ def live_resolve_step(
             records = list(rs.records)
         if rs.done >= len(times):
             rs.last_s = t_s
+    solver = getattr(rs, "solver", None)  # (none in a state pickled before session 26)
+    if rs.done >= len(times):
+        rs.solver = None  # the schedule's last re-solve: its forward state is not needed after
     gate = cfg.live_resolve_max_sigma_db
     if gate is not None and math.sqrt(state.sigma2_db2) > gate:
         return smoothed  # too noisy for a third of a second to beat the filter
-    solved = resolve_track(device, records)
+    if periodic:  # a window, not a prefix: a fresh solve
+        solved = resolve_track(device, records)
+    else:
+        solver = solver or Solver(device)
+        solved = solver.solve(records)
+        if rs.done < len(times):
+            rs.solver = solver
     rs.overrides.update(solved)
     smoothed = live_overridden(state, smoothed)
     now = solved.get((packet_id, t_s))
@@ -225,4 +285,11 @@ def _motion(solved: dict[object, FilterEstimate]) -> tuple[tuple[float, float], 
     return (vx, vy), turn / dt
 
 
-__all__ = ["RESEED_DEG", "RESEED_M", "LiveResolve", "live_resolve_step", "resolve_track"]
+__all__ = [
+    "RESEED_DEG",
+    "RESEED_M",
+    "LiveResolve",
+    "Solver",
+    "live_resolve_step",
+    "resolve_track",
+]
