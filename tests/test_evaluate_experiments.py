@@ -9,7 +9,12 @@ import pytest
 
 from radiopose.cli import main
 from radiopose.errors import InputError
-from radiopose.evaluate.experiments import SHIPPED, load_experiment, parse_experiment
+from radiopose.evaluate.experiments import (
+    SHIPPED,
+    SHIPPED_BEYOND,
+    load_experiment,
+    parse_experiment,
+)
 from radiopose.evaluate.runner import plan, run_seed
 from radiopose.tracker import PAPER_METHODS
 
@@ -112,6 +117,30 @@ def test_malformed_config_names_the_key(tmp_path, edit, key):
     msg = str(exc.value)
     assert f"'{key}'" in msg, msg
     assert str(p) in msg and "\n" not in msg
+
+
+def test_the_shipped_anchor_experiment_is_noise_with_the_anchor():
+    """``anchor`` (beyond the paper) is the noise experiment with the anchor
+    beside the methods: the same conditions and seeds, so the methods' rows
+    are those of ``noise``."""
+    anchor, noise = load_experiment("anchor"), load_experiment("noise")
+    assert "anchor" in SHIPPED_BEYOND and "anchor" not in SHIPPED
+    assert anchor.methods == ("full", "top", "lms", "filter", "textbook")
+    assert [t.seed for t in plan([anchor])] == [t.seed for t in plan([noise])]
+    assert [c.params for c in anchor.conditions] == [c.params for c in noise.conditions]
+
+
+def test_the_anchor_is_known_to_experiments_and_2d_only():
+    """Issue 15's anchor is a method name experiments accept (an unknown name's
+    error lists it); a 3-D experiment refuses it in one line naming the key."""
+    doc = {"name": "t", "seed": 1, "methods": ["filter", "textbook"]}
+    assert parse_experiment(doc, "t.toml").methods == ("filter", "textbook")
+    with pytest.raises(InputError, match=r"unknown method 'best' \(known: .*textbook\)"):
+        parse_experiment({**doc, "methods": ["best"]}, "t.toml")
+    with pytest.raises(InputError) as exc:
+        parse_experiment({**doc, "scenario": {"pose": "3d"}}, "t.toml")
+    assert "'methods'" in str(exc.value) and "2-D sites only" in str(exc.value)
+    assert "\n" not in str(exc.value)
 
 
 def test_missing_seed_and_bad_toml(tmp_path):

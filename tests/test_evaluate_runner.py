@@ -148,6 +148,24 @@ def test_an_unreachable_scheduler_writes_nothing(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_issue_15s_anchor_runs_beside_the_methods_and_leaves_the_registry(tmp_path):
+    """``textbook`` (issue 15's anchor, evaluation only) may be listed in an
+    experiment's methods: each run registers it told that run's σ, it gets its
+    rows, and the registry is as before (no site or front end can run it)."""
+    from radiopose.evaluate.experiments import ANCHOR
+    from radiopose.evaluate.figures import METHOD_STYLE
+    from radiopose.tracker import METHODS
+
+    exp = parse_experiment({**DOC, "runs": 1, "methods": ["full", ANCHOR]}, "tiny.toml")
+    run = run_experiments([exp], tmp_path, workers=0)
+    rows = run.results[run.results["method"] == ANCHOR]
+    assert sorted(rows["noise_db"]) == [0.5, 3.0]
+    assert (rows["coverage"] > 0.9).all() and rows["orientation_mean_deg"].notna().all()
+    assert ANCHOR not in METHODS
+    # its own colour and marker in the figures (not the fallback's, which filter had)
+    assert len({METHOD_STYLE[m] for m in ("full", "top", "lms", "filter", ANCHOR)}) == 5
+
+
 def test_changed_config_does_not_reuse_stale_rows(serial, tmp_path):
     run_experiments([_tiny()], tmp_path, workers=0)
     doc = {**DOC, "scenario": {**DOC["scenario"], "duration_s": 0.04}}

@@ -63,7 +63,7 @@ def evaluate(
         list[str] | None,
         typer.Argument(
             help="Shipped experiments (noise, receivers, interval, motion, bounds; beyond the "
-            "paper: 3d) or experiment TOML files; default: the paper's five.",
+            "paper: 3d, anchor) or experiment TOML files; default: the paper's five.",
             show_default=False,
         ),
     ] = None,

@@ -68,9 +68,10 @@ from radiopose.tracker import METHOD_NAMES, METHODS, TrackerConfig
 
 SHIPPED: tuple[str, ...] = ("noise", "receivers", "interval", "motion", "bounds")
 """The paper's experiments, in the order of the report."""
-SHIPPED_BEYOND: tuple[str, ...] = ("3d",)
+SHIPPED_BEYOND: tuple[str, ...] = ("3d", "anchor")
 """Shipped experiments beyond the paper, loaded by name but not run by default
-(``3d``: the 3-D hand-held scenario, docs/pose3d.md)."""
+(``3d``: the 3-D hand-held scenario, docs/pose3d.md; ``anchor``: the noise
+experiment with issue 15's anchor, :data:`ANCHOR`, beside the methods)."""
 
 FigureKind = Literal["error", "reduction", "relative"]
 Quantity = Literal["position", "orientation"]
@@ -338,13 +339,26 @@ def _read_figures(raw: Any, path: str, prefix: str = "figure") -> list[dict[str,
     return out
 
 
+ANCHOR = "textbook"
+"""Issue 15's anchor (:mod:`radiopose.evaluate.textbook_pf`), an evaluation-only
+method: an experiment may list it in ``methods``; each run registers it told
+that run's σ (``scenario.noise_db``, at least 0.01 dB) and the device's power.
+Not in the registry, so no site, CLI call or live server can run it; 2-D
+experiments only."""
+
+
+def _estimates_orientation(method: str) -> bool:
+    return method == ANCHOR or METHODS[method].estimates_orientation
+
+
 def _read_methods(sec: Section, name: str) -> tuple[str, ...]:
     raw = sec._get(name, None)
     if not isinstance(raw, list) or not raw:
         raise sec.error(name, "expected a non-empty list of method names")
     for m in raw:
-        if m not in METHODS:
-            raise sec.error(name, f"unknown method {m!r} (known: {', '.join(METHODS)})")
+        if m not in METHODS and m != ANCHOR:
+            known = ", ".join([*METHODS, ANCHOR])
+            raise sec.error(name, f"unknown method {m!r} (known: {known})")
     if len(set(raw)) != len(raw):
         raise sec.error(name, "methods must be distinct")
     return tuple(raw)
@@ -469,7 +483,7 @@ def _check_figures(
             raise InputError(
                 f"key '{key}.methods': with hue = {hue!r} name exactly one method", path=path
             )
-        no_orientation = [m for m in chosen or () if not METHODS[m].estimates_orientation]
+        no_orientation = [m for m in chosen or () if not _estimates_orientation(m)]
         if d["quantity"] == "orientation" and no_orientation:
             raise InputError(
                 f"key '{key}.methods': {no_orientation[0]} has no orientation", path=path
@@ -571,6 +585,8 @@ def parse_experiment(doc: dict[str, Any], path: str, quick: bool = False) -> Exp
             f"{len(conditions) * runs:,} runs in all; at most {MAX_TASKS:,}",
             path=path,
         )
+    if ANCHOR in methods and any(c.scenario.pose == "3d" for c in conditions):
+        raise root.error("methods", f"{ANCHOR!r}, issue 15's anchor, runs at 2-D sites only")
     figures = _check_figures(figs, keys, conditions, methods, path)
     return Experiment(
         name,
@@ -627,7 +643,8 @@ def load_experiment(
         path = Path(s)
         if not path.exists():
             raise InputError(
-                f"no experiment named {s!r} and no such file (shipped: {', '.join(SHIPPED)})"
+                f"no experiment named {s!r} and no such file "
+                f"(shipped: {', '.join((*SHIPPED, *SHIPPED_BEYOND))})"
             )
     doc = load_toml(path)
     exp = parse_experiment(doc, str(path), quick=quick)

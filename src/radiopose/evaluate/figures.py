@@ -36,6 +36,8 @@ METHOD_STYLE = {
     "orientation": ("C2", "^"),
     "top": ("C3", "v"),
     "lms": ("C7", "D"),
+    "filter": ("C5", "o"),  # its colour in the shipped reports (it was the sixth method)
+    "textbook": ("C6", "X"),  # issue 15's anchor (evaluation only)
 }
 
 

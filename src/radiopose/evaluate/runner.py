@@ -36,6 +36,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -43,7 +44,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.evaluate.experiments import KERNEL_AUTO, Experiment, format_value, is_3d
+from radiopose.evaluate.experiments import ANCHOR, KERNEL_AUTO, Experiment, format_value, is_3d
 from radiopose.parallel import WORKER_ENV as WORKER_ENV  # re-exported: the old path
 from radiopose.parallel import connect_scheduler as connect_scheduler  # re-exported
 from radiopose.parallel import default_workers, run_on_dask
@@ -208,6 +209,15 @@ def run_task(task: RunTask) -> list[dict[str, Any]]:
     -------
     One row per method (columns: :func:`columns_for`).
     """
+    with ExitStack() as stack:
+        if ANCHOR in task.methods:  # issue 15's anchor, told this run's σ
+            from radiopose.evaluate.textbook_pf import registered_textbook
+
+            stack.enter_context(registered_textbook(max(task.scenario.noise_db, 0.01)))
+        return _run_task(task)
+
+
+def _run_task(task: RunTask) -> list[dict[str, Any]]:
     from radiopose.evaluate.method_runs import run_methods
     from radiopose.evaluate.scoring import error_stats
     from radiopose.likelihood import MemoScorer, candidate_space
