@@ -87,20 +87,30 @@ def test_streaming_equals_batch_emulation_and_survives_a_checkpoint(lock) -> Non
     tx = sim.site.devices[0].transmitter
     cfg = TrackerConfig(smoothing_lag_s=0.25, filter=LIVE)
     batch = locate(sim.site, sim.packets, "filter", cfg, scorers={tx: scorer}).estimates
-    obs = group_packets(sim.packets)
-    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=LIVE), {tx: scorer}, lag_s=0.25)
-    out = []
-    for i, o in enumerate(obs):
-        if i == 60:  # 0.3 s: between re-solves, overrides held
-            (state,) = tracker.states.values()
-            assert state.resolve is not None and state.resolve.overrides
-            tracker.states = pickle.loads(pickle.dumps(tracker.states))
-        tracker.update(o)
-        out += tracker.take_delayed()
-    out += tracker.flush()
+
+    def at_0_3_s(state) -> None:  # between re-solves, overrides held
+        assert state.resolve is not None and state.resolve.overrides
+
+    out = _stream_with_checkpoint(sim, scorer, LIVE, at_0_3_s)
     assert [e.packet_id for e in out] == list(batch.packet_id)
     np.testing.assert_allclose([e.position_m for e in out], batch.position_m, atol=1e-9)
     np.testing.assert_allclose([e.orientation_deg for e in out], batch.orientation_deg, atol=1e-9)
+
+
+def _stream_with_checkpoint(sim, scorer, fcfg: FilterConfig, check) -> list:
+    """The streaming tracker (lag 0.25 s) over the trace, its states pickled and
+    restored at packet 60 (0.3 s) after ``check(state)`` saw them: every estimate."""
+    tx = sim.site.devices[0].transmitter
+    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=fcfg), {tx: scorer}, lag_s=0.25)
+    out = []
+    for i, o in enumerate(group_packets(sim.packets)):
+        if i == 60:
+            (state,) = tracker.states.values()
+            check(state)
+            tracker.states = pickle.loads(pickle.dumps(tracker.states))
+        tracker.update(o)
+        out += tracker.take_delayed()
+    return out + tracker.flush()
 
 
 def test_the_periodic_option_streams_as_batch_and_resumes_an_old_checkpoint(lock) -> None:
@@ -122,19 +132,13 @@ def test_the_periodic_option_streams_as_batch_and_resumes_an_old_checkpoint(lock
         scorers={tx: scorer},
     ).estimates  # fmt: skip
     assert not np.array_equal(batch.position_m, only_start.position_m)
-    obs = group_packets(sim.packets)
-    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=fcfg), {tx: scorer}, lag_s=0.25)
-    out = []
-    for i, o in enumerate(obs):
-        if i == 60:  # 0.3 s: after the start's re-solve, before the first periodic one
-            (state,) = tracker.states.values()
-            rs = state.resolve
-            assert rs is not None and rs.last_s == pytest.approx(rs.start_s + 0.25, abs=0.01)
-            del rs.__dict__["last_s"]  # as a state pickled before session 26
-            tracker.states = pickle.loads(pickle.dumps(tracker.states))
-        tracker.update(o)
-        out += tracker.take_delayed()
-    out += tracker.flush()
+
+    def at_0_3_s(state) -> None:  # after the start's re-solve, before the first periodic one
+        rs = state.resolve
+        assert rs is not None and rs.last_s == pytest.approx(rs.start_s + 0.25, abs=0.01)
+        del rs.__dict__["last_s"]  # as a state pickled before session 26
+
+    out = _stream_with_checkpoint(sim, scorer, fcfg, at_0_3_s)
     assert [e.packet_id for e in out] == list(batch.packet_id)
     np.testing.assert_allclose([e.position_m for e in out], batch.position_m, atol=1e-9)
 
