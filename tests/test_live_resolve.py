@@ -143,6 +143,65 @@ def test_the_periodic_option_streams_as_batch_and_resumes_an_old_checkpoint(lock
     np.testing.assert_allclose([e.position_m for e in out], batch.position_m, atol=1e-9)
 
 
+def test_a_long_track_keeps_no_estimates_it_emitted_and_no_idle_solver(lock) -> None:
+    """Review findings (session 26): with the periodic re-solve, the re-solves'
+    estimates of packets already emitted were kept for the whole track (about
+    200 a second); and a device's flush (it fell silent) kept the start's
+    forward state (tens of MB) until its next packet."""
+    sim, scorer = lock
+    tx = sim.site.devices[0].transmitter
+    fcfg = replace(
+        LIVE, live_resolve_times_s=(0.25,), live_resolve_every_s=0.1, live_resolve_window_s=0.4
+    )
+    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=fcfg), {tx: scorer}, lag_s=0.25)
+    for o in group_packets(sim.packets):
+        tracker.update(o)
+        tracker.take_delayed()
+    (state,) = tracker.states.values()
+    assert 0 < len(state.resolve.overrides) <= 52  # the packets within the lag (measured 50)
+    tracker.flush()
+    assert not state.resolve.overrides
+    # the start's solver is dropped by a flush mid-schedule
+    longer = replace(LIVE, live_resolve_times_s=(0.25, 0.9))
+    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=longer), {tx: scorer}, lag_s=0.25)
+    for o in group_packets(sim.packets)[:80]:  # 0.4 s: between the two re-solves
+        tracker.update(o)
+    (state,) = tracker.states.values()
+    assert state.resolve.solver is not None
+    tracker.flush()
+    assert state.resolve.solver is None
+
+
+def test_a_finished_schedule_restored_under_longer_times_is_not_restarted(
+    lock, monkeypatch
+) -> None:
+    """A checkpoint whose re-solve schedule had ended (its records cleared), restored
+    under longer times (an older default, or times edited since), does not restart
+    the schedule from the restored packet (its re-solves then began there)."""
+    from radiopose.tracker import resolve
+
+    sim, scorer = lock
+    tx = sim.site.devices[0].transmitter
+    obs = group_packets(sim.packets)
+    short = replace(LIVE, live_resolve_times_s=(0.25,))
+    tracker = Tracker(sim.site, "filter", TrackerConfig(filter=short), {tx: scorer}, lag_s=0.25)
+    for o in obs[:100]:  # 0.5 s: the one re-solve done, its records cleared
+        tracker.update(o)
+    (state,) = tracker.states.values()
+    assert state.resolve.done == 1 and not state.resolve.records
+    longer = replace(LIVE, live_resolve_times_s=(0.25, 0.75, 0.9))
+    resumed = Tracker(sim.site, "filter", TrackerConfig(filter=longer), {tx: scorer}, lag_s=0.25)
+    resumed.states = pickle.loads(pickle.dumps(tracker.states))
+    calls = []
+    real = resolve.Solver.solve
+    monkeypatch.setattr(
+        resolve.Solver, "solve", lambda self, r: calls.append(len(r)) or real(self, r)
+    )
+    for o in obs[100:]:
+        resumed.update(o)
+    assert calls == []  # (before the fix: re-solves of 51 and 81 packets from the restore on)
+
+
 def test_the_solver_goes_on_from_its_prefix_with_a_fresh_solves_results(lock) -> None:
     """The start's re-solves step each packet once (``Solver``): over a growing
     prefix its results equal a fresh ``resolve_track`` of each prefix; records

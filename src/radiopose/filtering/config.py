@@ -315,7 +315,7 @@ class FilterConfig:
         0.25 s to 1.5 s); empty: off. Batch ``locate`` with its offline passes
         and the causal filter never re-solve. At most ``MAX_LIVE_RESOLVES``
         increasing times in (0, ``MAX_LAG_S``]; a re-solve of n packets costs
-        about 2–3 ms × n of CPU.
+        about 40 ms + (2.5–5 ms) × n of CPU.
     live_resolve_max_sigma_db
         A re-solve runs only while the filter's σ estimate is at most this,
         dB; positive, default ``None`` (no gate; in ``tracker.toml`` a number or
@@ -330,7 +330,8 @@ class FilterConfig:
         above, for the whole track. On 10 s walks at σ = 3 dB (tuning seeds)
         every 1 s over 3 s took the live error after the first 2 s from
         5.26° to 4.27°, at about 1.5 s of CPU per second of a 200-packet/s
-        track; seconds in [0, ``MAX_LAG_S``].
+        track (10–20 % of a core at a few packets per second); seconds in
+        [0, ``MAX_LAG_S``].
     live_resolve_window_s
         The periodic re-solve's window, seconds in (0, ``MAX_LAG_S``]
         (default 1.5).

@@ -196,7 +196,11 @@ class FilterMethod:
         ahead = device.shared.pop(_ahead_key(device), None)
         try:
             out = self._flush(device, state, ahead if isinstance(ahead, _LookAhead) else None)
-            return live_overridden(state, out)
+            out = live_overridden(state, out)
+            rs = getattr(state, "resolve", None)
+            if rs is not None:  # a silent device does not keep the re-solve's forward
+                rs.solver = None  # state (tens of MB); its next re-solve rebuilds it
+            return out
         finally:
             if isinstance(ahead, _LookAhead):
                 ahead.cancel()  # not taken (or taken: then a no-op)
