@@ -38,14 +38,15 @@ Usage::
 
     python scripts/live_lag_accuracy.py [--seeds 5] [--first-seed 1000] [--sigmas 0.5 3]
         [--variants causal "live, lag 0.25 s"] [--set FIELD=VALUE ...]
-        [--duration-s 2] [--settle-s S] [--quick]
+        [--duration-s 2] [--settle-s S] [--bins-s W] [--quick]
 
 ``--set`` overrides :class:`~radiopose.filtering.FilterConfig` fields in every
 variant (e.g. ``--set jump_probability=0.01``); ``--variants`` picks the rows.
 ``--duration-s`` sets the traces' length (the standard scenario's 2 s by
 default); ``--settle-s S`` adds the same errors over the packets from ``S``
 seconds after each trace's first packet on (acquisition left out), beside the
-whole-trace columns.
+whole-trace columns; ``--bins-s W`` adds a table of the orientation error in
+time bins of width ``W`` (each run's mean in the bin, then the mean over runs).
 """
 
 from __future__ import annotations
@@ -168,6 +169,10 @@ def main(argv: list[str] | None = None) -> int:
         "--settle-s", type=float, default=None,
         help="also report the errors from this many seconds into each trace on",
     )  # fmt: skip
+    ap.add_argument(
+        "--bins-s", type=float, default=None,
+        help="also a table of the orientation error (mean of runs) in time bins of this width",
+    )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
     overrides = overrides_or_exit(ap, args.set)
@@ -180,6 +185,14 @@ def main(argv: list[str] | None = None) -> int:
     settle = args.settle_s
     if settle is not None and not 0 <= settle < base.duration_s:
         ap.error(f"--settle-s must be in [0, {base.duration_s:g}), got {settle}")
+    width = args.bins_s
+    if width is not None and not 0 < width <= base.duration_s:
+        ap.error(f"--bins-s must be in (0, {base.duration_s:g}], got {width}")
+    edges = [] if width is None else list(np.arange(0.0, base.duration_s - 1e-9, width))
+    bin_lines = [
+        "| σ (dB) | variant | " + " | ".join(f"{a:g}–{a + width:g} s" for a in edges) + " |",
+        "|---:|:---|" + "---:|" * len(edges),
+    ] if width is not None else []  # fmt: skip
     after = "" if settle is None else f" after {settle:g} s: pos mean | ori mean of runs | worst |"
     lines = [
         "| σ (dB) | variant | coverage | pos mean (m) | pos median | pos p95 | ori mean (°) "
@@ -230,6 +243,17 @@ def main(argv: list[str] | None = None) -> int:
                 late_runs = [r.orientation_error_deg[k].mean() for r, k in late]
                 row += f" {pe_late.mean():.3f} | {np.mean(late_runs):.2f} | {max(late_runs):.1f} |"
             lines.append(row)
+            if width is not None:  # each run's mean in the bin, then the mean over runs
+                cells = []
+                for a in edges:
+                    in_bin = [r.orientation_error_deg[(t >= a) & (t < a + width)] for r, t in timed]
+                    means = [float(v.mean()) for v in in_bin if v.size]
+                    cells.append(f"{np.mean(means):.1f}" if means else "—")
+                bin_lines.append(f"| {sigma:g} | {name} | " + " | ".join(cells) + " |")
+    if bin_lines:
+        title = "Orientation error (°) by time since each trace's first packet (mean of runs):"
+        lines += ["", title]
+        lines += ["", *bin_lines]
     lines.append("")
     lines.append(
         f"Seeds {args.first_seed}–{args.first_seed + args.seeds - 1}, "

@@ -89,10 +89,17 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--duration-s", "0.4", "--variants", bound]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert rows[2].split("|")[2].strip() == bound and "| 100.0 % |" in rows[2]
+    # --bins-s: a second table, the orientation error by time bin
+    argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--duration-s", "0.4", "--variants",
+            "causal", "--bins-s", "0.1"]  # fmt: skip
+    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    assert "0.3–0.4 s" in rows[3] and rows[5].startswith("| 1 | causal |")
+    assert rows[5].count("|") == 2 + 4 + 1
     for bad, said in (
         (["--set", "no_such_field=1"], "no_such_field"),
         (["--settle-s", "0.2"], "--settle-s must be in [0, 0.2)"),
         (["--duration-s", "0"], "--duration-s must be > 0"),
+        (["--bins-s", "0"], "--bins-s must be in (0, 0.2]"),
     ):
         with pytest.raises(SystemExit) as exc:
             _load(SCRIPTS / "live_lag_accuracy.py").main(["--quick", *bad])
