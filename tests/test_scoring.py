@@ -105,6 +105,35 @@ def test_score_cli_names_the_estimates_file_and_line(tmp_path, capsys):
     assert f"{tmp_path / 'est.csv'}:4, column 'timestamp_s': estimate 3" in err
 
 
+def test_score_cli_tolerance_for_synced_times(tmp_path, capsys):
+    """Packets that went through pcap and ``sync`` come back within 0.1 ms of
+    their simulated times: ``score --tolerance-ms 0.1`` matches them (the
+    default, 1 µs, refuses them and says so); a bad tolerance is one line."""
+    from radiopose.cli import main
+    from radiopose.estimates import write_estimates_csv
+    from radiopose.packets import write_truth_csv
+
+    tr = _truth()
+    e = _est(tr, [0, 1, 2])
+    e = Estimates(
+        e.timestamp_s + 40e-6,  # 40 µs off, as sync's clock estimate may be
+        *(
+            getattr(e, f)
+            for f in ("transmitter", "packet_id", "position_m", "orientation_deg", "method")
+        ),
+    )
+    write_truth_csv(tr, tmp_path / "truth.csv")
+    write_estimates_csv(e, tmp_path / "est.csv")
+    args = ["score", str(tmp_path / "truth.csv"), str(tmp_path / "est.csv"), "--json"]
+    assert main(args) == 2
+    assert "score --tolerance-ms 0.1" in capsys.readouterr().err
+    assert main([*args, "--tolerance-ms", "0.1"]) == 0
+    assert '"n_estimates": 3' in capsys.readouterr().out
+    assert main([*args, "--tolerance-ms", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert "--tolerance-ms must be in [0, 1000] ms" in err and err.count("\n") == 1
+
+
 def test_error_stats():
     s = error_stats(np.arange(101, dtype=float))
     assert (s.mean, s.median, s.p95) == (50.0, 50.0, 95.0)

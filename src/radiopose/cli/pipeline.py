@@ -134,15 +134,26 @@ def score(
     truth: Annotated[Path, typer.Argument(help="truth.csv of the packets.")],
     estimates: Annotated[Path, typer.Argument(help="estimates.csv to score.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
+    tolerance_ms: Annotated[
+        float,
+        typer.Option(
+            "--tolerance-ms",
+            help="How far an estimate's time may be from its truth row's, ms (default 0.001: "
+            "the simulation's own files; 0.1 for packets that went through pcap and sync).",
+        ),
+    ] = 0.001,
 ) -> None:
     """Position error (m), orientation error (°) and coverage: mean, median, p95 per method."""
+    from radiopose.errors import InputError
     from radiopose.estimates import read_estimates_csv
     from radiopose.evaluate.scoring import score as run_score
     from radiopose.packets import read_truth_csv
 
     t = read_truth_csv(truth)
     e = read_estimates_csv(estimates)
-    scores = run_score(t, e)
+    if not (math.isfinite(tolerance_ms) and 0 <= tolerance_ms <= 1000):
+        raise InputError(f"--tolerance-ms must be in [0, 1000] ms, got {tolerance_ms:g}")
+    scores = run_score(t, e, tolerance_ms / 1e3)
     if as_json:
         print(json.dumps([s.to_dict() for s in scores], indent=1))
         return

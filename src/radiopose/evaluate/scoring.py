@@ -118,7 +118,8 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
             raise InputError(
                 f"estimate {i + 1} (packet {estimates.packet_id[i]!r}, "
                 f"{estimates.timestamp_s[i]:.9g} s): no truth row of {estimates.transmitter[i]} "
-                f"within {tolerance_s:g} s",
+                f"within {tolerance_s:g} s (packets that went through pcap and sync: "
+                "score --tolerance-ms 0.1)",
                 column="timestamp_s",
                 **estimates.where(i),
             )
