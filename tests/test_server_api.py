@@ -402,3 +402,25 @@ def test_fuzzed_reports_never_break_the_server(server: Running, body) -> None:
         assert "\n" not in r.json()["detail"]
     elif r.status_code == 201:
         assert server.db.count_frames() == before + len(body["frames"])
+
+
+def test_db_export_of_a_missing_file_writes_nothing_and_token_create_says_it_created(
+    tmp_path, capsys
+) -> None:
+    """``db export`` reads a server's database: a mistyped SQLite path is one line
+    and leaves neither an empty database nor an output directory behind (it
+    created both). ``token create`` may set up a database before its server first
+    starts, so it creates one, but says so on stderr (a mistyped path was silent)."""
+    from radiopose.cli import main
+
+    missing, out = tmp_path / "nosuch.db", tmp_path / "out"
+    assert main(["db", "export", "--db", str(missing), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "no such database file" in err and err.count("\n") == 1
+    assert not missing.exists() and not out.exists()
+    fresh = tmp_path / "fresh.db"
+    assert main(["token", "create", "--db", str(fresh), "--role", "viewer"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith("rp_") and "created a new database" in captured.err
+    assert main(["token", "create", "--db", f"sqlite:///{fresh}", "--role", "viewer"]) == 0
+    assert capsys.readouterr().err == ""  # it exists now

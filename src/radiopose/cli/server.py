@@ -35,6 +35,25 @@ def _database(db: str):
     return Database(_url(db))
 
 
+def _sqlite_file(db: str) -> Path | None:
+    """The file of a SQLite ``--db`` (a plain path or a ``sqlite:///`` URL), else ``None``."""
+    if "://" not in db:
+        return Path(db)
+    prefix = "sqlite:///"
+    if db.startswith(prefix) and db[len(prefix) :] not in ("", ":memory:"):
+        return Path(db[len(prefix) :])
+    return None
+
+
+def _existing_database(db: str):
+    """The server database ``db`` for a command that only reads it: a SQLite file
+    that does not exist is a one-line error (opening it would create an empty one)."""
+    path = _sqlite_file(db)
+    if path is not None and not path.is_file():
+        raise InputError(f"--db {db}: no such database file (this command reads a server's)")
+    return _database(db)
+
+
 def _partition(value: str) -> tuple[int, int]:
     try:
         k, n = (int(v) for v in value.split("/"))
@@ -171,11 +190,18 @@ def token_create(
     from radiopose.server.auth import check_role, create_token
 
     check_role(role, receiver)
+    path = _sqlite_file(db)
+    new = path is not None and not path.exists()
     database = _database(db)
     try:
         print(create_token(database, role, receiver))
     finally:
         database.close()
+    if new:  # a token for a server yet to start there, or a mistyped --db
+        print(
+            f"radiopose: note: {path} did not exist; created a new database for this token",
+            file=sys.stderr,
+        )
 
 
 @app.command(short_help="Ship one receiver's frame reports to the server.")
@@ -284,7 +310,7 @@ def db_export(
     """Export the run: site/, frames.csv, packets.csv, estimates.csv (replayable)."""
     from radiopose.server.export import export_run
 
-    database = _database(db)
+    database = _existing_database(db)
     try:
         for p in export_run(database, out):
             print(p)
