@@ -83,6 +83,16 @@ def test_bad_lists_are_one_line_errors(tmp_path: Path, line: str, key: str, what
     assert exc.value.column == f"filter.{key}"
 
 
+def test_an_unknown_top_level_key_lists_every_valid_one(tmp_path: Path):
+    """The top level of tracker.toml holds smoothing_lag_s, live_method and
+    [filter]: an unknown key's message lists all three (it left out live_method
+    when the file did not set it)."""
+    p = tmp_path / "tracker.toml"
+    p.write_text("foo = 0.5\n", encoding="utf-8")
+    with pytest.raises(InputError, match=r"known here: filter, live_method, smoothing_lag_s\)"):
+        read_tracker_settings(p)
+
+
 _OFFSETS = st.lists(
     st.floats(-60, 60, allow_nan=False).map(lambda x: round(x, 3)), min_size=1, max_size=6
 ).map(tuple)

@@ -200,7 +200,7 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
         elif key == POSE3D_TABLE:
             pose3d = _read_pose3d(sec.section(POSE3D_TABLE))
     sec.finish(allowed=[*kinds, POSE3D_TABLE])
-    root.finish()
+    root.finish(allowed=("smoothing_lag_s", "live_method", "filter"))
     try:
         dataclasses.replace(FilterConfig(), **overrides)
     except InputError as exc:  # the dataclass names the field; add the file and its line

@@ -506,7 +506,7 @@ class FilterConfig:
         if gate is not None and not gate > 0:
             raise InputError(
                 f"filter setting live_resolve_max_sigma_db = {gate!r} must be a positive "
-                "number of dB (or None: no gate)"
+                "number of dB (left out: no gate)"
             )
         for name, v, lo_open in (
             ("live_resolve_every_s", self.live_resolve_every_s, False),
