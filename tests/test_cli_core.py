@@ -77,11 +77,11 @@ def test_simulate_contract_call(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--receivers", "0"], "n_receivers = 0 is out of range (allowed: 1 to 16)"),
+        (["--receivers", "0"], "--receivers 0 is out of range (allowed: 1 to 16)"),
         (["--rotation", "spin"], "--rotation must be one of"),
-        (["--noise-db", "-2"], "noise_db"),
+        (["--noise-db", "-2"], "--noise-db -2.0 is out of range (allowed: [0, 30])"),
         (["--duration-s", "0.001"], "shorter than one packet interval"),
-        (["--duration-s", "inf"], "duration_s = inf must be a finite number"),
+        (["--duration-s", "inf"], "--duration-s inf must be a finite number"),
         (["--size-m", "1.5"], "leaves no room to walk"),
         (["--speed-mps", "1", "nan"], "--speed-mps needs"),
         (["--pcap", "--duplicates", "2"], "duplicate_fraction"),
@@ -89,7 +89,7 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--size-m", "10", "--step-m", "0.3"], "step_m = 0.3 does not divide size_m = 10.0"),
         (["--step-m", "0.0001"], "more than 25,000,000 grid points"),
         (["--seed", "-1"], "--seed must be a non-negative integer"),
-        (["--size-m", "1e308"], "size_m = 1e+308 is out of range"),
+        (["--size-m", "1e308"], "--size-m 1e+308 is out of range"),
         (["--azimuth-step-deg", "0.0001"], "3.6e+06 azimuths"),
         (["--duplicates", "0.5"], "--duplicates applies only with --pcap"),
         (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),

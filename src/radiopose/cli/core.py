@@ -20,6 +20,21 @@ _PCAP_DEFAULTS = {
 }
 
 
+_SCENARIO_FLAGS = {
+    "survey_noise_db": "--survey-noise-db",
+    "noise_db": "--noise-db",
+    "size_m": "--size-m",
+    "step_m": "--step-m",
+    "n_receivers": "--receivers",
+    "interval_ms": "--interval-ms",
+    "duration_s": "--duration-s",
+    "azimuth_step_deg": "--azimuth-step-deg",
+    "loss_fraction": "--loss",
+}
+"""``radiopose simulate``'s option for each ScenarioConfig field it sets (its
+range errors name the option)."""
+
+
 @app.command(short_help="Simulate a scenario: site/, packets.csv, truth.csv.")
 def simulate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")],
@@ -126,18 +141,26 @@ def simulate(
         rate = "linear_rate_deg_s" if rotation == "linear" else "fast_rate_deg_s"
         rate_change: dict[str, Any] = {rate: tuple(rotation_rate_dps)}
         motion = replace(motion, **rate_change)
-    cfg = ScenarioConfig(
-        size_m=size_m,
-        step_m=step_m,
-        n_receivers=receivers,
-        noise_db=noise_db,
-        survey_noise_db=survey_noise_db,
-        interval_ms=interval_ms,
-        duration_s=duration_s,
-        azimuth_step_deg=azimuth_step_deg,
-        loss_fraction=loss,
-        motion=motion,
-    )
+    try:
+        cfg = ScenarioConfig(
+            size_m=size_m,
+            step_m=step_m,
+            n_receivers=receivers,
+            noise_db=noise_db,
+            survey_noise_db=survey_noise_db,
+            interval_ms=interval_ms,
+            duration_s=duration_s,
+            azimuth_step_deg=azimuth_step_deg,
+            loss_fraction=loss,
+            motion=motion,
+        )
+        if pose == "2d":  # (the 3-D scenario checks its own settings)
+            cfg.validate()
+    except InputError as exc:  # name the option, not the scenario's field
+        reason = exc.reason
+        for field_name, flag in _SCENARIO_FLAGS.items():
+            reason = reason.replace(f"scenario setting {field_name} =", f"{flag}")
+        raise InputError(reason) from None
     capture_cfg = None
     if not pcap:
         values = (clock_offset_ms, clock_drift_ppm, jitter_us, duplicates)
