@@ -87,8 +87,8 @@ class LiveResolve:
         Re-solved estimates by ``(packet_id, t_s)``, used when the smoother
         emits that packet (then removed).
     last_s
-        The periodic re-solve's last time, seconds (NaN before it; a state
-        pickled before session 26 has no such attribute and reads as NaN).
+        The periodic re-solve's last time, seconds (NaN before it; also in a
+        state pickled before session 26, which had no such attribute).
     solver
         The start's re-solves' :class:`Solver` over ``records`` (not pickled;
         ``None`` outside the schedule).
@@ -106,6 +106,10 @@ class LiveResolve:
         # not checkpointed: a restored track steps its records again, with the
         # same results (Solver)
         return {**self.__dict__, "solver": None}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        # a state pickled before session 26 has neither last_s nor solver
+        self.__dict__.update({"last_s": math.nan, "solver": None, **state})
 
 
 class Solver:
@@ -220,28 +224,27 @@ def live_resolve_step(
             return smoothed
         # periodic: the last live_resolve_window_s of the track, every every_s
         rs.records.append((t_s, heard, packet_id))
-        last_s = getattr(rs, "last_s", math.nan)
-        if math.isnan(last_s):
+        last_s = rs.last_s
+        if math.isnan(last_s):  # (a state whose schedule ended before last_s existed)
             last_s = rs.start_s + (times[-1] if times else 0.0)
         if t_s - last_s < every_s:
             return smoothed
         rs.last_s = t_s
         lo = t_s - cfg.live_resolve_window_s
         rs.records = [r for r in rs.records if r[0] >= lo]
-        records = list(rs.records)
+        records = rs.records
     else:
         rs.records.append((t_s, heard, packet_id))
         if t_s - rs.start_s < times[rs.done]:
             return smoothed
         while rs.done < len(times) and t_s - rs.start_s >= times[rs.done]:
             rs.done += 1
-        if rs.done >= len(times) and not every_s > 0:
-            records, rs.records = rs.records, []
-        else:
-            records = list(rs.records)
+        records = rs.records  # (a solve keeps no reference to it)
         if rs.done >= len(times):
             rs.last_s = t_s
-    solver = getattr(rs, "solver", None)  # (none in a state pickled before session 26)
+            if not every_s > 0:
+                rs.records = []
+    solver = rs.solver
     if rs.done >= len(times):
         rs.solver = None  # the schedule's last re-solve: its forward state is not needed after
     gate = cfg.live_resolve_max_sigma_db
