@@ -75,7 +75,7 @@ def section_warm(n_packets: int, repeat: int) -> tuple[list[dict], dict]:
         obs = group_packets(sim.packets)
         t0 = time.perf_counter()
         tracker = Tracker(sim.site, "filter", configs[name], scorers=scorers[name])
-        tracker._device(TX)  # site preparation outside the timing
+        tracker.device(TX)  # site preparation outside the timing
         t1 = time.perf_counter()
         tracker.update(obs[0])  # the track's acquisition
         t2 = time.perf_counter()

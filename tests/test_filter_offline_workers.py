@@ -208,7 +208,7 @@ def test_a_look_ahead_on_other_packets_is_not_used(sim, monkeypatch: pytest.Monk
 def test_same_records_compares_keys_times_and_readings(sim) -> None:
     tr = Tracker(sim.site, "filter", _config(1), lag_s=1.0, offline=True)
     obs = group_packets(sim.packets)[:3]
-    dev = tr._device(obs[0].transmitter)
+    dev = tr.device(obs[0].transmitter)
     recs = [(o.timestamp_s, dev.space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
     again = [(t, dev.space.heard(o), k) for (t, _, k), o in zip(recs, obs, strict=True)]
     assert _same_records(recs, again)
@@ -222,7 +222,7 @@ def test_same_records_compares_keys_times_and_readings(sim) -> None:
 def test_identical_candidates_are_refined_once(sim, monkeypatch: pytest.MonkeyPatch) -> None:
     tr = Tracker(sim.site, "filter", _config(1), lag_s=1.0, offline=True)
     obs = group_packets(sim.packets)
-    dev = tr._device(obs[0].transmitter)
+    dev = tr.device(obs[0].transmitter)
     pf = dev.engine
     recs = [(o.timestamp_s, dev.space.heard(o), (o.packet_id, o.timestamp_s)) for o in obs]
     recs = [r for r in recs if r[1].n_heard > 0]

@@ -83,7 +83,11 @@ class Tracker:
         self._latest: dict[str, tuple[float, set[str]]] = {}
         self.offline = offline  # batch locate: the whole file (issue 15, offset selection)
 
-    def _device(self, transmitter: str) -> Device:
+    def device(self, transmitter: str) -> Device:
+        """The method's context for ``transmitter`` (its site, candidate space,
+        scorer and prepared engine), built on first use as its first packet
+        would build it (tools that drive a method's parts directly use it too:
+        the live re-solve's bound in ``scripts/live_lag_accuracy.py``)."""
         key = transmitter.lower()
         dev = self._devices.get(key)
         if dev is None:
@@ -105,13 +109,6 @@ class Tracker:
             self.impl.prepare(dev)
             self._devices[key] = dev
         return dev
-
-    def device(self, transmitter: str) -> Device:
-        """The method's context for ``transmitter`` (its site, candidate space,
-        scorer and prepared engine), built on first use as its first packet
-        would build it; for tools that drive a method's parts directly (the
-        live re-solve's bound in ``scripts/live_lag_accuracy.py``)."""
-        return self._device(transmitter)
 
     def is_enrolled(self, transmitter: str) -> bool:
         key = transmitter.lower()
@@ -138,7 +135,7 @@ class Tracker:
         check_observation(packet)
         if not self.is_enrolled(packet.transmitter):
             return None, SKIP_UNKNOWN_TRANSMITTER
-        dev = self._device(packet.transmitter)
+        dev = self.device(packet.transmitter)
         heard = dev.space.heard(packet)
         t = float(packet.timestamp_s)
         latest = self._latest.get(dev.key)
@@ -175,7 +172,7 @@ class Tracker:
         for packet in packets:
             if not self.is_enrolled(packet.transmitter):
                 continue
-            dev = self._device(packet.transmitter)
+            dev = self.device(packet.transmitter)
             by_device.setdefault(dev.key, []).append(
                 (float(packet.timestamp_s), dev.space.heard(packet), packet.packet_id)
             )
