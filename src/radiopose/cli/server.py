@@ -36,13 +36,19 @@ def _database(db: str):
 
 
 def _sqlite_file(db: str) -> Path | None:
-    """The file of a SQLite ``--db`` (a plain path or a ``sqlite:///`` URL), else ``None``."""
-    if "://" not in db:
-        return Path(db)
-    prefix = "sqlite:///"
-    if db.startswith(prefix) and db[len(prefix) :] not in ("", ":memory:"):
-        return Path(db[len(prefix) :])
-    return None
+    """The file of a SQLite ``--db`` (a plain path or a ``sqlite:///`` URL), else
+    ``None`` (another database, an in-memory one, or a URL SQLAlchemy cannot
+    parse: opening it gives the error)."""
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    try:
+        url = make_url(_url(db))
+    except (ArgumentError, ValueError):
+        return None
+    if url.get_backend_name() != "sqlite" or url.database in (None, "", ":memory:"):
+        return None
+    return Path(url.database)
 
 
 def _existing_database(db: str):
