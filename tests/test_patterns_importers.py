@@ -995,7 +995,7 @@ def test_basta_row_decoder_reads_what_json_loads_reads(tmp_path_factory, rows, i
 )
 def test_grid_duplicate_search_agrees_with_a_dict_walk(pairs):
     """pattern_from_samples finds repeats by one sort instead of a dict of every sample."""
-    from radiopose.patterns.pattern import _first_repeat
+    from radiopose.patterns.pattern import first_repeat
 
     seen: dict[tuple[float, float], int] = {}
     expected = None
@@ -1005,7 +1005,7 @@ def test_grid_duplicate_search_agrees_with_a_dict_walk(pairs):
             break
         seen[key] = r
     az, po = (np.array(v) for v in zip(*pairs, strict=True))
-    assert _first_repeat(az, po) == expected
+    assert first_repeat(az, po) == expected
 
 
 # ------------------------------------- the directivity's range, reached by gain - attenuation

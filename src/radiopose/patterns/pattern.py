@@ -503,7 +503,7 @@ def pattern_from_samples(
     """
     az, po, values = _sample_arrays(azimuth_deg, polar_deg, directivity_dbi)
     # exact repeats first: the clearest message
-    repeat = _first_repeat(az, po)
+    repeat = first_repeat(az, po)
     if repeat is not None:
         r, first = repeat
         raise GridError(
@@ -542,7 +542,7 @@ def pattern_from_samples(
             )
     n_a, n_p = a_fit.n, p_fit.n
     flat = ai * n_p + pi
-    repeat = _first_repeat(flat)
+    repeat = first_repeat(flat)
     if repeat is not None:
         r, first = repeat
         raise GridError(
@@ -571,7 +571,7 @@ def pattern_from_samples(
         return Pattern(name, grid_a, grid_p if not slice_ else axis_p, grid)
 
 
-def _first_repeat(*keys: np.ndarray) -> tuple[int, int] | None:
+def first_repeat(*keys: np.ndarray) -> tuple[int, int] | None:
     """``(row, first_row)`` of the earliest sample whose keys all equal (``==``) those of
     an earlier sample, and that earlier sample's first row; ``None`` if every sample
     is distinct.

@@ -25,7 +25,7 @@ from radiopose.patterns.importers._common import (
     _require_angles,
     _stem,
 )
-from radiopose.patterns.pattern import Pattern
+from radiopose.patterns.pattern import Pattern, first_repeat
 from radiopose.units import (
     FloatArray,
     db_to_linear,
@@ -244,20 +244,19 @@ def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> Non
     """
     n = angles.size
 
-    def no_repeat(keys: list[float] | list[int]) -> None:
+    def no_repeat(keys: np.ndarray) -> None:
         """The first angle whose ``key`` repeats an earlier one is a duplicate."""
-        first: dict[float, int] = {}
-        for j, key in enumerate(keys):
-            if key in first:
-                raise InputError(
-                    f"duplicate angle {angles[j]:g} (first at line {first_line + first[key]})",
-                    path=path,
-                    line=first_line + j,
-                    column=f"{cut} angle",
-                )
-            first[key] = j
+        repeat = first_repeat(keys)
+        if repeat is not None:
+            j, first = repeat
+            raise InputError(
+                f"duplicate angle {angles[j]:g} (first at line {first_line + first})",
+                path=path,
+                line=first_line + j,
+                column=f"{cut} angle",
+            )
 
-    no_repeat(np.mod(np.round(angles, 6), 360.0).tolist())
+    no_repeat(np.mod(np.round(angles, 6), 360.0))
     step = 360.0 / n
     k = np.round(angles / step)
     off = np.nonzero(np.abs(angles - k * step) > 1e-6)[0]
@@ -270,7 +269,7 @@ def _check_cut(angles: FloatArray, path: Path, first_line: int, cut: str) -> Non
             line=first_line + j,
             column=f"{cut} angle",
         )
-    no_repeat(np.mod(k.astype(np.int64), n).tolist())  # the grid index: 359.9999999 is 0
+    no_repeat(np.mod(k.astype(np.int64), n))  # the grid index: 359.9999999 is 0
 
 
 def _cut_at(angles: FloatArray, values: FloatArray, at_deg: FloatArray) -> FloatArray:
