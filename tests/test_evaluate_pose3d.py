@@ -137,3 +137,14 @@ def test_the_shipped_3d_quick_run_is_small():
     assert [dict(c.params)["n_receivers"] for c in exp.conditions] == [4, 6, 8]
     assert exp.runs == 2 and exp.conditions[0].scenario.duration_s == 1.0
     assert is_3d(exp) and is_3d(load_experiment("3d"))
+
+
+def test_a_one_run_3d_report_promises_no_ci(tmp_path: Path):
+    """``--runs 1``: the per-axis tables say one run and no CI (they promised
+    "± half the 95 % CI", which one run does not have)."""
+    exp = load_experiment("3d", quick=True).with_runs(1)
+    info = RunInfo("radiopose evaluate 3d --quick --runs 1", "0.1.0", True, 3, ())
+    write_report(_results3d(exp), [exp], tmp_path, info)
+    md = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert "**Per-axis mean errors of `filter`**, one run, no CI (the run's mean" in md
+    assert "95 % CI" not in md and " ± " not in md  # (the scenario's roll "within ±25°" stays)

@@ -183,3 +183,31 @@ def test_paper_comparison_sets_filter_beside_full(tmp_path):
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
     assert "orientation, filter (°)" in md and "coverage of filter (%)" in md
     assert "beyond the paper: `filter`" in md and "95.0 [" in md
+
+
+def test_report_of_one_run_promises_no_ci(tmp_path):
+    """``radiopose evaluate --runs 1``: one run per condition has no confidence
+    interval, so the report says so instead of "± half the 95 % CI" (the tables
+    already showed the bare means) or "outside our 95 % CI"."""
+    df = _results()
+    df = df[df["seed"] == SEEDS[0]]
+    exp = parse_experiment(
+        {
+            "name": "noise",
+            "seed": 1,
+            "runs": 1,
+            "methods": ["full", "top", "lms"],
+            "sweep": {"scenario": {"noise_db": [0.5, 3.0]}},
+            "figure": [{"kind": "reduction", "x": "noise_db", "quantity": "position"}],
+        },
+        "noise.toml",
+    )
+    info = RunInfo("radiopose evaluate noise -o out --runs 1", "0.1.0", True, 2, ())
+    write_report(df, [exp], tmp_path, info)
+    md = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert "95 % CI" not in md and "±" not in md and "Brackets" not in md
+    assert "2 conditions × 1 run (" in md and "One run per condition, so no confidence" in md
+    assert "One run per σ, so no confidence intervals." in md
+    assert "**Mean position error (m)**, one run (no CI):" in md
+    assert "| noise_db | method | reduction (%) | runs |" in md
+    assert "by 5.1° (0.33×), one run: no CI to compare with." in md

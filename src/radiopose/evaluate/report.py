@@ -150,6 +150,17 @@ def _ci(value: float, low: float, high: float, digits: int) -> str:
     return f"{value:.{digits}f} [{low:.{digits}f}, {high:.{digits}f}]"
 
 
+def _one_run(results: pd.DataFrame) -> bool:
+    """Whether ``results`` hold at most one run of each method per condition
+    (``radiopose evaluate --runs 1``): no confidence interval exists, and the
+    report says so instead of promising "± half the 95 % CI"."""
+    return bool(len(results)) and int(results.groupby(["condition", "method"]).size().max()) <= 1
+
+
+def _no_ci(low: float, high: float) -> bool:
+    return not (math.isfinite(low) and math.isfinite(high))
+
+
 COMPARED: tuple[str, ...] = ("full", "filter")
 """Methods set beside the paper's numbers: the paper's pipeline and the Bayesian tracker."""
 
@@ -214,6 +225,10 @@ def paper_comparison(results: pd.DataFrame, rng: np.random.Generator) -> pd.Data
     return pd.DataFrame(rows)
 
 
+_NO_CI = "one run: no CI to compare with"
+"""The verdict's ending where a point has a single run (no confidence interval)."""
+
+
 def differences(cmp: pd.DataFrame) -> list[str]:
     """Plain statements of where the numbers differ from the paper's (one per point)."""
     out = []
@@ -221,7 +236,8 @@ def differences(cmp: pd.DataFrame) -> list[str]:
         s = r["noise_db"]
         if math.isfinite(r["paper_orientation_deg"]):
             ours, paper = r["orientation_deg"], r["paper_orientation_deg"]
-            inside = r["orientation_low_deg"] <= paper <= r["orientation_high_deg"]
+            lo, hi = r["orientation_low_deg"], r["orientation_high_deg"]
+            inside = lo <= paper <= hi
             if not math.isfinite(ours):
                 out.append(
                     f"σ = {s:g} dB: `full` gave no orientation estimate in any run "
@@ -232,7 +248,8 @@ def differences(cmp: pd.DataFrame) -> list[str]:
                     "within our 95 % CI"
                     if inside
                     else f"{'higher' if ours > paper else 'lower'} than the paper's by "
-                    f"{abs(ours - paper):.1f}° ({ours / paper:.2g}×), outside our 95 % CI"
+                    f"{abs(ours - paper):.1f}° ({ours / paper:.2g}×), "
+                    + (_NO_CI if _no_ci(lo, hi) else "outside our 95 % CI")
                 )
                 out.append(
                     f"σ = {s:g} dB: mean orientation error of `full` "
@@ -241,13 +258,15 @@ def differences(cmp: pd.DataFrame) -> list[str]:
                 )
         if math.isfinite(r["paper_reduction_pct"]):
             ours, paper = r["reduction_pct"], r["paper_reduction_pct"]
-            inside = r["reduction_low_pct"] <= paper <= r["reduction_high_pct"]
+            lo, hi = r["reduction_low_pct"], r["reduction_high_pct"]
+            inside = lo <= paper <= hi
             if math.isfinite(ours):
                 verdict = (
                     "within our 95 % CI"
                     if inside
                     else f"{'more' if ours > paper else 'less'} than the paper's by "
-                    f"{abs(ours - paper):.1f} points, outside our 95 % CI"
+                    f"{abs(ours - paper):.1f} points, "
+                    + (_NO_CI if _no_ci(lo, hi) else "outside our 95 % CI")
                 )
                 out.append(
                     f"σ = {s:g} dB: `full` reduces the mean position error of `lms` "
@@ -378,15 +397,22 @@ def _experiment_blocks(
     if exp.description:
         blocks.append(("p", exp.description))
     df = results[results["experiment"] == exp.name]
+    single = _one_run(df)
+    spread = (
+        "One run per condition, so no confidence intervals: mean errors, reductions and "
+        "ratios are that run's."
+        if single
+        else "Mean errors are means over runs of each run's mean error, ± half the 95 % "
+        "confidence interval (Student t); reductions and ratios use a paired bootstrap over runs."
+    )
     blocks.append(
         (
             "p",
             (
-                f"{len(exp.conditions)} conditions × {exp.runs} runs (experiment seed {exp.seed}), "
-                f"methods {', '.join(exp.methods)}; {scenario_text(exp)}"
-                f"{' ([quick] settings)' if exp.quick_applied else ''}. Mean errors are means over "
-                f"runs of each run's mean error, ± half the 95 % confidence interval (Student t); "
-                f"reductions and ratios use a paired bootstrap over runs."
+                f"{len(exp.conditions)} conditions × {exp.runs} run{'' if exp.runs == 1 else 's'} "
+                f"(experiment seed {exp.seed}), methods {', '.join(exp.methods)}; "
+                f"{scenario_text(exp)}{' ([quick] settings)' if exp.quick_applied else ''}. "
+                f"{spread}"
             ),
         )
     )
@@ -409,7 +435,12 @@ def _experiment_blocks(
             blocks.append(
                 (
                     "table",
-                    [spec.x, spec.hue, f"{spec.kind}{unit} [95 % CI]", "runs"],
+                    [
+                        spec.x,
+                        spec.hue,
+                        f"{spec.kind}{unit}{'' if single else ' [95 % CI]'}",
+                        "runs",
+                    ],
                     [
                         [
                             str(r.x),
@@ -427,14 +458,15 @@ def _experiment_blocks(
         ("Mean orientation error (°)", "orientation_deg", 1),
     ):
         head, rows = _method_table(summary, value, digits)
-        blocks += [("p", f"**{title}**, ± half the 95 % CI:"), ("table", head, rows)]
+        how = "one run (no CI)" if single else "± half the 95 % CI"
+        blocks += [("p", f"**{title}**, {how}:"), ("table", head, rows)]
     head, rows = _method_table(summary, "coverage", 1, scale=100.0, ci=False)
     blocks += [
         ("p", "**Coverage (%)** — estimates ÷ packets, mean over runs:"),
         ("table", head, rows),
     ]
     if is_3d(exp):
-        b, w = _axis_blocks(exp, df, summary, out)
+        b, w = _axis_blocks(exp, df, summary, out, single)
         blocks += b
         written += w
     return blocks, written
@@ -470,10 +502,11 @@ def scenario_text(exp: Experiment) -> str:
 
 
 def _axis_blocks(
-    exp: Experiment, df: pd.DataFrame, summary: pd.DataFrame, out: Path
+    exp: Experiment, df: pd.DataFrame, summary: pd.DataFrame, out: Path, single: bool = False
 ) -> tuple[list[Block], list[Path]]:
-    """A 3-D experiment's per-axis errors: a table per method (± half the 95 % CI)
-    and a figure (one panel per axis, error against receivers, a line per σ)."""
+    """A 3-D experiment's per-axis errors: a table per method (± half the 95 % CI;
+    ``single``: one run, no CI) and a figure (one panel per axis, error against
+    receivers, a line per σ)."""
     import matplotlib.pyplot as plt
 
     from radiopose.evaluate.figures import plot_axis_errors
@@ -501,8 +534,13 @@ def _axis_blocks(
         blocks += [
             (
                 "p",
-                f"**Per-axis mean errors of `{m}`**, ± half the 95 % CI (mean over runs of each "
-                "run's mean absolute error: height, and the wrapped azimuth, pitch and roll "
+                f"**Per-axis mean errors of `{m}`**, "
+                + (
+                    "one run, no CI (the run's"
+                    if single
+                    else "± half the 95 % CI (mean over runs of each run's"
+                )
+                + " mean absolute error: height, and the wrapped azimuth, pitch and roll "
                 "differences; the orientation error above is the angle of the relative rotation):",
             ),
             ("table", ["condition", *[label for _c, _n, label in AXIS_SUMMARY]], rows),
@@ -514,7 +552,8 @@ def _axis_blocks(
         fig.savefig(out / rel, dpi=110)
         plt.close(fig)
         written.append(out / rel)
-        blocks.append(("img", rel.as_posix(), f"Per-axis mean errors of {m}, 95 % CIs"))
+        cis = "one run" if single else "95 % CIs"
+        blocks.append(("img", rel.as_posix(), f"Per-axis mean errors of {m}, {cis}"))
     return blocks, written
 
 
@@ -595,10 +634,15 @@ def write_report(
                 "Experiment `noise` (4 receivers, a packet every 5 ms). Orientation: mean "
                 "orientation error of the full pipeline. Reduction: how much lower the full "
                 "pipeline's mean position error is than log-distance least squares (`lms`), "
-                "100 (1 − full / lms). Brackets: 95 % confidence intervals over runs. The "
-                "paper gives these numbers at σ = 0.5 and 3.0 dB only. The `filter` columns "
-                "are the Bayesian tracker (beyond the paper, docs/filter.md), offline with "
-                "its fixed-lag smoother, scored the same way.",
+                "100 (1 − full / lms). "
+                + (
+                    "One run per σ, so no confidence intervals. "
+                    if _one_run(results[results["experiment"] == "noise"])
+                    else "Brackets: 95 % confidence intervals over runs. "
+                )
+                + "The paper gives these numbers at σ = 0.5 and 3.0 dB only. The `filter` "
+                "columns are the Bayesian tracker (beyond the paper, docs/filter.md), offline "
+                "with its fixed-lag smoother, scored the same way.",
             ),
             (
                 "table",
