@@ -77,7 +77,10 @@ def test_simulate_contract_call(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("args", "needle"),
     [
-        (["--receivers", "0"], "--receivers 0 is out of range (allowed: 1 to 16)"),
+        (["--receivers", "0"], "--receivers 0 is out of range (allowed: 3 to 16;"),
+        (["--receivers", "2"], "--receivers 2 is out of range (allowed: 3 to 16;"),
+        (["--receivers", "2", "--pose", "3d"], "--receivers 2 is out of range (allowed: 3 to"),
+        (["--receivers", "17"], "--receivers 17 is out of range (allowed: 3 to 16;"),
         (["--rotation", "spin"], "--rotation must be one of"),
         (["--noise-db", "-2"], "--noise-db -2.0 is out of range (allowed: [0, 30])"),
         (["--duration-s", "0.001"], "shorter than one packet interval"),
@@ -101,6 +104,16 @@ def test_simulate_errors_one_line(tmp_path, capsys, args, needle):
     assert needle in err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert not (tmp_path / "x").exists()
+
+
+def test_simulate_receivers_floor_is_the_trackers():
+    """`radiopose simulate --receivers 2` wrote a scenario on which every method
+    gave 0 % coverage: each skips a packet heard by fewer than
+    TrackerConfig.min_receivers. The CLI's floor is that default."""
+    from radiopose.cli.core import MIN_RECEIVERS
+    from radiopose.tracker import TrackerConfig
+
+    assert MIN_RECEIVERS == TrackerConfig().min_receivers == 3
 
 
 def test_console_script_no_traceback(tmp_path):

@@ -35,6 +35,13 @@ _SCENARIO_FLAGS = {
 range errors name the option)."""
 
 
+MIN_RECEIVERS = 3
+"""Fewest receivers ``radiopose simulate`` accepts: ``TrackerConfig.min_receivers``'s
+default (not imported: it loads the method registry). Every method skips a packet
+heard by fewer, so a scenario with fewer gives no estimate at all (the library's
+:class:`ScenarioConfig` takes 1 for experiments that lower ``min_receivers``)."""
+
+
 @app.command(short_help="Simulate a scenario: site/, packets.csv, truth.csv.")
 def simulate(
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")],
@@ -42,7 +49,7 @@ def simulate(
     noise_db: Annotated[
         float, typer.Option("--noise-db", help="σ of Gaussian noise on packet RSS, dB.")
     ] = 1.0,
-    receivers: Annotated[int, typer.Option(help="Number of receivers (paper: 3–6).")] = 4,
+    receivers: Annotated[int, typer.Option(help="Number of receivers, 3 to 16 (paper: 3–6).")] = 4,
     interval_ms: Annotated[
         float, typer.Option("--interval-ms", help="Time between packets, milliseconds.")
     ] = 5.0,
@@ -127,6 +134,7 @@ def simulate(
     from radiopose.errors import InputError
     from radiopose.simulate import MotionConfig, ScenarioConfig
     from radiopose.simulate import simulate as run
+    from radiopose.simulate.scenario import MAX_RECEIVERS
 
     if not 0 <= seed < 2**63:
         raise InputError(f"--seed must be a non-negative integer below 2**63, got {seed}")
@@ -141,6 +149,12 @@ def simulate(
         rate = "linear_rate_deg_s" if rotation == "linear" else "fast_rate_deg_s"
         rate_change: dict[str, Any] = {rate: tuple(rotation_rate_dps)}
         motion = replace(motion, **rate_change)
+    if not MIN_RECEIVERS <= receivers <= MAX_RECEIVERS:
+        raise InputError(
+            f"--receivers {receivers} is out of range (allowed: {MIN_RECEIVERS} to "
+            f"{MAX_RECEIVERS}; every method skips a packet heard by fewer than "
+            f"{MIN_RECEIVERS} receivers)"
+        )
     try:
         cfg = ScenarioConfig(
             size_m=size_m,

@@ -54,6 +54,10 @@ from radiopose.units import FloatArray
 DEFAULT_TRANSMITTER = "02:00:00:00:00:01"
 
 
+MAX_RECEIVERS = 16
+"""Most receivers a scenario may have (``n_receivers``)."""
+
+
 @dataclass(frozen=True)
 class ScenarioConfig:
     """A simulated scenario (defaults: the paper's standard scenario).
@@ -69,7 +73,9 @@ class ScenarioConfig:
     survey_step_m
         Survey grid step, metres.
     n_receivers
-        Number of receivers (3–6 in the paper's sweeps; 1–16 accepted).
+        Number of receivers (3–6 in the paper's sweeps; 1–16 accepted here,
+        ``radiopose simulate`` takes 3–16: every method skips a packet heard
+        by fewer than ``TrackerConfig.min_receivers``, 3 by default).
     noise_db
         σ of the Gaussian noise on packet RSS, dB.
     survey_noise_db
@@ -135,7 +141,7 @@ class ScenarioConfig:
             ("size_m", 0 < self.size_m <= 1e6, "(0, 1e6]"),
             ("step_m", 0 < self.step_m <= self.size_m, "(0, size_m]"),
             ("survey_step_m", 0 < self.survey_step_m <= self.size_m, "(0, size_m]"),
-            ("n_receivers", 1 <= self.n_receivers <= 16, "1 to 16"),
+            ("n_receivers", 1 <= self.n_receivers <= MAX_RECEIVERS, f"1 to {MAX_RECEIVERS}"),
             ("noise_db", 0 <= self.noise_db <= 30, "[0, 30]"),
             ("survey_noise_db", 0 <= self.survey_noise_db <= 30, "[0, 30]"),
             ("interval_ms", 0.01 <= self.interval_ms <= 60_000, "[0.01, 60000]"),
