@@ -64,6 +64,22 @@ def test_offset_lists_read_as_tuples(tmp_path: Path):
 BAD = [
     ("initial_offsets_db = []", "initial_offsets_db", "non-empty list"),
     ("initial_offsets_db = 3.0", "initial_offsets_db", "single number"),
+    # a list that may be empty: the message does not ask for a non-empty one
+    (
+        'live_resolve_times_s = "x"',
+        "live_resolve_times_s",
+        "expected a list of numbers ([] allowed), got 'x'",
+    ),
+    (
+        "offset_scan_db = 3.0",
+        "offset_scan_db",
+        "expected a list of numbers ([] allowed), got a single number (write [3.0])",
+    ),
+    (
+        'initial_offsets_db = "x"',
+        "initial_offsets_db",
+        "expected a non-empty list of numbers, got 'x'",
+    ),
     ("offset_scan_db = [1, nan]", "offset_scan_db", "item 1"),
     ("offset_scan_db = [1, 90]", "offset_scan_db", "out of range"),
     ("offset_scan_db = ['a']", "offset_scan_db", "item 0"),

@@ -492,19 +492,23 @@ class Section:
         nonempty: bool = True,
         scalar: bool = True,
     ) -> tuple[float, ...]:
-        """A list of finite numbers in ``[low, high]``; ``scalar=False`` rejects a bare number."""
+        """A list of finite numbers in ``[low, high]``; ``scalar=False`` rejects a bare
+        number; ``nonempty=False`` accepts ``[]``. A value of another kind is an error
+        that says which of these are accepted."""
         v = self._get(name, default)
         if v is default and name not in self.data:
             return v
+        expected = "a non-empty list of numbers" if nonempty else "a list of numbers ([] allowed)"
+        if scalar:
+            expected = f"a number or {expected}"
         if isinstance(v, int | float) and not isinstance(v, bool):
             if not scalar:
-                raise self.error(
-                    name,
-                    f"expected a non-empty list of numbers, got a single number (write [{v!r}])",
-                )
+                raise self.error(name, f"expected {expected}, got a single number (write [{v!r}])")
             v = [v]
-        if not isinstance(v, list) or (nonempty and not v):
-            raise self.error(name, "expected a non-empty list of numbers")
+        if not isinstance(v, list):
+            raise self.error(name, f"expected {expected}, got {v!r:.40}")
+        if nonempty and not v:
+            raise self.error(name, f"expected {expected}, got []")
         out = []
         for i, item in enumerate(v):
             x = _finite_float(item)
