@@ -116,6 +116,35 @@ def test_simulate_receivers_floor_is_the_trackers():
     assert MIN_RECEIVERS == TrackerConfig().min_receivers == 3
 
 
+@pytest.mark.parametrize(
+    ("args", "line"),
+    [
+        (["simulate", "--receivers", "x"],
+         "radiopose simulate: --receivers: 'x' is not a valid integer"),
+        (["simulate", "--noise-db", "x"],
+         "radiopose simulate: --noise-db: 'x' is not a valid number"),
+        (["simulate", "--speed-mps", "1", "y"],
+         "radiopose simulate: --speed-mps: 'y' is not a valid number"),
+        (["simulate", "--seed", "1.5"], "radiopose simulate: --seed: '1.5' is not a valid integer"),
+        (["pattern", "import", "p.msi", "--format", "zz"],
+         "radiopose pattern import: --format: 'zz' is not one of 'msi', 'basta', 'mitll'"),
+        # click's own one-line messages are left as they are (named "radiopose", not
+        # sys.argv[0]: "python -m pytest simulate: …" in process)
+        (["simulate", "--bogus"], "radiopose simulate: No such option: --bogus"),
+    ],
+)  # fmt: skip
+def test_a_bad_value_is_one_line_naming_the_option(tmp_path, capsys, args, line):
+    """A value typer cannot convert reads ``COMMAND: --OPTION: what is wrong``, not
+    ``Invalid value for '--receivers': Input should be a valid integer, unable to
+    parse string as an integer`` (nor ``Value error, …``), the wording of typer's
+    pydantic coercion."""
+    code, out, err = run([*args, "-o", str(tmp_path / "x")], capsys)
+    assert code == 2 and out == ""
+    assert err.startswith(line) and err.count("\n") == 1
+    assert "Invalid value" not in err and "Value error" not in err and "Input should" not in err
+    assert not (tmp_path / "x").exists()
+
+
 def test_console_script_no_traceback(tmp_path):
     r = subprocess.run(
         [sys.executable, "-m", "radiopose", "simulate", "-o", str(tmp_path), "--receivers", "99"],

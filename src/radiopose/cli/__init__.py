@@ -102,11 +102,44 @@ def _register() -> None:
                 raise
 
 
+def _usage_message(exc: Exception, message: str) -> str:
+    """A click usage error's ``message`` on one line; a bad value in the project's
+    form, ``--receivers: 'x' is not a valid integer``, instead of click's
+    ``Invalid value for '--receivers': …`` around the pydantic wording that recent
+    typer passes on (``Input should be a valid integer, unable to parse string as
+    an integer``, ``Value error, 'zz' is not one of …``)."""
+    if (
+        not isinstance(exc, typer.BadParameter)
+        or exc.param is None
+        or not message.startswith("Invalid value for ")
+    ):  # a missing option, an unknown one, …
+        return " ".join(message.split())
+    param = exc.param
+    opts = [o for o in param.opts if o.startswith("-")]
+    name = max(opts, key=len) if opts else str(param.name)  # an argument: its name
+    reason = str(exc.message)
+    errors = getattr(exc.__cause__, "errors", None)  # typer's pydantic coercion
+    if callable(errors) and errors():
+        first = errors()[0]
+        given = first.get("input")
+        kind = first.get("type")
+        if kind == "int_parsing":
+            reason = f"{given!r} is not a valid integer"
+        elif kind == "float_parsing":
+            reason = f"{given!r} is not a valid number"
+        elif kind == "value_error" and "error" in first.get("ctx", {}):
+            reason = str(first["ctx"]["error"])
+    reason = reason.removeprefix("Value error, ").rstrip(".")
+    return f"{name}: {' '.join(reason.split())}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the exit status."""
     _register()
     try:
-        app(args=argv, standalone_mode=False)
+        # prog_name: the errors and usage lines say "radiopose simulate", also when run
+        # as `python -m radiopose` or in process (click took it from sys.argv[0])
+        app(args=argv, prog_name="radiopose", standalone_mode=False)
     except RadioposeError as exc:
         print(f"radiopose: {exc}", file=sys.stderr)
         return 2
@@ -132,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         if callable(fmt) and isinstance(code, int):
             ctx = getattr(exc, "ctx", None)
             where = ctx.command_path if ctx is not None else "radiopose"
-            print(f"{where}: {' '.join(str(fmt()).split())}", file=sys.stderr)
+            print(f"{where}: {_usage_message(exc, str(fmt()))}", file=sys.stderr)
             return code
         # Anything else is a bug (or memory ran out): still one line for the
         # user; RADIOPOSE_TRACEBACK=1 shows the traceback for a report.
