@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import time
 from dataclasses import asdict, replace
@@ -143,10 +144,13 @@ def main(argv: list[str] | None = None) -> int:
 
     per_run = per_run_table("full")
     n_packets = sum(r.n_packets for r in runs[("full", args.sigmas[0])])
+    command = shlex.join(
+        ["python", "scripts/accuracy_table.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     text = [
         "# Accuracy on the paper's standard scenario",
         "",
-        "Produced by `python scripts/accuracy_table.py` (do not edit by hand).",
+        f"Produced by `{command}` (do not edit by hand).",
         "",
         f"Standard scenario (`ScenarioConfig()`: 20 × 20 m, 0.1 m and 1° candidate grid, "
         f"4 receivers, a packet every 5 ms, straight line with linear rotation, "

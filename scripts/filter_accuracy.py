@@ -68,6 +68,7 @@ Tuning (seeds 7000–7059 only; each run's numbers go to stderr)::
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -263,9 +264,12 @@ def main(argv: list[str] | None = None) -> int:
         lines.append("")
         lines += _table(done, args.sigmas, variants, r)
         lines.append("")
+    command = shlex.join(
+        ["python", "scripts/filter_accuracy.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     lines.append(
         f"{len(seeds)} seeds, {elapsed_s:.0f} s with {args.jobs} process(es) "
-        "(`python scripts/filter_accuracy.py`)"
+        f"(`{command}`)"
         + (f", rotation {args.rotation}" if args.rotation != "linear" else "")
         + (f", filter settings {overrides}." if overrides else ".")
     )

@@ -15,6 +15,8 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import shlex
+import sys
 import time
 from dataclasses import replace
 
@@ -72,10 +74,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"| {name} | {m} | {100 * cov:.1f} % | {pe.mean():.3f} | {np.median(pe):.3f} | "
                 f"{oe.mean():.2f} | {np.median(oe):.2f} |"
             )
+    command = shlex.join(
+        ["python", "scripts/filter_scenarios.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     lines += [
         "",
         f"Seeds {args.first_seed}–{args.first_seed + args.seeds - 1}, "
-        f"{time.perf_counter() - t0:.0f} s (`python scripts/filter_scenarios.py`).",
+        f"{time.perf_counter() - t0:.0f} s (`{command}`).",
     ]
     print("\n".join(lines))
     return 0

@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import argparse
 import itertools
+import shlex
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -255,9 +256,12 @@ def main(argv: list[str] | None = None) -> int:
         lines += ["", title]
         lines += ["", *bin_lines]
     lines.append("")
+    command = shlex.join(
+        ["python", "scripts/live_lag_accuracy.py", *(sys.argv[1:] if argv is None else argv)]
+    )
     lines.append(
         f"Seeds {args.first_seed}–{args.first_seed + args.seeds - 1}, "
-        f"{time.perf_counter() - t_start:.0f} s (`python scripts/live_lag_accuracy.py`)."
+        f"{time.perf_counter() - t_start:.0f} s (`{command}`)."
     )
     print("\n".join(lines))
     return 0

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 import tempfile
 import time
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
         "Produced by (do not edit by hand):",
         "",
         "```",
-        "python scripts/real_data.py" + (" --quick" if args.quick else ""),
+        shlex.join(["python", "scripts/real_data.py", *(sys.argv[1:] if argv is None else argv)]),
         "```",
         "",
         f"{len(results)} tracks, {sum(r.n_packets for r in results)} packets (advertisements); "

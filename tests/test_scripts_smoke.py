@@ -16,6 +16,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import shlex
 import subprocess
 import sys
 from collections.abc import Callable
@@ -60,6 +61,8 @@ def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     for method in ("full", "location", "orientation", "top", "lms"):
         assert any(f"| {method} " in row or f"| `{method}`" in row for row in _table_rows(text))
     assert out.with_suffix(".json").is_file()
+    # the footer is the command that reproduces the table, --quick and every option with it
+    assert f"Produced by `python scripts/accuracy_table.py {shlex.join(argv)}`" in text
     # a smoke table must not replace docs/accuracy.md (it once did): --quick needs --out
     with pytest.raises(SystemExit) as exit_:
         _load(SCRIPTS / "accuracy_table.py").main(["--quick", "--seeds", "1", "--sigmas", "1"])
@@ -69,8 +72,11 @@ def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
 
 def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--quick", "--seeds", "1", "--first-seed", "5", "--sigmas", "1"]
-    rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
+    printed = _run(SCRIPTS / "live_lag_accuracy.py", argv, capsys)
+    rows = _table_rows(printed)
     assert len(rows) == 2 + 4  # header, rule, one row per variant
+    # the footer reproduces the run: --quick and the options given (it left them out)
+    assert f"(`python scripts/live_lag_accuracy.py {shlex.join(argv)}`)." in printed
     assert all(row.startswith("| 1 |") for row in rows[2:])
     # --variants picks rows; --set overrides the filter (a bad field is argparse's error)
     argv += ["--variants", "causal", "--set", "jump_probability=0.01"]
@@ -214,13 +220,16 @@ def test_filter_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> 
     out = tmp_path / "filter-accuracy.md"
     argv = ["--seeds", "1", "--first-seed", "5", "--sigmas", "3", "--out", str(out)]
     _run(SCRIPTS / "filter_accuracy.py", argv, capsys)
-    assert any("filter" in row for row in _table_rows(out.read_text(encoding="utf-8")))
+    text = out.read_text(encoding="utf-8")
+    assert any("filter" in row for row in _table_rows(text))
+    assert f"(`python scripts/filter_accuracy.py {shlex.join(argv)}`)." in text
 
 
 @pytest.mark.slow
 def test_filter_scenarios(capsys: pytest.CaptureFixture[str]) -> None:
     printed = _run(SCRIPTS / "filter_scenarios.py", ["--seeds", "1", "--first-seed", "5"], capsys)
     assert any("30 % packet loss" in row for row in _table_rows(printed))
+    assert "(`python scripts/filter_scenarios.py --seeds 1 --first-seed 5`)." in printed
 
 
 @pytest.mark.slow
@@ -252,7 +261,10 @@ def test_real_data(tmp_path: Path) -> None:
         timeout=1800,
     )
     assert r.returncode == 0, r.stderr[-2000:]
-    assert _table_rows(out.read_text(encoding="utf-8"))
+    text = out.read_text(encoding="utf-8")
+    assert _table_rows(text)
+    # run as a program: the footer is its command line (it kept --quick but dropped --out)
+    assert f"\npython scripts/real_data.py --quick --out {shlex.quote(str(out))}\n" in text
 
 
 @pytest.mark.slow  # ~45 s: every 3-D variant on a 0.3 s trace
