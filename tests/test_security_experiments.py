@@ -151,6 +151,58 @@ def test_cli_spoof_errors_are_one_line(tmp_path, capsys):
     assert code == 2 and "--runs" in capsys.readouterr().err
 
 
+def test_cli_spoof_refuses_an_unusable_output_before_any_run(tmp_path, capsys, monkeypatch):
+    """``-o`` naming a file, a path below a file, or a directory where one of its
+    files goes is a one-line error before the first run; it was found only when
+    writing, after the whole experiment (``spoof detect --quick`` ran 46 s, then said
+    'File exists'; ``spoof 1`` finished a run, then said 'afile/parts: Not a directory')."""
+    import radiopose.security.detect_experiment as detect
+    import radiopose.security.runner as runner
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a run started before the output directory was checked")
+
+    monkeypatch.setattr(runner, "map_runs", no_run)
+    monkeypatch.setattr(detect, "run_tracks", no_run)
+    afile = tmp_path / "afile"
+    afile.write_text("mine\n")
+    (tmp_path / "d" / "report.md").mkdir(parents=True)
+    (tmp_path / "e").mkdir()
+    (tmp_path / "e" / "parts").write_text("mine\n")
+    (tmp_path / "f" / "roc.csv").mkdir(parents=True)
+    one = ["--runs", "1", "--targets", "1", "--workers", "0"]
+    cases = [
+        (["spoof", "1", *one, "-o", str(afile)], f"{afile}: is a file, expected a directory"),
+        (
+            ["spoof", "detect", "--quick", "--workers", "0", "-o", str(afile)],
+            f"{afile}: is a file, expected a directory",
+        ),
+        (
+            ["spoof", "1", *one, "-o", str(afile / "sub")],
+            f"{afile / 'sub'}: cannot create: a parent is not a directory",
+        ),
+        (
+            ["spoof", "1", *one, "-o", str(tmp_path / "d")],
+            f"{tmp_path / 'd' / 'report.md'}: is a directory, expected a file path",
+        ),
+        (
+            ["spoof", "1", *one, "-o", str(tmp_path / "e")],
+            f"{tmp_path / 'e' / 'parts'}: is a file, expected a directory",
+        ),
+        (
+            ["spoof", "detect", "--quick", "--workers", "0", "-o", str(tmp_path / "f")],
+            f"{tmp_path / 'f' / 'roc.csv'}: is a directory, expected a file path",
+        ),
+    ]
+    for args, message in cases:
+        assert main(args) == 2, args
+        assert capsys.readouterr().err == f"radiopose: {message}\n", args
+    assert afile.read_text() == "mine\n" and (tmp_path / "e" / "parts").read_text() == "mine\n"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == [
+        "afile", "d", "e", "f", "parts", "report.md", "roc.csv"
+    ]  # fmt: skip
+
+
 def test_cli_spoof_resumes_finished_runs(tmp_path, capsys, monkeypatch):
     import radiopose.security.runner as runner
 

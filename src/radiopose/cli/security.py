@@ -89,6 +89,7 @@ def spoof(
     from radiopose.security.figures import make_figures
     from radiopose.security.report import (
         collect,
+        output_names,
         render_report,
         summarise,
         write_report,
@@ -125,6 +126,7 @@ def spoof(
         if targets < 1:
             raise InputError(f"--targets must be at least 1, got {targets}")
         config = replace(config, n_targets=targets)
+    _check_out(out, output_names(), subdirs=("parts",))  # before the runs, not after
     tasks = plan_tasks(exps, n_runs)
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
@@ -195,6 +197,17 @@ def spoof(
     )
 
 
+def _check_out(out: Path, files: list[str], subdirs: tuple[str, ...] = ()) -> None:
+    """Refuse, before any run, an output directory that could not be written: ``out``
+    (or one of its ``subdirs``) an existing file, a parent of it a file, or one of the
+    ``files`` it receives an existing directory. The error names the path (the CLI
+    prints it as one line, exit 2); nothing is created."""
+    from radiopose.tables import check_output_paths
+
+    check_output_paths(dirs=[out, *(out / d for d in subdirs)])
+    check_output_paths(files=[out / name for name in files])
+
+
 def _spoof_detect(
     out: Path, quick: bool, runs: int | None, seed: int, workers: int | None, quiet: bool
 ) -> None:
@@ -220,6 +233,7 @@ def _spoof_detect(
         if runs < 1:
             raise InputError(f"--runs must be at least 1, got {runs}")
         plan = replace(plan, attack_runs=runs)
+    _check_out(out, ["detection.csv", "roc.csv"])  # before the runs, not after
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
     n_tasks = len(plan.sigmas_db) * (len(plan.attacks) * plan.attack_runs + plan.genuine_chunks)

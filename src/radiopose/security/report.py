@@ -38,6 +38,18 @@ TABLE_ORDER = (
     "sites",
     "timings",
 )
+FIGURES = ("match-probability", "match-example", "pattern-example", "path-failure", "end-to-end")
+"""The figures :func:`radiopose.security.figures.make_figures` can draw (``<name>.png``)."""
+
+
+def output_names() -> list[str]:
+    """Every file name ``radiopose spoof`` (the experiments) may write into its directory."""
+    return [
+        "report.md",
+        "summary.csv",
+        *(f"{name}.csv" for name in TABLE_ORDER),
+        *(f"{name}.png" for name in FIGURES),
+    ]
 
 
 def mean_ci95(values: Sequence[float]) -> tuple[float, float]:
