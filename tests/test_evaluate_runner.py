@@ -148,6 +148,52 @@ def test_an_unreachable_scheduler_writes_nothing(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_an_unusable_output_is_refused_before_any_run(tmp_path, capsys, monkeypatch):
+    """``-o`` naming a file, a path below a file, or a directory where one of its
+    outputs goes is a one-line error before the first run; it was found only when
+    the first run's rows were written ('afile/parts: Not a directory'). Nothing is
+    created, as with an unreachable scheduler."""
+    from radiopose.cli import main
+    from radiopose.evaluate import runner
+
+    def no_run(task):
+        raise AssertionError("a run started before the output directory was checked")
+
+    monkeypatch.setattr(runner, "run_task", no_run)
+    exp = tmp_path / "tiny.toml"
+    exp.write_text(
+        'name = "tiny"\nseed = 4711\nruns = 1\nmethods = ["lms"]\n'
+        "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
+        "min_receiver_spacing_m = 2.0\n",
+        encoding="utf-8",
+    )
+    afile = tmp_path / "afile"
+    afile.write_text("mine\n")
+    (tmp_path / "d").mkdir()
+    (tmp_path / "d" / "parts").write_text("mine\n")
+    (tmp_path / "e" / "parts" / "tiny.csv").mkdir(parents=True)
+    (tmp_path / "f" / "report.md").mkdir(parents=True)
+    (tmp_path / "g").mkdir()
+    (tmp_path / "g" / "figures").write_text("mine\n")
+    cases = {
+        afile: f"{afile}: is a file, expected a directory",
+        afile / "x": f"{afile / 'x'}: cannot create: a parent is not a directory",
+        tmp_path / "d": f"{tmp_path / 'd' / 'parts'}: is a file, expected a directory",
+        tmp_path / "e": f"{tmp_path / 'e' / 'parts' / 'tiny.csv'}: is a directory, "
+        "expected a file path",
+        tmp_path / "f": f"{tmp_path / 'f' / 'report.md'}: is a directory, expected a file path",
+        tmp_path / "g": f"{tmp_path / 'g' / 'figures'}: is a file, expected a directory",
+    }
+    before = sorted(tmp_path.rglob("*"))
+    for out, message in cases.items():
+        assert main(["evaluate", str(exp), "--workers", "0", "-q", "-o", str(out)]) == 2, out
+        assert capsys.readouterr().err == f"radiopose: {message}\n", out
+    assert sorted(tmp_path.rglob("*")) == before  # nothing created
+    # the library checks its part files too
+    with pytest.raises(NotADirectoryError, match="is a file, expected a directory"):
+        run_experiments([_tiny()], afile, workers=0)
+
+
 def test_issue_15s_anchor_runs_beside_the_methods_and_leaves_the_registry(tmp_path):
     """``textbook`` (issue 15's anchor, evaluation only) may be listed in an
     experiment's methods: each run registers it told that run's σ, it gets its

@@ -118,7 +118,12 @@ def evaluate(
         write_report,
     )
     from radiopose.evaluate.runner import plan, run_experiments, write_results
+    from radiopose.tables import check_output_paths
 
+    # Before any run (run_experiments checks parts/): nothing is created here.
+    check_output_paths(dirs=[out, out / "figures"])
+    outputs = ("results.csv", "results.parquet", "report.md", "report.html", "invocations.jsonl")
+    check_output_paths(files=[out / name for name in outputs])
     command = _command(list(experiments or []), out, runs, quick, scheduler, workers)
     show_bar = not quiet and sys.stderr.isatty()
     if show_bar:
