@@ -16,7 +16,7 @@ from radiopose.security.experiments import (
     plan_tasks,
     run_experiment,
 )
-from radiopose.security.report import collect, mean_ci95, summarise
+from radiopose.security.report import collect, mean_ci95, output_names, summarise
 from radiopose.simulate import ScenarioConfig
 from radiopose.units import angle_diff_deg
 
@@ -201,6 +201,37 @@ def test_cli_spoof_refuses_an_unusable_output_before_any_run(tmp_path, capsys, m
     assert sorted(p.name for p in tmp_path.rglob("*")) == [
         "afile", "d", "e", "f", "parts", "report.md", "roc.csv"
     ]  # fmt: skip
+
+
+def test_cli_spoof_rerun_with_fewer_experiments_leaves_only_its_own_outputs(tmp_path, capsys):
+    """Running ``spoof 1`` into a directory of an earlier run of every experiment
+    rewrote report.md and summary.csv for experiment 1 but left paths.csv,
+    end_to_end*.csv and their figures beside them, which the report did not cover.
+    The command's own files it did not write now go, with a note naming them;
+    parts/ and files of other names stay."""
+    out = tmp_path / "spoof"
+    args = ["spoof", "1", "--runs", "1", "--targets", "2", "--size-m", "8", "--step-m", "0.5"]
+    args += ["--azimuth-step-deg", "10", "--min-distance-m", "2", "--workers", "0", "-o", str(out)]
+    assert main(args) == 0
+    first = sorted(p.name for p in out.iterdir())
+    # what an earlier run of experiments 3-4 left (the names spoof writes), and files not its own
+    earlier = ["paths.csv", "end_to_end.csv", "end_to_end_summary.csv", "path-failure.png"]
+    earlier += ["end-to-end.png"]
+    for name in [*earlier, "notes.txt", "detection.csv", "parts/e2e-000.json"]:
+        (out / name).write_text("earlier\n")
+    capsys.readouterr()
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == sorted([*first, "notes.txt", "detection.csv"])
+    assert (out / "parts" / "e2e-000.json").read_text() == "earlier\n"
+    note = next(line for line in err.splitlines() if "removed" in line)
+    assert note == (
+        f"spoof: removed {', '.join(sorted(earlier, key=output_names().index))} from {out}: "
+        f"left by an earlier run, not covered by this report ({out / 'parts'} is kept)"
+    )
+    # nothing stale: no note
+    assert main(args) == 0
+    assert "removed" not in capsys.readouterr().err
 
 
 def test_cli_spoof_resumes_finished_runs(tmp_path, capsys, monkeypatch):

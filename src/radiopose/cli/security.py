@@ -188,6 +188,13 @@ def spoof(
         summary, tables, config, exps, n_runs, command, [f.name for f in figures], wall, where
     )
     report = write_report(out / "report.md", text)
+    # Files of this command's names that this run did not write are an earlier run's
+    # (other experiments, or a table this run left empty): gone, so that the directory
+    # is this report's. Other files, and parts/ (the earlier runs stay resumable), stay.
+    kept = {p.name for p in (*written, *figures, report)}
+    stale = [name for name in output_names() if name not in kept and (out / name).is_file()]
+    for name in stale:
+        (out / name).unlink()
     for r in summary:
         ci = f" ± {r['ci95']:.3f}" if r["ci95"] == r["ci95"] else ""
         print(f"{r['experiment']:<8} {r['metric']:<44} {r['value']:.3f}{ci}")
@@ -195,6 +202,12 @@ def spoof(
         f"wrote {len(written)} tables, {len(figures)} figures and {report} in {wall:.0f} s",
         file=sys.stderr,
     )
+    if stale:
+        print(
+            f"spoof: removed {', '.join(stale)} from {out}: left by an earlier run, not "
+            f"covered by this report ({out / 'parts'} is kept)",
+            file=sys.stderr,
+        )
 
 
 def _check_out(out: Path, files: list[str], subdirs: tuple[str, ...] = ()) -> None:
