@@ -194,6 +194,48 @@ def test_an_unusable_output_is_refused_before_any_run(tmp_path, capsys, monkeypa
         run_experiments([_tiny()], afile, workers=0)
 
 
+def test_cli_evaluate_rerun_with_fewer_experiments_keeps_only_its_figures(tmp_path, capsys):
+    """Running one experiment into the directory of an earlier run of two rewrote
+    results.csv and the report for the one, but left the other's figures in
+    figures/, which the report did not show. They now go, with a note naming them;
+    parts/ and files that are not figures stay."""
+    from radiopose.cli import main
+
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.toml").write_text(
+            f'name = "{name}"\nseed = 4711\nruns = 1\nmethods = ["lms"]\n'
+            "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
+            "min_receiver_spacing_m = 2.0\n"
+            "[sweep]\nscenario.noise_db = [0.5, 3.0]\n"
+            '[[figure]]\nkind = "error"\nx = "noise_db"\nquantity = "position"\n',
+            encoding="utf-8",
+        )
+    out = tmp_path / "out"
+    a, b = str(tmp_path / "a.toml"), str(tmp_path / "b.toml")
+    assert main(["evaluate", a, b, "--workers", "0", "-q", "-o", str(out)]) == 0
+    figures = out / "figures"
+    assert sorted(p.name for p in figures.iterdir()) == [
+        "a-error_position_vs_noise_db.png",
+        "b-error_position_vs_noise_db.png",
+    ]
+    (figures / "notes.txt").write_text("mine\n")
+    capsys.readouterr()
+    assert main(["evaluate", a, "--workers", "0", "-q", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert sorted(p.name for p in figures.iterdir()) == [
+        "a-error_position_vs_noise_db.png",
+        "notes.txt",
+    ]
+    assert (
+        f"evaluate: removed b-error_position_vs_noise_db.png from {figures}: left by an "
+        f"earlier run, not in this report (its results stay in {out / 'parts'})"
+    ) in err.splitlines()
+    assert sorted(p.name for p in (out / "parts").iterdir()) == ["a.csv", "b.csv"]
+    assert "b-error" not in (out / "report.md").read_text(encoding="utf-8")
+    assert main(["evaluate", a, "--workers", "0", "-q", "-o", str(out)]) == 0
+    assert "removed" not in capsys.readouterr().err
+
+
 def test_issue_15s_anchor_runs_beside_the_methods_and_leaves_the_registry(tmp_path):
     """``textbook`` (issue 15's anchor, evaluation only) may be listed in an
     experiment's methods: each run registers it told that run's σ, it gets its

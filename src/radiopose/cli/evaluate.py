@@ -115,6 +115,7 @@ def evaluate(
         RunInfo,
         read_invocations,
         record_invocation,
+        remove_stale_figures,
         write_report,
     )
     from radiopose.evaluate.runner import plan, run_experiments, write_results
@@ -159,7 +160,9 @@ def evaluate(
     full = None
     if quick or runs is not None:
         full = plan([load_experiment(n) for n in names])
-    paths += write_report(result.results, exps, out, info, full_tasks=full)[:2]
+    report = write_report(result.results, exps, out, info, full_tasks=full)
+    paths += report[:2]
+    stale = remove_stale_figures(out, report[2:])
     print(
         f"{result.n_tasks} runs ({result.n_resumed} resumed) in {result.elapsed_s:.0f} s on "
         f"{result.workers or 'no'} worker{'s' if result.workers != 1 else ''} "
@@ -168,3 +171,9 @@ def evaluate(
     )
     for p in paths:
         print(f"wrote {p}", file=sys.stderr)
+    if stale:
+        print(
+            f"evaluate: removed {', '.join(stale)} from {out / 'figures'}: left by an earlier "
+            f"run, not in this report (its results stay in {out / 'parts'})",
+            file=sys.stderr,
+        )
