@@ -8,12 +8,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from radiopose.capture.records import FrameRecords, read_capture, read_pcap
 from radiopose.capture.sync import (
     ClockModel,
     StreamingMatcher,
     SyncConfig,
+    TransmitterConflictError,
     _fit_clock,
     estimate_clocks,
     match_packets,
@@ -114,6 +117,84 @@ def test_hash_accounting_separates_ambiguous_from_apart() -> None:
     ]
     _, _, h = match_packets(_frames(rows), ["a", "b"], tolerance_s=0.005)
     assert (h.shared, h.shared_matched, h.shared_ambiguous, h.shared_apart) == (3, 1, 1, 1)
+
+
+def _frames_tx(rows: list[tuple[str, float, str, str]]) -> FrameRecords:
+    """FrameRecords from (receiver, time_s, hash label, transmitter); row k's RSS is
+    ``-40 - k`` dBm (it tells the frame of a packet row)."""
+    frames = _frames([(r, t, h, -40.0 - k) for k, (r, t, h, _) in enumerate(rows)])
+    return FrameRecords(
+        frames.receiver_id,
+        frames.timestamp_ns,
+        frames.frame_sha256,
+        np.asarray([r[3] for r in rows], dtype=object).reshape(-1),
+        frames.rss_dbm,
+    )
+
+
+def test_one_hash_naming_two_transmitters_is_refused_not_rewritten() -> None:
+    # the walkthrough's capture: before, all three rows became one packet of 'phone'
+    rows = [
+        ("c", 1.000, "h", "phone"),
+        ("a", 1.001, "h", "aa:bb:cc:dd:ee:ff"),
+        ("b", 1.002, "h", "aa:bb:cc:dd:ee:ff"),
+    ]
+    with pytest.raises(TransmitterConflictError, match="same frame_sha256") as err:
+        match_packets(_frames_tx(rows), ["a", "b", "c"])
+    assert err.value.rows == (0, 1) and err.value.column == "transmitter"
+    assert "'aa:bb:cc:dd:ee:ff' at receiver a (1.001000 s), but 'phone' at receiver c" in str(
+        err.value
+    )
+    # far apart in time (two chains) it is the same contradiction
+    far = [("a", 1.0, "h", "phone"), ("b", 500.0, "h", "watch")]
+    with pytest.raises(TransmitterConflictError):
+        match_packets(_frames_tx(far), ["a", "b"])
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["a", "b", "c"]),
+            st.integers(0, 40).map(lambda k: k * 0.002),
+            st.sampled_from(["h1", "h2", "h3"]),
+            st.sampled_from(["phone", "watch"]),
+        ),
+        min_size=1,
+        max_size=12,
+    )
+)
+def test_a_packet_is_named_by_its_frames_transmitter_or_refused(rows) -> None:
+    frames = _frames_tx(rows)
+    mixed = any(len({tx for _, _, h2, tx in rows if h2 == h}) > 1 for h in {r[2] for r in rows})
+    if mixed:
+        with pytest.raises(TransmitterConflictError):
+            match_packets(frames, ["a", "b", "c"])
+    else:
+        packets, _, _ = match_packets(frames, ["a", "b", "c"])
+        for k in range(len(packets)):  # each row is named by its own frame's transmitter
+            assert packets.transmitter[k] == rows[round(-40.0 - packets.rss_dbm[k])][3]
+    # the streaming twin never stops: a mixed chain is dropped and counted
+    m = StreamingMatcher(["a", "b", "c"], max_lag_s=float("inf"))
+    order = np.argsort(frames.timestamp_ns, kind="stable")
+    out = _concat([m.push(frames.take(order)), m.flush()])
+    assert (m.counts.ambiguous_transmitter > 0) <= mixed
+    for k in range(len(out)):
+        assert out.transmitter[k] == rows[round(-40.0 - out.rss_dbm[k])][3]
+
+
+def test_streaming_drops_and_counts_a_chain_naming_two_transmitters() -> None:
+    rows = [
+        ("a", 1.000, "h", "phone"),
+        ("b", 1.001, "h", "watch"),  # one frame, two transmitters: neither is trusted
+        ("a", 2.000, "g", "phone"),
+        ("b", 2.001, "g", "phone"),
+    ]
+    m = StreamingMatcher(["a", "b"])
+    out = _concat([m.push(_frames_tx(rows)), m.flush()])
+    assert list(out.transmitter) == ["phone", "phone"] and set(out.packet_id) == {"0"}
+    assert m.counts.ambiguous_transmitter == 1
+    assert m.counts.ambiguous_frames == 2 and m.counts.packets == 1
 
 
 def test_rule_uses_the_clock_models() -> None:
@@ -431,6 +512,39 @@ def test_cli_bad_input_one_line_no_output(
     assert err.count("\n") == 1 and err.startswith("radiopose: ")
     assert not target.exists()
     assert not list(tmp_path.glob(".never.csv*"))
+
+
+def test_cli_one_hash_naming_two_transmitters_names_the_rows(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    head = "receiver_id,timestamp_s,frame_sha256,transmitter,rss_dbm\n"
+    h = "a" * 64
+    one = tmp_path / "mixtx.csv"
+    one.write_text(
+        head + f"rx3,1.000,{h},phone,-61\nrx1,1.001,{h},aa:bb:cc:dd:ee:ff,-50\n"
+        f"rx2,1.002,{h},aa:bb:cc:dd:ee:ff,-60\n"
+    )
+    target = tmp_path / "o.csv"
+    code, _, err = _run(["sync", str(one), "-o", str(target), "-q"], capsys)
+    assert code == 2
+    assert err == (
+        f"radiopose: {one}:3, column 'transmitter': 'aa:bb:cc:dd:ee:ff', but line 2 has "
+        "'phone' for the same frame_sha256 aaaaaaaaaaaa…; a frame's hash covers its "
+        "transmitter address, so these cannot be one frame\n"
+    )
+    assert not target.exists()
+    # across two capture files: both named
+    a, b = tmp_path / "a.csv", tmp_path / "b.csv"
+    a.write_text(head + f"rx1,1.000,{'b' * 64},phone,-50\nrx1,2.000,{h},phone,-50\n")
+    b.write_text(head + f"rx2,2.001,{h},watch,-50\n")
+    code, _, err = _run(["sync", str(a), str(b), "-o", str(target), "-q"], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"radiopose: {b}:2, column 'transmitter': 'watch', but {a}:3 has 'phone'")
+    assert not target.exists()
+    # the same transmitter written in two ways is one transmitter
+    b.write_text(head + f"rx2,2.001,{h},PHONE,-50\n")
+    code, _, err = _run(["sync", str(a), str(b), "-o", str(target), "-q"], capsys)
+    assert code == 0, err
 
 
 def test_cli_duplicate_receiver_ids(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -331,4 +331,6 @@ def test_a_slow_step_does_not_close_packets_whose_frames_are_arriving(
     assert len(packets) == len(set(truth.packet_id))
     assert all(len(p["receiver_ids"]) == 3 for p in packets)
     assert pipeline.state.matcher.counts.late_frames == 0
+    summary = db.summaries()["0/1"]  # /health's pipeline section
+    assert (summary["late_frames"], summary["ambiguous_transmitter"]) == (0, 0)
     db.close()

@@ -87,4 +87,4 @@ def read_capture_csv(path: str | os.PathLike[str]) -> Capture:
                 {"implausible_rss": bad} if bad else {},
             )
         )
-    return Capture(frames, tuple(stats))
+    return Capture(frames, tuple(stats), t.lines[ok])

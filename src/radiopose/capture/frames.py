@@ -179,10 +179,16 @@ class ReceiverStats:
 
 @dataclass(frozen=True, eq=False)
 class Capture:
-    """A read capture: its frames and per-receiver reading statistics."""
+    """A read capture: its frames and per-receiver reading statistics.
+
+    ``lines`` is the 1-based file line of each frame (``(n,)`` int64) where the
+    form has lines (the CSV capture form), for errors that name a frame;
+    ``None`` for pcap/pcapng, whose frames are named by receiver and time.
+    """
 
     frames: FrameRecords
     stats: tuple[ReceiverStats, ...]
+    lines: NDArray[np.int64] | None = None
 
 
 def receiver_id_from_path(path: str | os.PathLike[str]) -> str:

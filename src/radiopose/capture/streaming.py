@@ -54,7 +54,10 @@ class StreamingMatcher:
     passed its last frame by more than the tolerance, or the most advanced
     receiver has passed it by ``max_lag_s``; frames older than what is already
     closed are *late*: dropped and counted. With no late frames the emitted
-    packets, ids included, equal the batch result.
+    packets, ids included, equal the batch result. A chain whose frames name
+    different transmitters for one hash (inconsistent reports, which the batch
+    matcher refuses) is dropped and counted (``ambiguous_transmitter``): the
+    live server must not stop on one receiver's bad report.
 
     Parameters
     ----------
@@ -68,6 +71,8 @@ class StreamingMatcher:
     max_lag_s
         See :class:`SyncConfig`, seconds.
     """
+
+    _mixed_tx = 0  # class default: a checkpoint pickled before this count reads 0
 
     def __init__(
         self,
@@ -109,6 +114,7 @@ class StreamingMatcher:
         self._dup = 0
         self._spread = 0
         self._amb_frames = 0
+        self._mixed_tx = 0
 
     @property
     def open_frames(self) -> int:
@@ -126,6 +132,7 @@ class StreamingMatcher:
             ambiguous_spread=self._spread,
             ambiguous_frames=self._amb_frames,
             late_frames=self._late,
+            ambiguous_transmitter=self._mixed_tx,
         )
 
     def push(self, frames: FrameRecords) -> Packets:
@@ -209,6 +216,10 @@ class StreamingMatcher:
             fr = chain.frames
             n = len(fr)
             self._open -= n
+            if any(f[3] != fr[0][3] for f in fr):  # one hash, two transmitters
+                self._mixed_tx += 1
+                self._amb_frames += n
+                continue
             receivers = {f[1] for f in fr}
             if len(receivers) != n:
                 self._dup += 1

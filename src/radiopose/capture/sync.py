@@ -33,6 +33,11 @@ tolerance. Synchronisation therefore has two steps.
    stretched by intermediate frames is ambiguous); otherwise it is dropped and
    counted. A hash that recurs far apart in time forms several chains, each
    judged on its own. A receiver that missed the frame simply has no row.
+   A frame's hash covers its transmitter address (addr2), so frames with one
+   hash that name different transmitters are inconsistent input: the batch
+   matcher refuses them (:class:`TransmitterConflictError`, which
+   :func:`synchronise` reports at the capture file and line); the streaming
+   matcher, which must not stop, drops such a chain and counts it.
 
 Packets are numbered in order of (time of their last frame, hash); a
 packet's time is the mean of its frames' reference-clock times, its rows are
@@ -67,6 +72,7 @@ __all__ = [
     "MatchCounts",
     "SyncConfig",
     "SyncReport",
+    "TransmitterConflictError",
     "estimate_clocks",
     "match_packets",
     "synchronise",
@@ -223,6 +229,11 @@ class MatchCounts:
         Frames in dropped chains.
     late_frames
         Streaming: frames older than what was already closed (dropped).
+    ambiguous_transmitter
+        Streaming: chains dropped because their frames name different
+        transmitters for one hash (inconsistent reports: a frame's hash covers
+        its transmitter; the batch matcher refuses them, :class:`TransmitterConflictError`).
+        Their frames are counted in ``ambiguous_frames``.
     """
 
     frames: int = 0
@@ -232,6 +243,24 @@ class MatchCounts:
     ambiguous_spread: int = 0
     ambiguous_frames: int = 0
     late_frames: int = 0
+    ambiguous_transmitter: int = 0
+
+
+class TransmitterConflictError(InputError):
+    """Two frames with the same ``frame_sha256`` name different transmitters.
+
+    A frame's hash covers its transmitter address (addr2, see
+    :mod:`radiopose.capture.dot11`), so such frames cannot be one frame and
+    neither transmitter can be trusted: inconsistent input, never a packet.
+    Raised by :func:`match_packets` with ``rows = (first, other)``: indices
+    into the frames given of the first frame of that hash and the first frame
+    that contradicts it (input order); :func:`synchronise` reports them at
+    their capture files and lines.
+    """
+
+    def __init__(self, message: str, rows: tuple[int, int]) -> None:
+        super().__init__(message, column="transmitter")
+        self.rows = rows
 
 
 @dataclass(frozen=True)
@@ -333,6 +362,10 @@ class SyncReport:
         )
         if k.late_frames:
             out.append(f"late frames dropped: {k.late_frames}")
+        if k.ambiguous_transmitter:
+            out.append(
+                f"chains dropped for naming different transmitters: {k.ambiguous_transmitter}"
+            )
         return out
 
 
@@ -535,6 +568,12 @@ def match_packets(
     -------
     packets, counts, hashes
         The ``packets.csv`` rows, the counts and what became of the hashes.
+
+    Raises
+    ------
+    TransmitterConflictError
+        Frames with the same hash name different transmitters (at the first
+        frame, in input order, that contradicts its hash's first frame).
     """
     if not seconds_in_range(tolerance_s, MAX_TOLERANCE_S):
         raise InputError(f"tolerance_s = {tolerance_s!r} must be in (0, {MAX_TOLERANCE_S:g}] s")
@@ -544,8 +583,9 @@ def match_packets(
     tol = round(tolerance_s * _NS_PER_S)
     rx = _rx_index(frames, receivers)
     tau = _reference_times(frames, rx, _clock_list(receivers, clocks))
-    _, hcode = np.unique(frames.frame_sha256, return_inverse=True)
+    _, first_of_hash, hcode = np.unique(frames.frame_sha256, return_index=True, return_inverse=True)
     hcode = hcode.reshape(-1)
+    _check_transmitters(frames, first_of_hash[hcode])
 
     order = np.lexsort((rx, tau, hcode))
     h, t, r = hcode[order], tau[order], rx[order]
@@ -599,6 +639,28 @@ def match_packets(
         ambiguous_frames=int(size[~valid].sum()),
     )
     return packets, counts, hashes
+
+
+def _check_transmitters(frames: FrameRecords, first: NDArray[np.intp]) -> None:
+    """Raise :class:`TransmitterConflictError` at the first frame (input order) whose
+    transmitter differs from that of its hash's first frame ``first[k]``."""
+    bad = np.flatnonzero(frames.transmitter != frames.transmitter[first])
+    if bad.size == 0:
+        return
+    j = int(bad[0])
+    i = int(first[j])
+
+    def where(k: int) -> str:
+        return f"at receiver {frames.receiver_id[k]} ({frames.timestamp_ns[k] / _NS_PER_S:.6f} s)"
+
+    raise TransmitterConflictError(
+        f"{frames.transmitter[j]!r} {where(j)}, but {frames.transmitter[i]!r} {where(i)}, "
+        f"for the same frame_sha256 {str(frames.frame_sha256[j])[:12]}…; {_CONFLICT_WHY}",
+        (i, j),
+    )
+
+
+_CONFLICT_WHY = "a frame's hash covers its transmitter address, so these cannot be one frame"
 
 
 def _hash_counts(
@@ -657,7 +719,9 @@ def synchronise(
     Raises
     ------
     InputError
-        A receiver id in two captures, or an unknown reference receiver.
+        A receiver id in two captures, an unknown reference receiver, or frames
+        with the same hash naming different transmitters (at the capture file
+        and line, :class:`TransmitterConflictError`).
     """
     cfg = config or SyncConfig()
     stats: list[ReceiverStats] = []
@@ -687,7 +751,12 @@ def synchronise(
         cfg = SyncConfig(**{**cfg.__dict__, "reference": ref})
     frames = FrameRecords.concat([c.frames for c in captures])
     clocks = estimate_clocks(frames, receivers, cfg)
-    packets, counts, hashes = match_packets(frames, receivers, clocks, tolerance_s=cfg.tolerance_s)
+    try:
+        packets, counts, hashes = match_packets(
+            frames, receivers, clocks, tolerance_s=cfg.tolerance_s
+        )
+    except TransmitterConflictError as exc:
+        raise _conflict_in_captures(captures, frames, exc.rows, seen) from None
     order = [ref] + [r for r in receivers if r != ref]
     report = SyncReport(
         reference=ref,
@@ -698,6 +767,42 @@ def synchronise(
         hashes=hashes,
     )
     return packets, report
+
+
+def _conflict_in_captures(
+    captures: Sequence[Capture],
+    frames: FrameRecords,
+    rows: tuple[int, int],
+    sources: Mapping[str, str],
+) -> InputError:
+    """The one-line error of a :class:`TransmitterConflictError` between frames
+    ``rows`` of the captures' concatenated ``frames``: at the contradicting
+    frame's file and line (CSV) naming the first frame's line (or, for a pcap,
+    its receiver and time)."""
+    starts = np.cumsum([0] + [len(c.frames) for c in captures])
+
+    def place(k: int) -> tuple[str, int | None, str]:
+        c = int(np.searchsorted(starts, k, side="right")) - 1
+        lines = captures[c].lines
+        line = None if lines is None else int(lines[k - starts[c]])
+        t_s = frames.timestamp_ns[k] / _NS_PER_S
+        return sources[str(frames.receiver_id[k])], line, f"{frames.receiver_id[k]} at {t_s:.6f} s"
+
+    i, j = rows
+    path_i, line_i, frame_i = place(i)
+    path_j, line_j, frame_j = place(j)
+    if line_i is None:  # a pcap frame
+        other = f"{path_i} (the frame of receiver {frame_i})"
+    else:
+        other = f"line {line_i}" if path_i == path_j else f"{path_i}:{line_i}"
+    this = "" if line_j is not None else f" (the frame of receiver {frame_j})"
+    return InputError(
+        f"{frames.transmitter[j]!r}{this}, but {other} has {frames.transmitter[i]!r} for the "
+        f"same frame_sha256 {str(frames.frame_sha256[j])[:12]}…; {_CONFLICT_WHY}",
+        path=path_j,
+        line=line_j,
+        column="transmitter",
+    )
 
 
 def __getattr__(name: str) -> object:

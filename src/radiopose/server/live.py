@@ -536,6 +536,8 @@ class LivePipeline:
             "calibration_frames": len(st.calibration or []),
             "open_frames": 0 if matcher is None else matcher.open_frames,
             "late_frames": 0 if matcher is None else matcher.counts.late_frames,
+            # chains dropped for naming two transmitters for one hash (inconsistent reports)
+            "ambiguous_transmitter": 0 if matcher is None else matcher.counts.ambiguous_transmitter,
             "clocks": {
                 r: {"offset_s": m.offset_s, "drift_ppm": m.drift_ppm, "method": m.method}
                 for r, m in st.clocks.items()
