@@ -139,6 +139,38 @@ def test_malformed_lines_are_one_line_errors_and_nothing_is_written(
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("column", "value", "outside_m"),
+    [
+        ("x", 1803.1, 1782.44),  # the walkthrough's edit: 18.031 typed 1803.1
+        ("x", 21.7, 1.04),  # limits 0–20.66 m: just beyond the 1 m margin
+        ("y", -1.01, 1.01),
+        ("x", 21.6, None),  # 0.94 m out: within the margin, read as given
+        ("y", -0.5, None),
+    ],
+)
+def test_a_truth_position_outside_the_room_is_an_error(tmp_path, capsys, column, value, outside_m):
+    d = _copy(tmp_path)
+    p = d / "trk" / "straight_01_all_sensors.mbd"
+    lines = p.read_text(encoding="utf-8").splitlines()
+    f = lines[0].split(",")
+    f[4 if column == "x" else 5] = str(value)
+    lines[0] = ",".join(f)
+    p.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    if outside_m is None:
+        tr = read_dataset(d).track("straight_01")
+        assert value in tr.position_m[:, "xy".index(column)]
+        return
+    with pytest.raises(InputError, match=f"lies {outside_m:.2f} m outside the room") as exc:
+        read_dataset(d)
+    assert (exc.value.line, exc.value.column) == (1, column)
+    out = tmp_path / "out"
+    assert main(["import", "tetam", str(d), "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"straight_01_all_sensors.mbd:1, column '{column}'" in err[0]
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("keep_bytes", [0, 1000])
 def test_an_empty_or_cut_survey_file_is_an_error(tmp_path, keep_bytes):
     """A survey file cut before its Fingerprints line (empty, or inside the

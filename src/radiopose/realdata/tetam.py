@@ -26,7 +26,11 @@ Decisions (measured in docs/real-data.md):
   :attr:`ImportSummary.merged_readings`. The packet's time is its first
   reading's time (the dataset's Unix seconds, unchanged).
 * **Implausible readings.** An RSSI outside [−127, 0] dBm (two readings of
-  +42 and +29 dBm in ``straight_05``) is skipped and counted.
+  +42 and +29 dBm in ``straight_05``) is skipped and counted. A camera truth
+  position (x, y) more than :data:`TRUTH_LIMITS_MARGIN_M` outside the
+  ``tetam.par`` limits is an error naming file, line and column: it would
+  become a wrong truth row and, in the other tracks' held-out sites, a survey
+  point outside the room.
 * **Histograms → survey.** Each histogram's mean RSSI (the ``Bins`` labels are
   bin *edges* when there is one more label than values, else bin centres) is
   one survey row; both survey sets are used; an all-zero histogram is skipped
@@ -69,6 +73,11 @@ BEACON_PATTERN = "isotropic"
 TRACK_SUFFIX = "_all_sensors.mbd"
 RSSI_RANGE_DBM = (-127.0, 0.0)
 """Plausible BLE RSSI readings, dBm; readings outside are skipped and counted."""
+TRUTH_LIMITS_MARGIN_M = 1.0
+"""Farthest a track's camera truth (x, y) may lie outside the ``tetam.par`` limits,
+metres; farther is an error (file, line, column). The real tracks leave the limits
+by at most 0.33 m (``straight_03``; docs/real-data.md); a mistyped or corrupt
+coordinate (18.031 written 1803.1) leaves them by metres."""
 
 
 @dataclass(frozen=True)
@@ -363,9 +372,18 @@ _MBD_FIELDS = 16
 
 
 def read_track(
-    path: str | os.PathLike[str], sensors: tuple[Sensor, ...], beacon: str, summary: ImportSummary
+    path: str | os.PathLike[str],
+    sensors: tuple[Sensor, ...],
+    beacon: str,
+    summary: ImportSummary,
+    limits_m: tuple[float, float, float, float] | None = None,
 ) -> TrackReadings:
-    """The beacon's readings of one ``*_all_sensors.mbd`` file (sorted by time)."""
+    """The beacon's readings of one ``*_all_sensors.mbd`` file (sorted by time).
+
+    ``limits_m`` (``x_min, y_min, x_max, y_max`` metres, :func:`read_limits`):
+    a truth position farther than :data:`TRUTH_LIMITS_MARGIN_M` outside them is
+    an error naming the line and column (``x`` or ``y``); ``None`` checks nothing.
+    """
     p = Path(path)
     by_mac = {s.mac: s.alias for s in sensors}
     rows: list[tuple] = []
@@ -396,6 +414,8 @@ def read_track(
             summary.implausible_rss += 1  # e.g. two readings of +42 and +29 dBm in straight_05
             continue
         xyz = [_number(v, p, i, c) for v, c in zip(f[4:7], "xyz", strict=True)]
+        if limits_m is not None:
+            _check_in_room(xyz, limits_m, p, i)
         m = [_number(v, p, i, "orientation") for v in f[7:16]]
         fwd = (m[2], m[5], m[8])  # third column of the row-major matrix
         if not 0.5 <= math.hypot(*fwd) <= 1.5:
@@ -424,6 +444,25 @@ def read_track(
         num[:, 2:5],
         forward,
     )
+
+
+def _check_in_room(
+    xyz: list[float], limits_m: tuple[float, float, float, float], path: Path, line: int
+) -> None:
+    """Raise if ``x`` or ``y`` (metres) lies more than :data:`TRUTH_LIMITS_MARGIN_M`
+    outside the limits ``(x_min, y_min, x_max, y_max)`` metres."""
+    for k, axis in enumerate("xy"):
+        lo, hi = limits_m[k], limits_m[k + 2]
+        out_m = max(lo - xyz[k], xyz[k] - hi)
+        if out_m > TRUTH_LIMITS_MARGIN_M:
+            raise InputError(
+                f"truth {axis} = {xyz[k]:g} m lies {out_m:.2f} m outside the room "
+                f"(tetam.par limits {lo:.3f}–{hi:.3f} m; at most "
+                f"{TRUTH_LIMITS_MARGIN_M:g} m allowed)",
+                path=path,
+                line=line,
+                column=axis,
+            )
 
 
 # ----------------------------------------------------------------------------- packets
@@ -524,7 +563,7 @@ def read_dataset(root: str | os.PathLike[str]) -> TetamDataset:
     trk = sorted((r / "trk").glob(f"*{TRACK_SUFFIX}"))
     if not trk:
         raise InputError(f"no track files (trk/*{TRACK_SUFFIX})", path=r / "trk")
-    tracks = tuple(read_track(f, sensors, beacon, summary) for f in trk)
+    tracks = tuple(read_track(f, sensors, beacon, summary, limits) for f in trk)
     return TetamDataset(r, limits, sensors, beacon, tuple(survey), tracks, summary)
 
 
