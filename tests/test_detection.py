@@ -211,6 +211,16 @@ def test_spoof_detect_cli_writes_the_contract_table(tmp_path: Path, monkeypatch,
     assert lines[0] == ",".join(DETECTION_COLUMNS)
     assert [ln.split(",")[0] for ln in lines[1:]] == list(CONTRACT_ATTACKS)
     assert (out / "roc.csv").exists()
+    # fixed and moving go undetected here: no delay is an empty field and '–' on
+    # stdout, not 'nan' (the CSV had 'nan', stdout 'delay=nan s')
+    delay = DETECTION_COLUMNS.index("median_detection_delay_s")
+    fields = {ln.split(",")[0]: ln.split(",") for ln in lines[1:]}
+    assert fields["fixed"][delay] == "" and float(fields["clone"][delay]) > 0
+    roc = (out / "roc.csv").read_text()
+    assert "nan" not in roc.lower() and ",1,0,," in roc
+    stdout = capsys.readouterr().out
+    assert "nan" not in stdout
+    assert "P(detect ≤ 0.5 s)=0.00 delay=– (none detected) false alarms/h=" in stdout
 
 
 def test_the_silent_attacker_sends_only_what_it_matches(site: SiteModel) -> None:

@@ -271,11 +271,12 @@ def _spoof_detect(
     write_csv(out / "detection.csv", rows, DETECTION_COLUMNS)
     write_csv(out / "roc.csv", roc, ("threshold_nats", *DETECTION_COLUMNS))
     for r in rows:
+        delay, alarms = r["median_detection_delay_s"], r["false_alarms_per_hour"]
         print(
             f"{r['attack']:<7} σ={r['sigma_db']:<4g} runs={r['runs']:<3} "
             f"P(detect ≤ {plan.window_s:g} s)={r['detection_probability']:.2f} "
-            f"delay={r['median_detection_delay_s']:.3f} s "
-            f"false alarms/h={r['false_alarms_per_hour']:.2f}"
+            + (f"delay={delay:.3f} s " if delay == delay else "delay=– (none detected) ")
+            + (f"false alarms/h={alarms:.2f}" if alarms == alarms else "false alarms/h=–")
         )
     hours = ", ".join(f"σ {s:g}: {genuine_hours(tracks, s) * 60:.1f} min" for s in plan.sigmas_db)
     print(

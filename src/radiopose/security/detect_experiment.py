@@ -331,11 +331,19 @@ def roc_rows(
 
 
 def write_csv(path: Path, rows: Sequence[dict[str, object]], columns: Sequence[str]) -> Path:
-    """Write ``rows`` with ``columns`` (floats with 6 significant digits)."""
+    """Write ``rows`` with ``columns`` (floats with 6 significant digits; a missing value,
+    NaN — no run detected, so no delay — as an empty field, as in the evaluation's
+    tables, not ``nan``)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(columns)
         for r in rows:
-            w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in (r[c] for c in columns)])
+            w.writerow([_field(r[c]) for c in columns])
     return path
+
+
+def _field(value: object) -> object:
+    if isinstance(value, float):
+        return "" if math.isnan(value) else f"{value:.6g}"
+    return value
