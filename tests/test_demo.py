@@ -95,6 +95,26 @@ def test_demo_method_option_is_for_live(tmp_path: Path, capsys) -> None:
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--live"], "--live does not"),
+        (["--seed", "7"], "--seed does not"),  # the default value, still given
+        (["--noise-db", "2"], "--noise-db does not"),
+        (["--duration-s", "3", "--interval-ms", "5"], "--duration-s, --interval-ms do not"),
+        (["--method", "filter"], "--method does not"),
+        (["--port", "8001"], "--port does not"),
+    ],
+)
+def test_real_demo_refuses_the_options_it_would_ignore(
+    tmp_path: Path, capsys, extra, named
+) -> None:
+    code, _, err = _run(["demo", "--real", "-o", str(tmp_path / "d"), *extra], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.startswith(f"radiopose: {named} apply to --real")
+    assert not (tmp_path / "d").exists()
+
+
 def test_live_demo_serves_the_chosen_method() -> None:
     from radiopose.server.demo import serve_command
 

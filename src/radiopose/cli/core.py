@@ -35,6 +35,31 @@ _SCENARIO_FLAGS = {
 range errors name the option)."""
 
 
+_REAL_DEMO_IGNORES = {
+    "live": "--live",
+    "seed": "--seed",
+    "noise_db": "--noise-db",
+    "duration_s": "--duration-s",
+    "interval_ms": "--interval-ms",
+    "method": "--method",
+    "port": "--port",
+}
+"""``radiopose demo``'s options (parameter name -> option) that ``--real`` does not
+use: the real-data demo replays the shipped tracks with their own settings."""
+
+
+def _given(ctx: typer.Context, options: dict[str, str]) -> list[str]:
+    """The options of ``options`` (parameter name -> option) given on the command
+    line, whatever their value (a value equal to the default is still given). The
+    source is compared by name: typer vendors its own click."""
+    given = ("COMMANDLINE", "ENVIRONMENT")
+    return [
+        flag
+        for name, flag in options.items()
+        if getattr(ctx.get_parameter_source(name), "name", None) in given
+    ]
+
+
 MIN_RECEIVERS = 3
 """Fewest receivers ``radiopose simulate`` accepts: ``TrackerConfig.min_receivers``'s
 default (not imported: it loads the method registry). Every method skips a packet
@@ -251,6 +276,7 @@ def simulate(
 
 @app.command(short_help="Simulate a walk, localise it with every method, plot.")
 def demo(
+    ctx: typer.Context,
     out: Annotated[Path, typer.Option("-o", "--out", help="Output directory (created).")] = Path(
         "radiopose-demo"
     ),
@@ -335,6 +361,13 @@ def demo(
             )
         return
     if real:
+        ignored = _given(ctx, _REAL_DEMO_IGNORES)
+        if ignored:
+            verb = "does" if len(ignored) == 1 else "do"
+            raise InputError(
+                f"{', '.join(ignored)} {verb} not apply to --real (the real-data demo replays "
+                "the shipped BLE tracks with their own settings; it takes only -o)"
+            )
         from radiopose.realdata.demo import run_real_demo
 
         run_real_demo(out, echo=print)
