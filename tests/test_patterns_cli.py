@@ -13,7 +13,11 @@ import pytest
 
 from radiopose.cli import main
 from radiopose.patterns import smartphone_like
-from radiopose.patterns.enrol import simulate_positioner_measurements, write_measurements_csv
+from radiopose.patterns.enrol import (
+    Measurements,
+    simulate_positioner_measurements,
+    write_measurements_csv,
+)
 from radiopose.patterns.pattern import read_pattern_csv
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -109,6 +113,24 @@ def test_enrol_existing_output_is_untouched_on_failure(tmp_path, capsys):
     code, _, err = _run(["enrol", str(src), "-o", str(out)], capsys)
     _assert_one_line_failure(code, err, "meas.csv:3")
     assert out.read_text() == "previous\n"
+
+
+def test_enrol_refuses_a_quarter_circle_and_hints_at_radians(tmp_path, capsys):
+    out = tmp_path / "p.csv"
+    for name, step, fragment in (
+        ("m_q.csv", 1.0, "measurements leave motor azimuths 90–360° (a 270° gap) unmeasured"),
+        ("m_radians.csv", 0.01, "radians? motor_azimuth_deg is in degrees"),
+    ):
+        src = tmp_path / name
+        top = 90.0 if step == 1.0 else 6.28
+        az = np.arange(0.0, top + step / 2, step)
+        write_measurements_csv(
+            Measurements(az, np.full(az.size, 90.0), np.full(az.size, -50.0)), src
+        )
+        code, _, err = _run(["enrol", str(src), "-o", str(out)], capsys)
+        assert code == 2
+        _assert_one_line_failure(code, err, f"{src}, column 'motor_azimuth_deg': ", fragment)
+        assert not out.exists()
 
 
 def _files(root: Path) -> set[Path]:

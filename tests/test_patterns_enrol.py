@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from radiopose.errors import InputError
 from radiopose.patterns import smartphone_like
 from radiopose.patterns.enrol import (
+    MAX_FILL_GAP_DEG,
+    CoverageGapError,
     EnrolConfig,
     Measurements,
     average_per_direction,
     enrol,
     enrol_csv,
     fill_periodic,
+    largest_circular_gap,
     motor_to_pattern_deg,
     pattern_to_motor_deg,
     simulate_positioner_measurements,
@@ -145,6 +150,66 @@ def test_full_sphere_missing_rows_are_filled_along_theta():
     np.testing.assert_allclose(d[:, 0], mw_to_dbm(dbm_to_mw(d[:, 2]).mean()))  # pole: one value
 
 
+# ---------------------------------------------------------------- coverage
+def _slice(motor_az, elevation=90.0):
+    motor_az = np.asarray(motor_az, dtype=float)
+    rss = -50.0 + 5.0 * np.cos(np.deg2rad(motor_az))
+    return Measurements(motor_az, np.full(motor_az.size, elevation), rss)
+
+
+def test_a_quarter_circle_is_refused_not_filled_to_a_full_pattern(tmp_path):
+    # the walkthrough: motor azimuths 0–90° gave a 360° pattern, 270° of it spline
+    with pytest.raises(CoverageGapError) as err:
+        enrol(_slice(np.arange(0.0, 90.5, 0.5)))
+    assert err.value.column == "motor_azimuth_deg" and err.value.path is None
+    assert str(err.value) == (
+        "column 'motor_azimuth_deg': measurements leave motor azimuths 90–360° (a 270° gap) "
+        "unmeasured; at most 90° can be filled"
+    )
+    path = tmp_path / "m_q.csv"
+    path.write_text(
+        "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n"
+        + "".join(f"{a},90,-50\n" for a in (0, 30, 60, 90, 200, 270, 330))
+    )
+    with pytest.raises(InputError, match=r"motor azimuths 90–200° \(a 110° gap\)") as err:
+        enrol_csv(path)
+    assert (err.value.path, err.value.column) == (str(path), "motor_azimuth_deg")
+    assert "radians" not in str(err.value)
+
+
+def test_azimuths_in_radians_are_named_as_such():
+    with pytest.raises(CoverageGapError, match=r"radians\? motor_azimuth_deg is in degrees"):
+        enrol(_slice(np.linspace(0.0, 2 * np.pi, 100)))
+    with pytest.raises(CoverageGapError) as err:  # degrees up to 7: no hint
+        enrol(_slice(np.linspace(0.0, 7.0, 100)))
+    assert "radians" not in str(err.value)
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.sets(st.integers(0, 359), min_size=1, max_size=12))
+def test_enrolment_fills_gaps_up_to_the_limit_only(azimuths):
+    gap, _ = largest_circular_gap(sorted(azimuths))
+    if gap > MAX_FILL_GAP_DEG:
+        with pytest.raises(CoverageGapError, match=f"a {gap:g}° gap"):
+            enrol(_slice(sorted(azimuths)))
+    else:
+        assert enrol(_slice(sorted(azimuths))).azimuth_deg.size == 360
+
+
+def test_sphere_elevation_gaps_are_refused_and_poles_need_one_azimuth():
+    az = np.arange(0.0, 360.0, 45.0)
+    rows = [(a, e) for e in (100.0, 120.0, 150.0) for a in az]
+    m = Measurements([r[0] for r in rows], [r[1] for r in rows], np.full(len(rows), -50.0))
+    with pytest.raises(CoverageGapError) as err:  # 0–100° held from the 100° row
+        enrol(m)
+    assert err.value.column == "motor_elevation_deg"
+    assert "motor elevations 0–100° (a 100° gap) unmeasured" in str(err.value)
+    # a pole is one direction: one azimuth there is the whole row
+    rows = [(0.0, 0.0), (0.0, 180.0)] + [(a, e) for e in (45.0, 90.0, 135.0) for a in az]
+    m = Measurements([r[0] for r in rows], [r[1] for r in rows], np.full(len(rows), -50.0))
+    assert enrol(m).polar_deg.size == 5
+
+
 # ---------------------------------------------------------------- troughs
 def _sharp_lobes() -> object:
     """Two narrow lobes (~12° wide) over broad troughs, linear intensity."""
@@ -255,13 +320,14 @@ def test_grid_finer_than_the_limit_is_rejected_before_allocating(kwargs, column,
 def test_inferred_polar_step_finer_than_the_limit_names_the_row(tmp_path):
     path = tmp_path / "m.csv"
     path.write_text(
-        "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n0,90,-40\n90,90,-41\n180,90.001,-42\n"
+        "motor_azimuth_deg,motor_elevation_deg,rss_dbm\n"
+        "0,90,-40\n90,90,-41\n270,90,-43\n180,90.001,-42\n"  # azimuths 90° apart
     )
     with pytest.raises(InputError) as err:
         enrol_csv(path)
     assert (err.value.path, err.value.line, err.value.column) == (
         str(path),
-        4,
+        5,
         "motor_elevation_deg",
     )
     assert (

@@ -907,7 +907,13 @@ def test_mitll_captures_of_one_or_two_angles_are_rejected(tmp_path):
         read_mitll_measurements(d / "c1.csv")
     assert (err.value.path, err.value.line, err.value.column) == (str(d / "c1.csv"), 4, "Angle")
     _mitll_file(d / "c2.csv", 90.0, {37: -65.0})
-    assert read_mitll(d).azimuth_deg.size == 360  # three angles: the minimum
+    # three angles pass the count but leave 90–360° to the fill: refused, not invented
+    with pytest.raises(InputError, match=r"motor azimuths 90–360° \(a 270° gap\)") as err:
+        read_mitll(d)
+    assert (err.value.path, err.value.column) == (str(d), "Angle")
+    _mitll_file(d / "c3.csv", 180.0, {37: -62.0})
+    _mitll_file(d / "c4.csv", 270.0, {37: -63.0})
+    assert read_mitll(d).azimuth_deg.size == 360  # gaps of at most 90°: filled
 
 
 # ---------------------------------------------------------------- large BASTA files

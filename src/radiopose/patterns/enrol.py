@@ -19,6 +19,10 @@ measurements"). :func:`enrol` turns those rows into a :class:`Pattern`:
    samples (e.g. 8 azimuths 45° apart). ``interpolation="linear"`` gives
    piecewise-linear periodic interpolation; ``interpolation_domain="linear"``
    interpolates mW instead (clipped at 1e-3 × the smallest measured power).
+   A gap between consecutive measured azimuths (circularly) wider than
+   :data:`MAX_FILL_GAP_DEG` is an error (:class:`CoverageGapError`), as is, on
+   a full sphere, such a gap between measured elevations or from a pole: the
+   fill would invent most of the pattern.
 5. **Fill empty polar rows** (full sphere only) per azimuth, linearly in dB
    between the nearest measured rows, held constant beyond the first/last
    measured row. The pole rows (θ = 0°, 180°: one physical direction each)
@@ -77,6 +81,18 @@ MEASUREMENT_COLUMNS = (
 """Required columns of an enrolment CSV and their valid ranges (360° = 0°)."""
 
 _ANGLE_DECIMALS = 6  # directions equal to 1e-6 deg are the same direction
+
+MAX_FILL_GAP_DEG = 90.0
+"""Widest gap the fill may bridge, degrees: between consecutive measured azimuths
+of a polar row (circularly; a pole row of a sphere is one direction and exempt),
+and on a full sphere between consecutive measured elevations or from a pole to
+the nearest one. Wider is a :class:`CoverageGapError`. The shipped real patterns
+(MIT LL, 8 azimuths) leave 45°, as do the sparsest enrolments of the tests; 90°
+is four positioner stops, the fewest that describe a front, back and sides."""
+
+RADIAN_HINT_MAX = 6.3
+"""Motor azimuths all in ``[0, RADIAN_HINT_MAX]`` (just above 2π) under a
+:class:`CoverageGapError` were likely given in radians: the error says so."""
 
 MAX_SIMULATED_PACKETS = 10_000_000
 """Most packets :func:`simulate_positioner_measurements` makes (checked before allocating)."""
@@ -261,6 +277,74 @@ class PolarStepError(InputError):
     def __init__(self, message: str, elevation_deg: float) -> None:
         super().__init__(message, column="motor_elevation_deg")
         self.elevation_deg = elevation_deg
+
+
+class CoverageGapError(InputError):
+    """The measurements leave a gap wider than :data:`MAX_FILL_GAP_DEG` for the
+    fill (raised by :func:`enrol`; :func:`enrol_csv` names the file). ``column``
+    is ``motor_azimuth_deg`` or ``motor_elevation_deg``."""
+
+
+def largest_circular_gap(azimuth_deg: ArrayLike) -> tuple[float, float]:
+    """``(gap, start)`` degrees: the widest gap between consecutive distinct azimuths
+    around the circle (from ``start`` up to ``start + gap``, wrapping at 360);
+    one azimuth leaves a 360° gap from itself."""
+    x = np.unique(wrap_deg(azimuth_deg))
+    gaps = np.diff(np.append(x, x[0] + 360.0))
+    k = int(np.argmax(gaps))
+    return float(gaps[k]), float(x[k])
+
+
+def _check_coverage(
+    d_phi: FloatArray,
+    d_theta: FloatArray,
+    j_po: np.ndarray,
+    po_grid: FloatArray,
+    motor_azimuth_deg: FloatArray,
+) -> None:
+    """Raise :class:`CoverageGapError` if the fill would bridge more than
+    :data:`MAX_FILL_GAP_DEG` (the measured directions ``d_phi, d_theta``, degrees,
+    binned to polar rows ``j_po`` of ``po_grid``)."""
+    n_po = po_grid.size
+    worst: tuple[float, float, float] | None = None  # (gap, start phi, polar angle)
+    for j in np.unique(j_po):
+        if n_po > 1 and j in (0, n_po - 1):  # a pole row is one direction
+            continue
+        gap, start = largest_circular_gap(d_phi[j_po == j])
+        if worst is None or gap > worst[0]:
+            worst = (gap, start, float(po_grid[j]))
+    if worst is not None and worst[0] > MAX_FILL_GAP_DEG:
+        gap, start, theta = worst
+        lo = float(wrap_deg(360.0 - (start + gap)))  # the motor turns the other way
+        where = f" at elevation {theta:g}°" if n_po > 1 else ""
+        hint = ""
+        if float(np.max(motor_azimuth_deg)) <= RADIAN_HINT_MAX:
+            hint = (
+                f"; every motor azimuth lies in [0, {RADIAN_HINT_MAX:g}]: radians? "
+                "motor_azimuth_deg is in degrees"
+            )
+        raise CoverageGapError(
+            f"measurements leave motor azimuths {_deg(lo)}–{_deg(lo + gap)}°{where} "
+            f"(a {_deg(gap)}° gap) unmeasured; at most {MAX_FILL_GAP_DEG:g}° can be "
+            f"filled{hint}",
+            column="motor_azimuth_deg",
+        )
+    if n_po > 1:
+        edges = np.concatenate([[0.0], np.unique(d_theta), [180.0]])
+        gaps = np.diff(edges)
+        k = int(np.argmax(gaps))
+        if gaps[k] > MAX_FILL_GAP_DEG:
+            raise CoverageGapError(
+                f"measurements leave motor elevations {_deg(edges[k])}–{_deg(edges[k + 1])}° "
+                f"(a {_deg(gaps[k])}° gap) unmeasured; at most {MAX_FILL_GAP_DEG:g}° can be "
+                "filled",
+                column="motor_elevation_deg",
+            )
+
+
+def _deg(value: float) -> str:
+    """An angle for a message, degrees to 0.001."""
+    return f"{round(float(value), 3):g}"
 
 
 def _grid_count(step_deg: float, span_deg: float, what: str, field: str) -> int:
@@ -451,7 +535,9 @@ def enrol(
     ------
     InputError
         No measurements; :class:`PolarStepError` if no polar step is set and
-        two measured elevations are closer than 0.1° (the grid limit).
+        two measured elevations are closer than 0.1° (the grid limit);
+        :class:`CoverageGapError` if the measurements leave a gap wider than
+        :data:`MAX_FILL_GAP_DEG` for the fill.
     """
     cfg = config or EnrolConfig()
     if len(measurements) == 0:
@@ -474,6 +560,7 @@ def enrol(
         j_po = np.zeros_like(i_az)
     else:
         j_po = np.rint(d_theta / (180.0 / (n_po - 1))).astype(np.int64)
+    _check_coverage(d_phi, d_theta, j_po, po_grid, measurements.motor_azimuth_deg)
     flat = i_az * n_po + j_po
     total = np.bincount(flat, weights=d_mw, minlength=n_az * n_po).reshape(n_az, n_po)
     count = np.bincount(flat, minlength=n_az * n_po).reshape(n_az, n_po)
@@ -515,7 +602,8 @@ def enrol_csv(
     """Read an enrolment CSV and enrol it (pattern named after the file stem by default).
 
     Elevations too close for the polar grid limit are reported at the first
-    row of the larger one (file, line, column ``motor_elevation_deg``).
+    row of the larger one (file, line, column ``motor_elevation_deg``); a gap
+    too wide to fill (:class:`CoverageGapError`) at the file and its column.
     """
     stem = os.path.splitext(os.path.basename(os.fspath(path)))[0]
     table = _read_measurement_table(path)
@@ -527,6 +615,8 @@ def enrol_csv(
         if rows.size == 0:
             raise
         raise table.error(int(rows[0]), "motor_elevation_deg", exc.reason) from None
+    except CoverageGapError as exc:
+        raise CoverageGapError(exc.reason, path=path, column=exc.column) from None
 
 
 def simulate_positioner_measurements(
@@ -612,8 +702,10 @@ def _elevations(elevations_deg: ArrayLike) -> FloatArray:
 
 
 __all__ = [
+    "MAX_FILL_GAP_DEG",
     "MAX_SIMULATED_PACKETS",
     "MEASUREMENT_COLUMNS",
+    "CoverageGapError",
     "EnrolConfig",
     "MeasurementError",
     "Measurements",
@@ -622,6 +714,7 @@ __all__ = [
     "enrol",
     "enrol_csv",
     "fill_periodic",
+    "largest_circular_gap",
     "motor_to_pattern_deg",
     "pattern_to_motor_deg",
     "read_measurements_csv",

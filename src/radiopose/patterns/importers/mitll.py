@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.patterns.enrol import EnrolConfig, Measurements, enrol
+from radiopose.patterns.enrol import CoverageGapError, EnrolConfig, Measurements, enrol
 from radiopose.patterns.importers._common import (
     MAX_ABS_DB,
     MIN_CIRCLE_ANGLES,
@@ -245,10 +245,15 @@ def read_mitll(
 
     The 8 azimuths 45° apart are filled by the enrolment's periodic
     interpolation (default: periodic cubic spline in dB), smoothed ±5° in mW and
-    normalised to the slice mean (0 dBi).
+    normalised to the slice mean (0 dBi). Angles leaving a gap wider than
+    :data:`~radiopose.patterns.enrol.MAX_FILL_GAP_DEG` (90°) are an error naming
+    the directory (or first file) and column ``Angle``.
     """
     measurements = read_mitll_measurements(path, mac=mac)
+    first = path if isinstance(path, (str, os.PathLike)) else path[0]
     if name is None:
-        first = path if isinstance(path, (str, os.PathLike)) else path[0]
         name = Path(first).name if Path(first).is_dir() else _stem(first)
-    return enrol(measurements, config, name=name)
+    try:
+        return enrol(measurements, config, name=name)
+    except CoverageGapError as exc:  # the capture Angles are the motor azimuths
+        raise CoverageGapError(exc.reason, path=first, column="Angle") from None
