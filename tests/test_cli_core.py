@@ -96,6 +96,18 @@ def test_simulate_contract_call(tmp_path, capsys):
         (["--azimuth-step-deg", "0.0001"], "3.6e+06 azimuths"),
         (["--duplicates", "0.5"], "--duplicates applies only with --pcap"),
         (["--rotation", "periodic", "--rotation-rate-dps", "1", "2"], "applies to --rotation"),
+        # the 3-D scenario's range errors name the option and the range, as 2-D's do
+        (
+            ["--pose", "3d", "--noise-db", "-1"],
+            "--noise-db -1.0 is out of range (allowed: [0, 30])",
+        ),
+        (
+            ["--pose", "3d", "--interval-ms", "0.001"],
+            "--interval-ms 0.001 is out of range (allowed",
+        ),
+        (["--pose", "3d", "--duration-s", "4000"], "--duration-s 4000.0 is out of range (allowed"),
+        (["--pose", "3d", "--loss", "1"], "--loss 1.0 is out of range (allowed: [0, 1))"),
+        (["--pose", "3d", "--speed-mps", "1", "200"], "0 <= low <= high <= 100"),
     ],
 )
 def test_simulate_errors_one_line(tmp_path, capsys, args, needle):
@@ -103,6 +115,7 @@ def test_simulate_errors_one_line(tmp_path, capsys, args, needle):
     assert code == 2
     assert needle in err
     assert err.count("\n") == 1 and "Traceback" not in err
+    assert "scenario setting" not in err  # an option, not an internal field
     assert not (tmp_path / "x").exists()
 
 

@@ -285,7 +285,9 @@ def test_demo_3d_tracks_a_hand_held_walk(tmp_path: Path, capsys) -> None:
     [
         (["--pose", "4d"], "--pose must be 2d or 3d"),
         (["--pose", "3d", "--live"], "--pose 3d runs the offline demo only"),
-        (["--pose", "3d", "--duration-s", "-1"], "duration_s"),
+        (["--pose", "3d", "--duration-s", "-1"], "--duration-s -1.0 is out of range (allowed"),
+        (["--pose", "3d", "--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0"),
+        (["--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0, 30])"),
     ],
 )
 def test_demo_3d_bad_options_are_one_line_errors(tmp_path: Path, capsys, extra, needle) -> None:

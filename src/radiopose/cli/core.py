@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from radiopose.cli import app
+
+if TYPE_CHECKING:
+    from radiopose.errors import InputError
 
 ROTATIONS = ("linear", "periodic", "fast")
 # Defaults of the options that only apply with --pcap (one place: the signature
@@ -30,9 +33,22 @@ _SCENARIO_FLAGS = {
     "duration_s": "--duration-s",
     "azimuth_step_deg": "--azimuth-step-deg",
     "loss_fraction": "--loss",
+    "speed_mps": "--speed-mps",
 }
-"""``radiopose simulate``'s option for each ScenarioConfig field it sets (its
-range errors name the option)."""
+"""``radiopose simulate``'s option for each ScenarioConfig / HandheldConfig field it
+sets (their range errors name the option; ``demo`` shares the names it has)."""
+
+
+def _named_options(exc: InputError) -> InputError:
+    """``exc`` with each ``[3-D ]scenario setting FIELD =`` of :data:`_SCENARIO_FLAGS`
+    named as its option: ``--noise-db -1.0 is out of range (allowed: [0, 30])``."""
+    from radiopose.errors import InputError
+
+    reason = exc.reason
+    for field_name, flag in _SCENARIO_FLAGS.items():
+        for setting in ("3-D scenario setting", "scenario setting"):  # the longer first
+            reason = reason.replace(f"{setting} {field_name} =", flag)
+    return InputError(reason, path=exc.path, line=exc.line, column=exc.column)
 
 
 _REAL_DEMO_IGNORES = {
@@ -193,13 +209,14 @@ def simulate(
             loss_fraction=loss,
             motion=motion,
         )
-        if pose == "2d":  # (the 3-D scenario checks its own settings)
+        if pose == "2d":
             cfg.validate()
+        elif pose == "3d":  # the hand-held scenario takes the shared settings only
+            from radiopose.simulate.handheld import HandheldConfig
+
+            HandheldConfig.from_scenario(cfg).validate()
     except InputError as exc:  # name the option, not the scenario's field
-        reason = exc.reason
-        for field_name, flag in _SCENARIO_FLAGS.items():
-            reason = reason.replace(f"scenario setting {field_name} =", f"{flag}")
-        raise InputError(reason) from None
+        raise _named_options(exc) from None
     capture_cfg = None
     if not pcap:
         values = (clock_offset_ms, clock_drift_ppm, jitter_us, duplicates)
@@ -349,16 +366,19 @@ def demo(
         from radiopose.cli import packet_progress
         from radiopose.demo3d import DEMO3D_DURATION_S, DEMO3D_INTERVAL_MS, run_demo3d
 
-        with packet_progress("filter, offline", sys.stderr.isatty()) as (progress, say):
-            run_demo3d(
-                out,
-                seed=seed,
-                noise_db=noise_db,
-                duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
-                interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
-                echo=say,
-                progress=progress,
-            )
+        try:
+            with packet_progress("filter, offline", sys.stderr.isatty()) as (progress, say):
+                run_demo3d(
+                    out,
+                    seed=seed,
+                    noise_db=noise_db,
+                    duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
+                    interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
+                    echo=say,
+                    progress=progress,
+                )
+        except InputError as exc:  # a scenario range error names the option
+            raise _named_options(exc) from None
         return
     if real:
         ignored = _given(ctx, _REAL_DEMO_IGNORES)
@@ -393,11 +413,14 @@ def demo(
         raise InputError("--method applies to --live (the offline demo runs every method)")
     from radiopose.demo import DEMO_DURATION_S, DEMO_INTERVAL_MS, run_demo
 
-    run_demo(
-        out,
-        seed=seed,
-        noise_db=noise_db,
-        duration_s=DEMO_DURATION_S if duration_s is None else duration_s,
-        interval_ms=DEMO_INTERVAL_MS if interval_ms is None else interval_ms,
-        echo=print,
-    )
+    try:
+        run_demo(
+            out,
+            seed=seed,
+            noise_db=noise_db,
+            duration_s=DEMO_DURATION_S if duration_s is None else duration_s,
+            interval_ms=DEMO_INTERVAL_MS if interval_ms is None else interval_ms,
+            echo=print,
+        )
+    except InputError as exc:  # a scenario range error names the option
+        raise _named_options(exc) from None

@@ -129,37 +129,78 @@ class HandheldConfig:
         lo_p, hi_p = self.pitch_range_deg
         lo_h, hi_h = self.height_range_m
         checks = [
-            ("size_m", 4 < self.size_m <= 1000),
-            ("step_m", 0 < self.step_m <= self.size_m),
-            ("z_step_m", self.z_step_m > 0 and self.z_min_m <= self.z_max_m),
-            ("survey_step_m", 0 < self.survey_step_m <= self.size_m),
-            ("n_receivers", 3 <= self.n_receivers <= 16),
-            ("noise_db", 0 <= self.noise_db <= 30),
-            ("interval_ms", 0.01 <= self.interval_ms <= 60_000),
-            ("duration_s", 0 < self.duration_s <= 3600),
-            ("loss_fraction", 0 <= self.loss_fraction < 1),
-            ("pitch_range_deg", -90 <= lo_p <= hi_p <= 90),
-            ("height_range_m", self.z_min_m <= lo_h <= hi_h <= self.z_max_m),
-            ("roll_amplitude_deg", 0 <= self.roll_amplitude_deg <= 90),
-            ("survey_heights_m", len(self.survey_heights_m) >= 1),
-            ("survey_heights_m", all(0.0 <= z <= 100.0 for z in self.survey_heights_m)),
-            ("z_min_m", 0.0 <= self.z_min_m <= 100.0),
-            ("z_max_m", self.z_max_m <= 100.0),
-            ("ceiling_height_m", 0.0 <= self.ceiling_height_m[0] <= self.ceiling_height_m[1]),
-            ("wall_height_m", 0.0 <= self.wall_height_m[0] <= self.wall_height_m[1]),
-            ("speed_mps", 0.0 <= self.speed_mps[0] <= self.speed_mps[1] <= 100.0),
-            ("wobble_deg", 0.0 <= self.wobble_deg[0] <= self.wobble_deg[1] <= 180.0),
-            ("azimuth_step_deg", 0.0 < self.azimuth_step_deg <= 360.0),
-            ("pitch_deg", len(self.pitch_deg) >= 1 and all(-90 <= p <= 90 for p in self.pitch_deg)),
-            ("roll_deg", len(self.roll_deg) >= 1 and all(-360 <= r <= 360 for r in self.roll_deg)),
-            ("pattern_step_deg", 0.1 <= self.pattern_step_deg <= 90.0),
-            ("min_receiver_spacing_m", 0 <= self.min_receiver_spacing_m <= 1e4),
+            ("size_m", 4 < self.size_m <= 1000, "(4, 1000]"),
+            ("step_m", 0 < self.step_m <= self.size_m, "(0, size_m]"),
+            (
+                "z_step_m",
+                self.z_step_m > 0 and self.z_min_m <= self.z_max_m,
+                "> 0, with z_min_m <= z_max_m",
+            ),
+            ("survey_step_m", 0 < self.survey_step_m <= self.size_m, "(0, size_m]"),
+            ("n_receivers", 3 <= self.n_receivers <= 16, "3 to 16"),
+            ("noise_db", 0 <= self.noise_db <= 30, "[0, 30]"),
+            ("interval_ms", 0.01 <= self.interval_ms <= 60_000, "[0.01, 60000]"),
+            ("duration_s", 0 < self.duration_s <= 3600, "(0, 3600]"),
+            ("loss_fraction", 0 <= self.loss_fraction < 1, "[0, 1)"),
+            ("pitch_range_deg", -90 <= lo_p <= hi_p <= 90, "-90 <= low <= high <= 90"),
+            (
+                "height_range_m",
+                self.z_min_m <= lo_h <= hi_h <= self.z_max_m,
+                "z_min_m <= low <= high <= z_max_m",
+            ),
+            ("roll_amplitude_deg", 0 <= self.roll_amplitude_deg <= 90, "[0, 90]"),
+            ("survey_heights_m", len(self.survey_heights_m) >= 1, "at least one height"),
+            (
+                "survey_heights_m",
+                all(0.0 <= z <= 100.0 for z in self.survey_heights_m),
+                "each in [0, 100]",
+            ),
+            ("z_min_m", 0.0 <= self.z_min_m <= 100.0, "[0, 100]"),
+            ("z_max_m", self.z_max_m <= 100.0, "<= 100"),
+            (
+                "ceiling_height_m",
+                0.0 <= self.ceiling_height_m[0] <= self.ceiling_height_m[1],
+                "0 <= low <= high",
+            ),
+            (
+                "wall_height_m",
+                0.0 <= self.wall_height_m[0] <= self.wall_height_m[1],
+                "0 <= low <= high",
+            ),
+            (
+                "speed_mps",
+                0.0 <= self.speed_mps[0] <= self.speed_mps[1] <= 100.0,
+                "0 <= low <= high <= 100",
+            ),
+            (
+                "wobble_deg",
+                0.0 <= self.wobble_deg[0] <= self.wobble_deg[1] <= 180.0,
+                "0 <= low <= high <= 180",
+            ),
+            ("azimuth_step_deg", 0.0 < self.azimuth_step_deg <= 360.0, "(0, 360]"),
+            (
+                "pitch_deg",
+                len(self.pitch_deg) >= 1 and all(-90 <= p <= 90 for p in self.pitch_deg),
+                "at least one, each in [-90, 90]",
+            ),
+            (
+                "roll_deg",
+                len(self.roll_deg) >= 1 and all(-360 <= r <= 360 for r in self.roll_deg),
+                "at least one, each in [-360, 360]",
+            ),
+            ("pattern_step_deg", 0.1 <= self.pattern_step_deg <= 90.0, "[0.1, 90]"),
+            (
+                "min_receiver_spacing_m",
+                0 <= self.min_receiver_spacing_m <= 1e4,
+                "[0, 10000]",
+            ),
+            *power_and_range_checks(self),
         ]
-        checks += [(name, ok) for name, ok, _ in power_and_range_checks(self)]
-        for name, ok in checks:
+        for name, ok, allowed in checks:
             if not ok:
                 raise InputError(
-                    f"3-D scenario setting {name} = {getattr(self, name)!r} is out of range"
+                    f"3-D scenario setting {name} = {getattr(self, name)!r} is out of range "
+                    f"(allowed: {allowed})"
                 )
         self.channel.validate()
         for name, step, whole in (
