@@ -180,6 +180,10 @@ def test_irregular_grid_and_empty_file(tmp_path):
         read_pattern_csv(path)
     _one_line_error(err.value, path, 3, "azimuth_deg")
     assert "closest fit: 3 azimuths every 120 deg from 0" in str(err.value)
+    one = _write(tmp_path, H + "0,90,1\n0.5,90,2\n", "one.csv")
+    with pytest.raises(InputError, match=r"azimuth 0\.5 deg is not on a constant-step grid") as err:
+        read_pattern_csv(one)
+    assert str(err.value).endswith("(closest fit: 1 azimuth every 360 deg from 0)")
     empty = _write(tmp_path, H, "empty.csv")
     with pytest.raises(InputError, match="no pattern samples") as err:
         read_pattern_csv(empty)

@@ -475,9 +475,10 @@ def _fit_axis(u: FloatArray, span: float, periodic: bool) -> _AxisFit:
 
 
 def _axis_text(fit: _AxisFit, axis: str) -> str:
+    s = "" if fit.n == 1 else "s"
     if axis == "azimuth":
-        return f"{fit.n} azimuths every {fit.step:g} deg from {fit.first:g}"
-    return f"{fit.n} polar angles every {fit.step:g} deg over [0, 180]"
+        return f"{fit.n} azimuth{s} every {fit.step:g} deg from {fit.first:g}"
+    return f"{fit.n} polar angle{s} every {fit.step:g} deg over [0, 180]"
 
 
 def pattern_from_samples(
