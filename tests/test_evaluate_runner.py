@@ -33,6 +33,23 @@ def _tiny():
     return parse_experiment(DOC, "tiny.toml")
 
 
+def _tiny_toml(
+    name: str = "tiny", runs: int = 2, methods: str = '"full", "top", "lms"', sweep: bool = True
+) -> str:
+    """``DOC`` as an experiment file (the CLI tests), with a figure when swept."""
+    text = (
+        f'name = "{name}"\nseed = 4711\nruns = {runs}\nmethods = [{methods}]\n'
+        "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
+        "min_receiver_spacing_m = 2.0\n"
+    )
+    if sweep:
+        text += (
+            "[sweep]\nscenario.noise_db = [0.5, 3.0]\n"
+            '[[figure]]\nkind = "error"\nx = "noise_db"\nquantity = "position"\n'
+        )
+    return text
+
+
 def _comparable(df: pd.DataFrame) -> pd.DataFrame:
     return df.drop(columns=list(TIMING_COLUMNS)).reset_index(drop=True)
 
@@ -161,12 +178,7 @@ def test_an_unusable_output_is_refused_before_any_run(tmp_path, capsys, monkeypa
 
     monkeypatch.setattr(runner, "run_task", no_run)
     exp = tmp_path / "tiny.toml"
-    exp.write_text(
-        'name = "tiny"\nseed = 4711\nruns = 1\nmethods = ["lms"]\n'
-        "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
-        "min_receiver_spacing_m = 2.0\n",
-        encoding="utf-8",
-    )
+    exp.write_text(_tiny_toml(runs=1, methods='"lms"', sweep=False), encoding="utf-8")
     afile = tmp_path / "afile"
     afile.write_text("mine\n")
     (tmp_path / "d").mkdir()
@@ -203,12 +215,7 @@ def test_cli_evaluate_rerun_with_fewer_experiments_keeps_only_its_figures(tmp_pa
 
     for name in ("a", "b"):
         (tmp_path / f"{name}.toml").write_text(
-            f'name = "{name}"\nseed = 4711\nruns = 1\nmethods = ["lms"]\n'
-            "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
-            "min_receiver_spacing_m = 2.0\n"
-            "[sweep]\nscenario.noise_db = [0.5, 3.0]\n"
-            '[[figure]]\nkind = "error"\nx = "noise_db"\nquantity = "position"\n',
-            encoding="utf-8",
+            _tiny_toml(name, runs=1, methods='"lms"'), encoding="utf-8"
         )
     out = tmp_path / "out"
     a, b = str(tmp_path / "a.toml"), str(tmp_path / "b.toml")
@@ -268,14 +275,7 @@ def test_cli_evaluate_writes_results_and_report(tmp_path, capsys):
     from radiopose.cli import main
 
     exp = tmp_path / "tiny.toml"
-    exp.write_text(
-        'name = "tiny"\nseed = 4711\nruns = 2\nmethods = ["full", "top", "lms"]\n'
-        "[scenario]\nsize_m = 6.0\nstep_m = 0.5\nduration_s = 0.05\n"
-        "min_receiver_spacing_m = 2.0\n"
-        "[sweep]\nscenario.noise_db = [0.5, 3.0]\n"
-        '[[figure]]\nkind = "error"\nx = "noise_db"\nquantity = "position"\n',
-        encoding="utf-8",
-    )
+    exp.write_text(_tiny_toml(), encoding="utf-8")
     out = tmp_path / "out"
     assert main(["evaluate", str(exp), "--workers", "0", "-o", str(out)]) == 0
     err = capsys.readouterr().err
