@@ -109,6 +109,18 @@ def test_an_unknown_top_level_key_lists_every_valid_one(tmp_path: Path):
         read_tracker_settings(p)
 
 
+@pytest.mark.parametrize("key", ["smoothing_lag_s", "live_method"])
+def test_a_top_level_key_under_filter_says_where_it_belongs(tmp_path: Path, key: str):
+    """``smoothing_lag_s`` written under ``[filter]`` was 'unknown key (did you mean
+    'smoother_ghost_s'?)': the message now says it belongs at the top level."""
+    value = "1.0" if key == "smoothing_lag_s" else '"filter"'
+    p = _write(tmp_path, f"[filter]\n{key} = {value}\n")
+    with pytest.raises(InputError) as exc:
+        read_tracker_settings(p)
+    assert "belongs at the top level, above [filter]" in exc.value.reason
+    assert exc.value.line == 2 and exc.value.column == f"filter.{key}"
+
+
 _OFFSETS = st.lists(
     st.floats(-60, 60, allow_nan=False).map(lambda x: round(x, 3)), min_size=1, max_size=6
 ).map(tuple)

@@ -59,6 +59,9 @@ def test_pitch_list_makes_a_site_3d(small_site_dir):
         ("z_m = 1.0", "z_m = 1.0\n" + RANGE, "area.z_min_m", "not both"),
         ("z_m = 1.0", "z_min_m = 0.8\nz_max_m = 1.6", "area.z_step_m", "missing"),
         ("z_m = 1.0", "z_max_m = 1.6\nz_step_m = 0.2", "area.z_min_m", "missing"),
+        # a misspelt key is named at its own line, not as the key it misses (session 27)
+        ("z_m = 1.0", RANGE.replace("z_step_m", "z_stepm"), "area.z_stepm", "did you mean"),
+        ("z_m = 1.0", "z_m = 1.0\nz_mm = 2.0", "area.z_mm", "unknown key"),
         ("z_m = 1.0", RANGE.replace("z_max_m = 1.6", "z_max_m = 0.5"), "area.z_max_m", ">= z_min"),
         ("z_m = 1.0", RANGE.replace("0.2", "0.0"), "area.z_step_m", "must be > 0"),
         ("z_m = 1.0", RANGE.replace("0.2", "-0.2"), "area.z_step_m", "must be > 0"),

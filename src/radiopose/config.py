@@ -22,7 +22,7 @@ import os
 import re
 import tomllib
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Any, NoReturn
 
 from radiopose.errors import InputError
 
@@ -526,25 +526,43 @@ class Section:
             raise self.error(name, f"expected true or false, got {v!r:.40}")
         return v
 
-    def finish(self, allowed: Iterable[str] | None = None) -> None:
+    def finish(
+        self, allowed: Iterable[str] | None = None, elsewhere: dict[str, str] | None = None
+    ) -> None:
         """Reject keys that were never read (typos).
 
         ``allowed``: every key this table may hold, for a reader that reads only
         the keys present (default: the keys asked for); the message suggests
-        the closest ones, or lists them when there are few.
+        the closest ones, or lists them when there are few. ``elsewhere``: keys
+        that belong in another table of the file (key → where, e.g. ``"the top
+        level, above [filter]"``), named as such.
         """
         unknown = sorted(set(self.data) - self.used)
         if not unknown:
             return
-        known = sorted(set(self.used if allowed is None else allowed) - {unknown[0]})
-        close = difflib.get_close_matches(unknown[0], known, n=3, cutoff=0.6)
+        self._reject(unknown[0], set(self.used if allowed is None else allowed), elsewhere)
+
+    def reject_unknown(
+        self, allowed: Iterable[str], elsewhere: dict[str, str] | None = None
+    ) -> None:
+        """Reject a key outside ``allowed`` before any is read, so that a misspelt
+        key is named at its own line rather than reported as a missing one."""
+        unknown = sorted(set(self.data) - set(allowed))
+        if unknown:
+            self._reject(unknown[0], set(allowed), elsewhere)
+
+    def _reject(self, key: str, allowed: set[str], elsewhere: dict[str, str] | None) -> NoReturn:
+        if elsewhere and key in elsewhere:
+            raise self.error(key, f"unknown key here: it belongs at {elsewhere[key]}")
+        known = sorted(allowed - {key})
+        close = difflib.get_close_matches(key, known, n=3, cutoff=0.6)
         if close:
             hint = f"did you mean {' or '.join(repr(k) for k in close)}?"
         elif len(known) <= 12:
             hint = f"known here: {', '.join(known) or 'none'}"
         else:
             hint = f"{len(known)} keys are known here; see the docs"
-        raise self.error(unknown[0], f"unknown key ({hint})")
+        raise self.error(key, f"unknown key ({hint})")
 
 
 _REQUIRED = object()

@@ -657,6 +657,8 @@ def _check_site(where: _Where, parts: _SiteParts, settings_checked: bool = False
 
 # ----------------------------------------------------------------------------- reading
 _HEIGHT_KEYS = ("z_min_m", "z_max_m", "z_step_m")
+_AREA_KEYS = ("x_min_m", "x_max_m", "y_min_m", "y_max_m", "z_m", *_HEIGHT_KEYS, "step_m")
+"""Every key ``[area]`` may hold."""
 
 
 def _read_heights(a: Section) -> tuple[float, tuple[float | None, float | None, float | None]]:
@@ -684,6 +686,7 @@ def _read_site_toml(path: Path) -> _SiteToml:
     root = Section(load_toml(path), path)
     name = root.string("name", path.parent.name)
     a = root.section("area")
+    a.reject_unknown(_AREA_KEYS)  # a misspelt key at its line, not as a missing one
     x_min = a.number("x_min_m", required=True, **_COORD)
     x_max = a.number("x_max_m", required=True, **_COORD)
     y_min = a.number("y_min_m", required=True, **_COORD)
