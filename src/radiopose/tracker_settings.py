@@ -202,18 +202,17 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
     top = {k: "the top level, above [filter]" for k in ("smoothing_lag_s", "live_method")}
     sec.finish(allowed=[*kinds, POSE3D_TABLE], elsewhere=top)
     root.finish(allowed=("smoothing_lag_s", "live_method", "filter"))
-    try:
-        dataclasses.replace(FilterConfig(), **overrides)
-    except InputError as exc:  # the dataclass names the field; add the file and its line
-        bad = next((k for k in overrides if f" {k} " in f" {exc.reason} "), None)
-        line = None if bad is None else find_key_line(("filter", bad), doc.key_lines)
-        column = "filter" if bad is None else f"filter.{bad}"
-        raise InputError(exc.reason, path=path, line=line, column=column) from None
-    try:
-        dataclasses.replace(Pose3dConfig(), **pose3d)
-    except InputError as exc:
-        line = find_key_line(("filter", POSE3D_TABLE), doc.key_lines)
-        raise InputError(exc.reason, path=path, line=line, column="filter.pose3d") from None
+    for table, cls, given in (
+        (("filter",), FilterConfig, overrides),
+        (("filter", POSE3D_TABLE), Pose3dConfig, pose3d),
+    ):
+        try:
+            dataclasses.replace(cls(), **given)
+        except InputError as exc:  # the dataclass names the field; add the file and its line
+            bad = next((k for k in given if f" {k} " in f" {exc.reason} "), None)
+            keys = table if bad is None else (*table, bad)
+            line = find_key_line(keys, doc.key_lines)
+            raise InputError(exc.reason, path=path, line=line, column=".".join(keys)) from None
     return TrackerSettings(overrides, pose3d, lag, live)
 
 
