@@ -47,6 +47,7 @@ from radiopose.geometry import (
     pattern_angles_deg,
     stored_orientation_matrices,
 )
+from radiopose.packets import RSS_MAX_DBM, RSS_MIN_DBM
 from radiopose.patterns.pattern import Pattern
 from radiopose.survey import (
     SurveyMap,
@@ -97,7 +98,7 @@ DEVICE_COLUMNS = (
 SURVEY_COLUMNS = (
     *_XYZ_COLUMNS,
     Column("receiver_id", "str"),
-    Column("rss_dbm", low=-200.0, high=50.0),
+    Column("rss_dbm", low=RSS_MIN_DBM, high=RSS_MAX_DBM),
     *ANGLE_COLUMNS,
 )
 
