@@ -359,3 +359,23 @@ def test_pattern_import_mitll_step_limit_names_the_option(shared_data, tmp_path,
     assert code == 2
     _assert_one_line_failure(code, err, "column '--step-deg': azimuth step 1e-09 deg is finer")
     assert not out.exists()
+
+
+def test_a_figure_not_named_png_is_refused_before_any_work(measurements_csv, tmp_path, capsys):
+    """``enrol --plot o.xyz`` wrote a PNG under that name, and ``pattern plot -o`` alike
+    (session 27's walkthrough): a figure path must end in .png; nothing is written."""
+    out = tmp_path / "p.csv"
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(tmp_path / "o.xyz")],
+        capsys,
+    )
+    _assert_one_line_failure(code, err, "o.xyz", "--plot writes a PNG")
+    assert not out.exists() and not (tmp_path / "o.xyz").exists()
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(tmp_path / "o.PNG")],
+        capsys,
+    )
+    assert code == 0 and (tmp_path / "o.PNG").read_bytes()[:4] == b"\x89PNG"
+    code, _, err = _run(["pattern", "plot", str(out), "-o", str(tmp_path / "x.pdf")], capsys)
+    _assert_one_line_failure(code, err, "x.pdf", "-o writes a PNG")
+    assert not (tmp_path / "x.pdf").exists()

@@ -96,6 +96,13 @@ def _check_target(path: Path, what: str) -> None:
         raise InputError(f"is a directory, expected a {what} file path", path=path)
 
 
+def _check_png_name(path: Path, option: str) -> None:
+    """A figure path must end in ``.png`` (the figure is always a PNG): ``--plot o.xyz``
+    wrote a PNG under that name. A device or pipe (``/dev/null``) is written as is."""
+    if path.suffix.lower() != ".png" and not (path.is_char_device() or path.is_fifo()):
+        raise InputError(f"{option} writes a PNG: give a file name ending in .png", path=path)
+
+
 def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
     """Write the pattern CSV and, if asked, its PNG: both or neither.
 
@@ -108,6 +115,7 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
     _check_target(output, "CSV")
     if plot is not None:
         _check_target(plot, "PNG")
+        _check_png_name(plot, "--plot")
         if plot.resolve() == output.resolve():
             raise InputError("--plot is the same file as -o", path=plot)
     png = None
@@ -284,6 +292,7 @@ def plot_command(
     from radiopose.patterns.plot import pattern_png
 
     check_outputs_not_inputs([output], [pattern_csv])
+    _check_png_name(output, "-o")
     pattern = read_pattern_csv(pattern_csv)
     png = pattern_png(pattern)
     with atomic_writer(output, "wb") as fh:
