@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import errno
 import os
+import stat
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -379,3 +381,78 @@ def test_a_figure_not_named_png_is_refused_before_any_work(measurements_csv, tmp
     code, _, err = _run(["pattern", "plot", str(out), "-o", str(tmp_path / "x.pdf")], capsys)
     _assert_one_line_failure(code, err, "x.pdf", "-o writes a PNG")
     assert not (tmp_path / "x.pdf").exists()
+
+
+def test_enrol_plot_to_a_device_writes_it_in_place(measurements_csv, tmp_path, capsys):
+    """``--plot`` at a character device replaced the node with a regular file (the figure
+    was staged and renamed over it): a device is written directly, the node stays."""
+    dev, full = tmp_path / "x_nulldev", tmp_path / "x_fulldev"  # not held to .png
+    try:
+        os.mknod(dev, stat.S_IFCHR | 0o666, os.makedev(1, 3))  # /dev/null's numbers
+        os.mknod(full, stat.S_IFCHR | 0o666, os.makedev(1, 7))  # /dev/full's
+    except OSError as exc:
+        pytest.skip(f"cannot create a device node here: {exc}")
+    out = tmp_path / "p.csv"
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(dev)], capsys
+    )
+    assert code == 0, err
+    assert stat.S_ISCHR(os.lstat(dev).st_mode)
+    assert read_pattern_csv(out).name == "p"
+    assert not list(tmp_path.rglob("*.tmp"))
+    out.unlink()  # a device that refuses the figure: one line, the new CSV removed
+    code, _, err = _run(
+        ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(full)], capsys
+    )
+    _assert_one_line_failure(code, err, f"{full}: cannot write (No space left on device)")
+    assert stat.S_ISCHR(os.lstat(full).st_mode) and not out.exists()
+
+
+def _read_fifo(fifo: Path, argv: list[str], capsys) -> tuple[int, str, bytes]:
+    """Run ``argv`` while a thread reads ``fifo``; return the exit code, stderr and bytes read.
+
+    The reader opens a hard link to the FIFO, so if the command never opens it (it
+    replaced the name with a file), the reader is released with an empty write end.
+    """
+    alias = fifo.with_name(fifo.name + ".alias")
+    os.link(fifo, alias)
+    got: list[bytes] = []
+
+    def reader() -> None:
+        with open(alias, "rb") as fh:
+            got.append(fh.read())
+
+    thread = threading.Thread(target=reader, daemon=True)
+    thread.start()
+    code, _, err = _run(argv, capsys)
+    thread.join(timeout=10)
+    if thread.is_alive():  # nobody wrote the pipe: give the reader an end of file
+        os.close(os.open(alias, os.O_WRONLY | os.O_NONBLOCK))
+        thread.join(timeout=30)
+    alias.unlink()
+    return code, err, got[0] if got else b""
+
+
+def test_enrol_plot_to_a_fifo_feeds_its_reader(measurements_csv, tmp_path, capsys):
+    """``--plot`` at a FIFO replaced the pipe with a file and its reader got 0 bytes."""
+    fifo = tmp_path / "figure.fifo"
+    os.mkfifo(fifo)
+    out = tmp_path / "p.csv"
+    argv = ["enrol", str(measurements_csv), "-o", str(out), "--plot", str(fifo)]
+    code, err, data = _read_fifo(fifo, argv, capsys)
+    assert code == 0, err
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert data.startswith(PNG_MAGIC)
+    assert read_pattern_csv(out).name == "p"
+
+
+def test_pattern_import_plot_to_a_fifo_feeds_its_reader(shared_data, tmp_path, capsys):
+    fifo = tmp_path / "figure.fifo"
+    os.mkfifo(fifo)
+    msi, out = shared_data / "antenna-files" / MSI_NAME, tmp_path / "bs.csv"
+    argv = ["pattern", "import", str(msi), "-o", str(out), "--format", "msi", "--plot", str(fifo)]
+    code, err, data = _read_fifo(fifo, argv, capsys)
+    assert code == 0, err
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    assert data.startswith(PNG_MAGIC)
+    assert out.is_file()

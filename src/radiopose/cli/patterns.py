@@ -2,7 +2,8 @@
 
 The work lives in :mod:`radiopose.patterns` (enrolment, importers, plots).
 Every output is computed in full before anything is written, and each file is
-written atomically, so a failure leaves no partial output.
+written atomically, so a failure leaves no partial output (a device or pipe given
+as ``--plot`` cannot be staged: it is written directly, last).
 """
 
 from __future__ import annotations
@@ -98,7 +99,8 @@ def _check_target(path: Path, what: str) -> None:
 
 def _check_png_name(path: Path, option: str) -> None:
     """A figure path must end in ``.png`` (the figure is always a PNG): ``--plot o.xyz``
-    wrote a PNG under that name. A device or pipe (``/dev/null``) is written as is."""
+    wrote a PNG under that name. An existing device or pipe (``/dev/null``) is accepted
+    under any name and written directly (see :func:`_write_outputs`)."""
     if path.suffix.lower() != ".png" and not (path.is_char_device() or path.is_fifo()):
         raise InputError(f"{option} writes a PNG: give a file name ending in .png", path=path)
 
@@ -111,6 +113,13 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
     place. On any failure the temporary file, a CSV this call created and any
     directories it created are removed (a CSV that existed before is replaced
     only when everything else has already succeeded).
+
+    A figure target that exists and is not a regular file (a device, a FIFO) is
+    not staged: renaming over it would replace the node with a file. It is
+    written directly, through :func:`radiopose.tables.atomic_writer`, after the
+    CSV, so a reader of the pipe gets nothing when the CSV fails. If that last
+    write fails, a CSV this call created is removed; one that existed before
+    has already been replaced.
     """
     _check_target(output, "CSV")
     if plot is not None:
@@ -123,12 +132,13 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
         from radiopose.patterns.plot import pattern_png  # matplotlib only when asked
 
         png = pattern_png(pattern)
+    direct = plot is not None and plot.exists() and not plot.is_file()
     created: list[Path] = []
     tmp: Path | None = None
     csv_is_new = not output.exists()
     csv_written = False
     try:
-        if png is not None and plot is not None:
+        if png is not None and plot is not None and not direct:
             created += _new_parents(plot)
             try:
                 fd, name = tempfile.mkstemp(prefix=f".{plot.name}.", suffix=".tmp", dir=plot.parent)
@@ -146,6 +156,12 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
             os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600
             os.replace(tmp, plot)
             tmp = None
+        elif png is not None and plot is not None:  # a device or pipe: written in place
+            try:
+                with atomic_writer(plot, "wb") as fh:
+                    fh.write(png)
+            except OSError as exc:
+                raise InputError(f"cannot write ({exc.strerror})", path=plot) from None
     except BaseException:
         if tmp is not None:
             with contextlib.suppress(OSError):
