@@ -456,3 +456,22 @@ def test_pattern_import_plot_to_a_fifo_feeds_its_reader(shared_data, tmp_path, c
     assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
     assert data.startswith(PNG_MAGIC)
     assert out.is_file()
+
+
+def test_a_figure_name_is_checked_before_the_source_is_read(tmp_path, capsys):
+    """The .png check ran in _write_outputs, after the enrolment or import: with a bad
+    --plot name and a malformed source, the source's error was reported and the whole
+    enrolment ran first. The figure name is now checked before the source is read."""
+    meas = tmp_path / "meas.csv"
+    meas.write_text("motor_azimuth_deg,rss_dbm\n0,-50\n")  # no motor_elevation_deg
+    msi = tmp_path / "x.msi"
+    msi.write_text("NAME x\nHORIZONTAL 1\n0 0\nVERTICAL 1\n0 0\n")  # no GAIN
+    out, fig = tmp_path / "p.csv", tmp_path / "o.xyz"
+    for argv in (
+        ["enrol", str(meas), "-o", str(out), "--plot", str(fig)],
+        ["pattern", "import", str(msi), "-o", str(out), "--format", "msi", "--plot", str(fig)],
+    ):
+        code, _, err = _run(argv, capsys)
+        _assert_one_line_failure(code, err, f"{fig}: --plot writes a PNG")
+        assert "motor_elevation_deg" not in err and "GAIN" not in err
+        assert not out.exists() and not fig.exists()

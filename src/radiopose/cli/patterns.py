@@ -105,6 +105,13 @@ def _check_png_name(path: Path, option: str) -> None:
         raise InputError(f"{option} writes a PNG: give a file name ending in .png", path=path)
 
 
+def _check_plot(plot: Path | None) -> None:
+    """Before the input is read: a ``--plot`` path is not a directory and names a PNG."""
+    if plot is not None:
+        _check_target(plot, "PNG")
+        _check_png_name(plot, "--plot")
+
+
 def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
     """Write the pattern CSV and, if asked, its PNG: both or neither.
 
@@ -122,11 +129,8 @@ def _write_outputs(pattern: Pattern, output: Path, plot: Path | None) -> None:
     has already been replaced.
     """
     _check_target(output, "CSV")
-    if plot is not None:
-        _check_target(plot, "PNG")
-        _check_png_name(plot, "--plot")
-        if plot.resolve() == output.resolve():
-            raise InputError("--plot is the same file as -o", path=plot)
+    if plot is not None and plot.resolve() == output.resolve():  # the rest: _check_plot
+        raise InputError("--plot is the same file as -o", path=plot)
     png = None
     if plot is not None:
         from radiopose.patterns.plot import pattern_png  # matplotlib only when asked
@@ -237,6 +241,7 @@ def enrol_command(
         smooth_deg=smooth_deg, azimuth_step_deg=step_deg, polar_step_deg=polar_step_deg
     )
     check_outputs_not_inputs([output, plot], [measurements])
+    _check_plot(plot)
     pattern = enrol_csv(measurements, config, name=name or output.stem)
     _write_outputs(pattern, output, plot)
     _summary(pattern, output)
@@ -285,6 +290,7 @@ def import_command(
 ) -> None:
     """Import a pattern from an industry file or real measurements into the contract CSV."""
     check_outputs_not_inputs([output, plot], [source])
+    _check_plot(plot)
     pname = name or output.stem
     if fmt is ImportFormat.msi:
         pattern = read_msi(source, mode=msi_mode.value, normalise=normalise, name=pname)
