@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from radiopose.errors import InputError
 from radiopose.patterns import smartphone_like
 from radiopose.patterns.enrol import (
+    FILL_GAP_SLACK_DEG,
     MAX_FILL_GAP_DEG,
     CoverageGapError,
     EnrolConfig,
@@ -189,11 +190,30 @@ def test_azimuths_in_radians_are_named_as_such():
 @given(st.sets(st.integers(0, 359), min_size=1, max_size=12))
 def test_enrolment_fills_gaps_up_to_the_limit_only(azimuths):
     gap, _ = largest_circular_gap(sorted(azimuths))
-    if gap > MAX_FILL_GAP_DEG:
+    if gap > MAX_FILL_GAP_DEG + FILL_GAP_SLACK_DEG:
         with pytest.raises(CoverageGapError, match=f"a {gap:g}° gap"):
             enrol(_slice(sorted(azimuths)))
     else:
         assert enrol(_slice(sorted(azimuths))).azimuth_deg.size == 360
+
+
+def test_a_four_stop_plan_with_encoder_noise_is_filled():
+    """The 90° limit had no tolerance: motor azimuths 0, 90.2, 180, 270 were refused as
+    a 90.2° gap, and 350, 80, 170, 260.5 (the documented four-stop plan, logged by an
+    encoder) as 90.5°. Gaps up to MAX_FILL_GAP_DEG + FILL_GAP_SLACK_DEG are filled."""
+    assert (MAX_FILL_GAP_DEG, FILL_GAP_SLACK_DEG) == (90.0, 1.0)
+    for motor_az in ([0, 90.2, 180, 270], [350, 80, 170, 260.5], [0, 91, 180, 270]):
+        assert enrol(_slice(motor_az)).azimuth_deg.size == 360
+    with pytest.raises(CoverageGapError, match=r"\(a 91.5° gap\)"):
+        enrol(_slice([0, 91.5, 180, 270]))
+    # elevations alike: 8 azimuths at 45° and 135.8° (a 90.8° gap between them)
+    rows = [(a, e) for e in (45.0, 135.8) for a in np.arange(0.0, 360.0, 45.0)]
+    m = Measurements([r[0] for r in rows], [r[1] for r in rows], np.full(len(rows), -50.0))
+    assert enrol(m, EnrolConfig(polar_step_deg=1.0)).polar_deg.size == 181
+    rows = [(a, e) for e in (45.0, 136.5) for a in np.arange(0.0, 360.0, 45.0)]
+    m = Measurements([r[0] for r in rows], [r[1] for r in rows], np.full(len(rows), -50.0))
+    with pytest.raises(CoverageGapError, match=r"motor elevations 45–136.5° \(a 91.5° gap\)"):
+        enrol(m, EnrolConfig(polar_step_deg=1.0))
 
 
 def test_sphere_elevation_gaps_are_refused_and_poles_need_one_azimuth():

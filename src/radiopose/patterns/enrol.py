@@ -88,7 +88,15 @@ of a polar row (circularly; a pole row of a sphere is one direction and exempt),
 and on a full sphere between consecutive measured elevations or from a pole to
 the nearest one. Wider is a :class:`CoverageGapError`. The shipped real patterns
 (MIT LL, 8 azimuths) leave 45°, as do the sparsest enrolments of the tests; 90°
-is four positioner stops, the fewest that describe a front, back and sides."""
+is four positioner stops, the fewest that describe a front, back and sides.
+A gap is refused only beyond :data:`FILL_GAP_SLACK_DEG` more than this."""
+
+FILL_GAP_SLACK_DEG = 1.0
+"""Tolerance on :data:`MAX_FILL_GAP_DEG`, degrees: a gap is refused only when it is
+wider than ``MAX_FILL_GAP_DEG + FILL_GAP_SLACK_DEG`` (91°). Angles read back from
+a positioner's encoder are a little off the plan: the four-stop plan logged as
+motor azimuths 0, 90.2, 180, 270 (a 90.2° gap) or 350, 80, 170, 260.5 (90.5°) is
+still four stops 90° apart and is filled; a missing stop leaves 135° or more."""
 
 RADIAN_HINT_MAX = 6.3
 """Motor azimuths all in ``[0, RADIAN_HINT_MAX]`` (just above 2π) under a
@@ -295,6 +303,11 @@ def largest_circular_gap(azimuth_deg: ArrayLike) -> tuple[float, float]:
     return float(gaps[k]), float(x[k])
 
 
+def _too_wide(gap_deg: float) -> bool:
+    """Whether the fill may not bridge ``gap_deg`` (see :data:`FILL_GAP_SLACK_DEG`)."""
+    return gap_deg > MAX_FILL_GAP_DEG + FILL_GAP_SLACK_DEG
+
+
 def _check_coverage(
     d_phi: FloatArray,
     d_theta: FloatArray,
@@ -303,8 +316,8 @@ def _check_coverage(
     motor_azimuth_deg: FloatArray,
 ) -> None:
     """Raise :class:`CoverageGapError` if the fill would bridge more than
-    :data:`MAX_FILL_GAP_DEG` (the measured directions ``d_phi, d_theta``, degrees,
-    binned to polar rows ``j_po`` of ``po_grid``)."""
+    :data:`MAX_FILL_GAP_DEG` + :data:`FILL_GAP_SLACK_DEG` (the measured directions
+    ``d_phi, d_theta``, degrees, binned to polar rows ``j_po`` of ``po_grid``)."""
     n_po = po_grid.size
     worst: tuple[float, float, float] | None = None  # (gap, start phi, polar angle)
     for j in np.unique(j_po):
@@ -313,7 +326,7 @@ def _check_coverage(
         gap, start = largest_circular_gap(d_phi[j_po == j])
         if worst is None or gap > worst[0]:
             worst = (gap, start, float(po_grid[j]))
-    if worst is not None and worst[0] > MAX_FILL_GAP_DEG:
+    if worst is not None and _too_wide(worst[0]):
         gap, start, theta = worst
         lo = float(wrap_deg(360.0 - (start + gap)))  # the motor turns the other way
         where = f" at elevation {theta:g}°" if n_po > 1 else ""
@@ -333,7 +346,7 @@ def _check_coverage(
         edges = np.concatenate([[0.0], np.unique(d_theta), [180.0]])
         gaps = np.diff(edges)
         k = int(np.argmax(gaps))
-        if gaps[k] > MAX_FILL_GAP_DEG:
+        if _too_wide(float(gaps[k])):
             raise CoverageGapError(
                 f"measurements leave motor elevations {_deg(edges[k])}–{_deg(edges[k + 1])}° "
                 f"(a {_deg(gaps[k])}° gap) unmeasured; at most {MAX_FILL_GAP_DEG:g}° can be "
@@ -537,7 +550,7 @@ def enrol(
         No measurements; :class:`PolarStepError` if no polar step is set and
         two measured elevations are closer than 0.1° (the grid limit);
         :class:`CoverageGapError` if the measurements leave a gap wider than
-        :data:`MAX_FILL_GAP_DEG` for the fill.
+        :data:`MAX_FILL_GAP_DEG` (+ :data:`FILL_GAP_SLACK_DEG`) for the fill.
     """
     cfg = config or EnrolConfig()
     if len(measurements) == 0:
@@ -702,6 +715,7 @@ def _elevations(elevations_deg: ArrayLike) -> FloatArray:
 
 
 __all__ = [
+    "FILL_GAP_SLACK_DEG",
     "MAX_FILL_GAP_DEG",
     "MAX_SIMULATED_PACKETS",
     "MEASUREMENT_COLUMNS",
