@@ -206,24 +206,33 @@ def test_an_unusable_output_is_refused_before_any_run(tmp_path, capsys, monkeypa
         run_experiments([_tiny()], afile, workers=0)
 
 
-def test_cli_evaluate_rerun_with_fewer_experiments_keeps_only_its_figures(tmp_path, capsys):
-    """Running one experiment into the directory of an earlier run of two rewrote
-    results.csv and the report for the one, but left the other's figures in
-    figures/, which the report did not show. They now go, with a note naming them;
-    parts/ and files that are not figures stay."""
-    from radiopose.cli import main
-
+def _two_experiments(tmp_path) -> tuple[str, str]:
+    """Experiments ``a`` and ``b``, one run each, each with one figure."""
     for name in ("a", "b"):
         (tmp_path / f"{name}.toml").write_text(
             _tiny_toml(name, runs=1, methods='"lms"'), encoding="utf-8"
         )
+    return str(tmp_path / "a.toml"), str(tmp_path / "b.toml")
+
+
+def test_cli_evaluate_rerun_with_fewer_experiments_keeps_only_its_figures(tmp_path, capsys):
+    """Running one experiment into the directory of an earlier run of two rewrote
+    results.csv and the report for the one, but left the other's figures in
+    figures/, which the report did not show. The files the earlier run's manifest
+    lists and this run did not write now go, with a note naming them; parts/ and
+    files the earlier run did not write (the user's own PNG too) stay."""
+    from radiopose.cli import main
+
+    a, b = _two_experiments(tmp_path)
     out = tmp_path / "out"
-    a, b = str(tmp_path / "a.toml"), str(tmp_path / "b.toml")
-    assert main(["evaluate", a, b, "--workers", "0", "-q", "-o", str(out)]) == 0
     figures = out / "figures"
+    figures.mkdir(parents=True)
+    (figures / "mine.png").write_text("mine\n")
+    assert main(["evaluate", a, b, "--workers", "0", "-q", "-o", str(out)]) == 0
     assert sorted(p.name for p in figures.iterdir()) == [
         "a-error_position_vs_noise_db.png",
         "b-error_position_vs_noise_db.png",
+        "mine.png",
     ]
     (figures / "notes.txt").write_text("mine\n")
     capsys.readouterr()
@@ -231,16 +240,44 @@ def test_cli_evaluate_rerun_with_fewer_experiments_keeps_only_its_figures(tmp_pa
     err = capsys.readouterr().err
     assert sorted(p.name for p in figures.iterdir()) == [
         "a-error_position_vs_noise_db.png",
+        "mine.png",
         "notes.txt",
     ]
     assert (
-        f"evaluate: removed b-error_position_vs_noise_db.png from {figures}: left by an "
-        f"earlier run, not in this report (its results stay in {out / 'parts'})"
+        f"evaluate: removed {figures / 'b-error_position_vs_noise_db.png'}: the previous "
+        "evaluate run into this directory wrote it and this one did not, so it is not in its "
+        f"report; that run's results stay in {out / 'parts'}/, from which the earlier "
+        "command, run again, resumes them"
     ) in err.splitlines()
     assert sorted(p.name for p in (out / "parts").iterdir()) == ["a.csv", "b.csv"]
     assert "b-error" not in (out / "report.md").read_text(encoding="utf-8")
     assert main(["evaluate", a, "--workers", "0", "-q", "-o", str(out)]) == 0
     assert "removed" not in capsys.readouterr().err
+
+
+def test_cli_evaluate_does_not_follow_a_linked_figures_directory(tmp_path, capsys):
+    """With DIR/figures a symbolic link (to ~/Pictures, say), a run removed every
+    PNG there it had not written, the user's own included. Now the figures are
+    written through the link as before, but nothing below it is removed: neither
+    the user's PNG nor the earlier run's figure its manifest lists."""
+    from radiopose.cli import main
+
+    a, b = _two_experiments(tmp_path)
+    pictures = tmp_path / "Pictures"
+    pictures.mkdir()
+    (pictures / "holiday.png").write_text("mine\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "figures").symlink_to(pictures)
+    assert main(["evaluate", a, b, "--workers", "0", "-q", "-o", str(out)]) == 0
+    assert main(["evaluate", a, "--workers", "0", "-q", "-o", str(out)]) == 0
+    assert "removed" not in capsys.readouterr().err
+    assert sorted(p.name for p in pictures.iterdir()) == [
+        "a-error_position_vs_noise_db.png",
+        "b-error_position_vs_noise_db.png",
+        "holiday.png",
+    ]
+    assert (pictures / "holiday.png").read_text() == "mine\n"
 
 
 def test_issue_15s_anchor_runs_beside_the_methods_and_leaves_the_registry(tmp_path):

@@ -16,7 +16,7 @@ from radiopose.security.experiments import (
     plan_tasks,
     run_experiment,
 )
-from radiopose.security.report import collect, mean_ci95, output_names, summarise
+from radiopose.security.report import collect, mean_ci95, summarise
 from radiopose.simulate import ScenarioConfig
 from radiopose.units import angle_diff_deg
 
@@ -203,35 +203,72 @@ def test_cli_spoof_refuses_an_unusable_output_before_any_run(tmp_path, capsys, m
     ]  # fmt: skip
 
 
-def test_cli_spoof_rerun_with_fewer_experiments_leaves_only_its_own_outputs(tmp_path, capsys):
-    """Running ``spoof 1`` into a directory of an earlier run of every experiment
-    rewrote report.md and summary.csv for experiment 1 but left paths.csv,
-    end_to_end*.csv and their figures beside them, which the report did not cover.
-    The command's own files it did not write now go, with a note naming them;
-    parts/ and files of other names stay."""
-    out = tmp_path / "spoof"
-    args = ["spoof", "1", "--runs", "1", "--targets", "2", "--size-m", "8", "--step-m", "0.5"]
-    args += ["--azimuth-step-deg", "10", "--min-distance-m", "2", "--workers", "0", "-o", str(out)]
-    assert main(args) == 0
-    first = sorted(p.name for p in out.iterdir())
-    # what an earlier run of experiments 3-4 left (the names spoof writes), and files not its own
-    earlier = ["paths.csv", "end_to_end.csv", "end_to_end_summary.csv", "path-failure.png"]
-    earlier += ["end-to-end.png"]
-    for name in [*earlier, "notes.txt", "detection.csv", "parts/e2e-000.json"]:
-        (out / name).write_text("earlier\n")
+TINY_SPOOF = ["--runs", "1", "--targets", "2", "--size-m", "8", "--step-m", "0.5"]
+TINY_SPOOF += ["--azimuth-step-deg", "10", "--min-distance-m", "2", "--workers", "0"]
+
+
+def test_cli_spoof_never_removes_files_it_did_not_write(tmp_path, capsys, monkeypatch):
+    """``spoof 1 -o .`` removed every file of its output names it had not written
+    this time, so a directory that never held a spoof run lost the user's
+    paths.csv, end_to_end.csv, path-failure.png and end-to-end.png. Only files
+    the previous run's manifest lists may go: here none, on either run."""
+    monkeypatch.chdir(tmp_path)
+    mine = ["paths.csv", "end_to_end.csv", "path-failure.png", "end-to-end.png"]
+    for name in mine:
+        (tmp_path / name).write_text("mine\n")
+    for _ in range(2):  # the second run has the first one's manifest
+        assert main(["spoof", "1", *TINY_SPOOF, "-o", "."]) == 0
+        assert "removed" not in capsys.readouterr().err
+        assert [(tmp_path / name).read_text() for name in mine] == ["mine\n"] * 4
+
+
+def test_cli_spoof_rerun_with_fewer_experiments_leaves_only_its_own_outputs(
+    tmp_path, capsys, monkeypatch
+):
+    """Running ``spoof 1`` into the directory of an earlier ``spoof 1 3`` rewrote
+    report.md and summary.csv for experiment 1 but left paths.csv and
+    path-failure.png beside them, which the report did not cover. The files the
+    earlier run's manifest lists and this run did not write go, with a note
+    naming them (read from ``-o .``); parts/ and other files stay."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["spoof", "1", "3", *TINY_SPOOF, "-o", "."]) == 0
+    first = {p.name for p in tmp_path.iterdir()}
+    assert {"paths.csv", "path-failure.png", ".radiopose-spoof-outputs.json"} <= first
+    (tmp_path / "notes.txt").write_text("mine\n")
+    parts = sorted(p.name for p in (tmp_path / "parts").iterdir())
     capsys.readouterr()
-    assert main(args) == 0
+    assert main(["spoof", "1", *TINY_SPOOF, "-o", "."]) == 0
     err = capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == sorted([*first, "notes.txt", "detection.csv"])
-    assert (out / "parts" / "e2e-000.json").read_text() == "earlier\n"
-    note = next(line for line in err.splitlines() if "removed" in line)
-    assert note == (
-        f"spoof: removed {', '.join(sorted(earlier, key=output_names().index))} from {out}: "
-        f"left by an earlier run, not covered by this report ({out / 'parts'} is kept)"
-    )
+    assert {p.name for p in tmp_path.iterdir()} == first - {"paths.csv", "path-failure.png"} | {
+        "notes.txt"
+    }
+    assert sorted(p.name for p in (tmp_path / "parts").iterdir()) == parts
+    assert (
+        "spoof: removed path-failure.png, paths.csv: the previous spoof run into this "
+        "directory wrote them and this one did not, so they are not in its report; that "
+        "run's results stay in parts/, from which the earlier command, run again, resumes them"
+    ) in err.splitlines()
     # nothing stale: no note
-    assert main(args) == 0
+    assert main(["spoof", "1", *TINY_SPOOF, "-o", "."]) == 0
     assert "removed" not in capsys.readouterr().err
+
+
+def test_cli_spoof_does_not_remove_a_listed_file_replaced_by_a_link(tmp_path, capsys):
+    """A file the previous run wrote (so listed in its manifest) that is now a
+    symbolic link is the user's: the link and the file it names stay; the
+    other stale file goes, and the note names only it."""
+    out = tmp_path / "spoof"
+    assert main(["spoof", "1", "3", *TINY_SPOOF, "-o", str(out)]) == 0
+    elsewhere = tmp_path / "mine.png"
+    elsewhere.write_text("mine\n")
+    (out / "path-failure.png").unlink()
+    (out / "path-failure.png").symlink_to(elsewhere)
+    capsys.readouterr()
+    assert main(["spoof", "1", *TINY_SPOOF, "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert (out / "path-failure.png").is_symlink() and elsewhere.read_text() == "mine\n"
+    assert not (out / "paths.csv").exists()
+    assert f"spoof: removed {out / 'paths.csv'}: the previous spoof run" in err
 
 
 def test_cli_spoof_resumes_finished_runs(tmp_path, capsys, monkeypatch):

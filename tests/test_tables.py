@@ -188,3 +188,50 @@ def test_an_output_may_not_overwrite_an_input(tmp_path):
             check_outputs_not_inputs([out], [packets, site])
     # new files, even inside the site directory, and options not given are fine
     check_outputs_not_inputs([tmp_path / "est.csv", site / "new.csv", None], [packets, site])
+
+
+def test_replace_outputs_removes_only_what_its_manifest_lists(tmp_path):
+    """The helper behind ``spoof`` and ``evaluate`` removing an earlier run's outputs:
+    without a manifest nothing goes; with one, only listed files this run did not
+    write, while each is a regular file inside the directory reached through no
+    link. Entries naming anything else (``..``, absolute, ``./x`` for a file this
+    run wrote, a linked subdirectory) are ignored."""
+    import json
+
+    from radiopose.tables import outputs_manifest, replace_outputs
+
+    out = tmp_path / "out"
+    (out / "figures").mkdir(parents=True)
+    for name in ("a.csv", "b.csv", "figures/a.png", "figures/b.png", "mine.csv"):
+        (out / name).write_text("x\n")
+    (tmp_path / "outside.csv").write_text("mine\n")
+    # no manifest: nothing removed; the manifest lists what was written
+    assert replace_outputs(out, "test", [out / "a.csv"]) == []
+    manifest = out / outputs_manifest("test")
+    assert json.loads(manifest.read_text())["files"] == ["a.csv"]
+    assert all((out / n).exists() for n in ("b.csv", "figures/b.png", "mine.csv"))
+    replace_outputs(out, "test", [out / n for n in ("a.csv", "b.csv", "figures/a.png")])
+    removed = replace_outputs(out, "test", [out / "a.csv", out / "figures/b.png"])
+    assert removed == [out / "b.csv", out / "figures/a.png"]
+    assert sorted(p.name for p in out.rglob("*") if p.is_file()) == [
+        manifest.name, "a.csv", "b.png", "mine.csv"
+    ]  # fmt: skip
+    # entries that are not the run's files: nothing followed or removed
+    pictures = tmp_path / "pictures"
+    pictures.mkdir()
+    (pictures / "b.png").write_text("mine\n")
+    (out / "figures" / "b.png").unlink()
+    (out / "figures").rmdir()
+    (out / "figures").symlink_to(pictures)
+    (out / "link.csv").symlink_to(tmp_path / "outside.csv")
+    entries = ["../outside.csv", str(tmp_path / "outside.csv"), "./a.csv", "a//a.csv", "."]
+    entries += ["figures/b.png", "link.csv", "missing.csv", manifest.name]
+    manifest.write_text(json.dumps({"files": entries}))
+    assert replace_outputs(out, "test", [out / "a.csv"]) == []
+    assert (tmp_path / "outside.csv").read_text() == "mine\n" and (out / "link.csv").is_symlink()
+    assert (pictures / "b.png").read_text() == "mine\n" and (out / "a.csv").exists()
+    # a manifest that is not one: nothing removed, rewritten
+    manifest.write_text("not json")
+    assert replace_outputs(out, "test", [out / "a.csv"]) == []
+    with pytest.raises(ValueError):  # a written file must be inside the directory
+        replace_outputs(out, "test", [tmp_path / "outside.csv"])

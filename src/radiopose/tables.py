@@ -16,14 +16,16 @@ import contextlib
 import csv
 import errno
 import io
+import json
 import math
 import os
 import re
 import shutil
+import stat
 import tempfile
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import IO, Any, Literal
 
 import numpy as np
@@ -316,6 +318,112 @@ def check_output_paths(
                             errno.ENOTDIR, "cannot create: a parent is not a directory", str(p)
                         )
                     break
+
+
+def outputs_manifest(command: str) -> str:
+    """The name of the file in which ``radiopose <command>`` lists, in its output
+    directory, the files it wrote there (see :func:`replace_outputs`)."""
+    return f".radiopose-{command}-outputs.json"
+
+
+def _listed_outputs(manifest: Path) -> list[str]:
+    """The relative paths a manifest lists; none if it is missing, not a regular file
+    or not a manifest (a directory from before manifests, or the user's own)."""
+    try:
+        if not stat.S_ISREG(os.lstat(manifest).st_mode):
+            return []
+        doc = json.loads(manifest.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return []
+    files = doc.get("files") if isinstance(doc, dict) else None
+    if not isinstance(files, list) or not all(isinstance(f, str) for f in files):
+        return []
+    return files
+
+
+def _owned_file(root: Path, real_root: Path, rel: str) -> Path | None:
+    """``root / rel`` if it is a regular file inside ``root`` reached through no
+    symbolic link below ``root`` (``rel`` relative, canonical, without ``..``); else None."""
+    pure = PurePosixPath(rel)
+    if pure.as_posix() != rel or pure.is_absolute() or ".." in pure.parts or "\\" in rel:
+        return None  # not as written ("./x", "a//b"), outside, or not a POSIX path
+    path = root
+    for part in pure.parts[:-1]:
+        path = path / part
+        if path.is_symlink() or not path.is_dir():
+            return None
+    path = path / pure.name
+    try:
+        if not stat.S_ISREG(os.lstat(path).st_mode):
+            return None
+        inside = path.resolve().relative_to(real_root) == Path(*pure.parts)
+    except (OSError, ValueError):
+        return None
+    return path if inside else None
+
+
+def replace_outputs(
+    directory: str | os.PathLike[str], command: str, written: Sequence[str | os.PathLike[str]]
+) -> list[Path]:
+    """Record the files a run of ``radiopose <command>`` wrote into ``directory`` and
+    remove those of its previous run there that this run did not write.
+
+    Call it after the run's outputs are written. The previous run's list is read
+    from ``directory``'s manifest (:func:`outputs_manifest`). A file it lists and
+    ``written`` does not is removed only if it is a regular file (not a symbolic
+    link) inside ``directory``, reached through no symbolic link below
+    ``directory``; anything else is left alone. No manifest (a directory from
+    before manifests, or one the command never wrote) means nothing is removed,
+    so files the command did not write are never touched. The manifest is then
+    rewritten (atomically) listing ``written`` (relative to ``directory``, each
+    inside it), plus any stale file that could not be removed, to retry next
+    time. Returns the removed files as ``directory / relative``, in order.
+    """
+    root = Path(directory)
+    real_root = root.resolve()
+    manifest = root / outputs_manifest(command)
+    wrote: set[str] = set()
+    for p in map(Path, written):
+        try:
+            inside = p.relative_to(root)
+        except ValueError:
+            inside = p.resolve().relative_to(real_root)  # ValueError: not inside directory
+        wrote.add(inside.as_posix())
+    removed: list[Path] = []
+    kept: list[str] = []
+    for rel in _listed_outputs(manifest):
+        if rel in wrote or rel == manifest.name:
+            continue
+        path = _owned_file(root, real_root, rel)
+        if path is None:
+            continue  # no longer the run's file: replaced by a link, moved, or gone
+        try:
+            path.unlink()
+        except OSError:
+            kept.append(rel)
+            continue
+        removed.append(path)
+    doc = {
+        "about": f"the files the last radiopose {command} run wrote into this directory; "
+        "the next one removes those it does not write again",
+        "files": sorted(wrote | set(kept)),
+    }
+    with atomic_writer(manifest) as fh:
+        fh.write(json.dumps(doc, indent=1) + "\n")
+    return removed
+
+
+def removed_outputs_note(
+    command: str, directory: str | os.PathLike[str], removed: Sequence[Path]
+) -> str:
+    """The stderr line naming the files :func:`replace_outputs` removed, and why."""
+    them, are = ("it", "it is") if len(removed) == 1 else ("them", "they are")
+    return (
+        f"{command}: removed {', '.join(map(str, removed))}: the previous {command} run into "
+        f"this directory wrote {them} and this one did not, so {are} not in its report; "
+        f"that run's results stay in {Path(directory) / 'parts'}/, from which the "
+        "earlier command, run again, resumes them"
+    )
 
 
 def check_outputs_not_inputs(

@@ -115,15 +115,20 @@ def evaluate(
         RunInfo,
         read_invocations,
         record_invocation,
-        remove_stale_figures,
         write_report,
     )
     from radiopose.evaluate.runner import plan, run_experiments, write_results
-    from radiopose.tables import check_output_paths
+    from radiopose.tables import (
+        check_output_paths,
+        outputs_manifest,
+        removed_outputs_note,
+        replace_outputs,
+    )
 
     # Before any run (run_experiments checks parts/): nothing is created here.
     check_output_paths(dirs=[out, out / "figures"])
-    outputs = ("results.csv", "results.parquet", "report.md", "report.html", "invocations.jsonl")
+    outputs = ["results.csv", "results.parquet", "report.md", "report.html", "invocations.jsonl"]
+    outputs.append(outputs_manifest("evaluate"))
     check_output_paths(files=[out / name for name in outputs])
     command = _command(list(experiments or []), out, runs, quick, scheduler, workers)
     show_bar = not quiet and sys.stderr.isatty()
@@ -162,7 +167,9 @@ def evaluate(
         full = plan([load_experiment(n) for n in names])
     report = write_report(result.results, exps, out, info, full_tasks=full)
     paths += report[:2]
-    stale = remove_stale_figures(out, report[2:])
+    # What the previous run into out wrote and this one did not (other experiments'
+    # figures) goes: only files its manifest lists; parts/ keeps every experiment's rows.
+    stale = replace_outputs(out, "evaluate", [*paths, *report[2:]])
     print(
         f"{result.n_tasks} runs ({result.n_resumed} resumed) in {result.elapsed_s:.0f} s on "
         f"{result.workers or 'no'} worker{'s' if result.workers != 1 else ''} "
@@ -172,8 +179,4 @@ def evaluate(
     for p in paths:
         print(f"wrote {p}", file=sys.stderr)
     if stale:
-        print(
-            f"evaluate: removed {', '.join(stale)} from {out / 'figures'}: left by an earlier "
-            f"run, not in this report (its results stay in {out / 'parts'})",
-            file=sys.stderr,
-        )
+        print(removed_outputs_note("evaluate", out, stale), file=sys.stderr)

@@ -97,6 +97,7 @@ def spoof(
     )
     from radiopose.security.runner import RunStore, default_workers, map_runs
     from radiopose.simulate import ScenarioConfig
+    from radiopose.tables import removed_outputs_note, replace_outputs
 
     exps = parse_experiments(tuple(experiments or ()))
     n_runs = runs if runs is not None else (3 if quick else 20)
@@ -188,13 +189,10 @@ def spoof(
         summary, tables, config, exps, n_runs, command, [f.name for f in figures], wall, where
     )
     report = write_report(out / "report.md", text)
-    # Files of this command's names that this run did not write are an earlier run's
-    # (other experiments, or a table this run left empty): gone, so that the directory
-    # is this report's. Other files, and parts/ (the earlier runs stay resumable), stay.
-    kept = {p.name for p in (*written, *figures, report)}
-    stale = [name for name in output_names() if name not in kept and (out / name).is_file()]
-    for name in stale:
-        (out / name).unlink()
+    # What the previous run into out wrote and this one did not (other experiments, a
+    # table left empty) goes, so that the directory is this report's: only files its
+    # manifest lists, never the user's; parts/ stays (the earlier runs stay resumable).
+    stale = replace_outputs(out, "spoof", [*written, *figures, report])
     for r in summary:
         ci = f" ± {r['ci95']:.3f}" if r["ci95"] == r["ci95"] else ""
         print(f"{r['experiment']:<8} {r['metric']:<44} {r['value']:.3f}{ci}")
@@ -203,11 +201,7 @@ def spoof(
         file=sys.stderr,
     )
     if stale:
-        print(
-            f"spoof: removed {', '.join(stale)} from {out}: left by an earlier run, not "
-            f"covered by this report ({out / 'parts'} is kept)",
-            file=sys.stderr,
-        )
+        print(removed_outputs_note("spoof", out, stale), file=sys.stderr)
 
 
 def _check_out(out: Path, files: list[str], subdirs: tuple[str, ...] = ()) -> None:

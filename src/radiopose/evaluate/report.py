@@ -714,18 +714,3 @@ def write_report(
     page = out / "report.html"
     page.write_text(render_html(blocks, out, title), encoding="utf-8")
     return [md, page, *written]
-
-
-def remove_stale_figures(out_dir: str | Path, keep: Sequence[Path]) -> list[str]:
-    """Remove the ``out_dir/figures/*.png`` not in ``keep`` (the report's figures); return
-    their names.
-
-    They are an earlier report's, of experiments or figures this one does not have;
-    left beside it, the directory would mix two runs. Results stay in ``parts/``.
-    """
-    folder = Path(out_dir) / "figures"
-    kept = {Path(p).resolve() for p in keep}
-    stale = sorted(p for p in folder.glob("*.png") if p.is_file() and p.resolve() not in kept)
-    for p in stale:
-        p.unlink()
-    return [p.name for p in stale]

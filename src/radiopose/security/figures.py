@@ -164,32 +164,50 @@ def plot_end_to_end(
     return ax
 
 
+def _figures(
+    tables: dict[str, list[Row]], summary: list[Row]
+) -> dict[str, Callable[[Axes], object] | None]:
+    """Every figure by name (``<name>.png``), in order: how to draw it, or None when the
+    tables hold nothing for it. :data:`FIGURES` is its keys."""
+    sites = tables.get("sites", [])
+    examples = tables.get("example_matches", [])
+    figures: dict[str, Callable[[Axes], object] | None] = {
+        "match-probability": (lambda ax: plot_match_probability(summary, ax))
+        if any(r["metric"] == "p_at_least_one_match" for r in summary)
+        else None
+    }
+    for exp in ("match", "pattern"):
+        figures[f"{exp}-example"] = (
+            functools.partial(plot_match_example, examples, sites, exp)
+            if any(r["experiment"] == exp for r in examples)
+            else None
+        )
+    figures["path-failure"] = (
+        (lambda ax: plot_path_failure(tables["paths"], ax)) if tables.get("paths") else None
+    )
+    figures["end-to-end"] = (
+        (lambda ax: plot_end_to_end(tables["end_to_end"], sites, None, ax))
+        if tables.get("end_to_end")
+        else None
+    )
+    return figures
+
+
+FIGURES = tuple(_figures({}, []))
+"""The figures :func:`make_figures` can draw (``<name>.png``): the names ``radiopose spoof``
+checks before its runs (:func:`radiopose.security.report.output_names`)."""
+
+
 def make_figures(
     tables: dict[str, list[Row]], summary: list[Row], directory: str | os.PathLike[str]
 ) -> list[Path]:
     """Draw and save (PNG, 120 dpi) every figure the tables allow; return the paths."""
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)
-    sites = tables.get("sites", [])
-    jobs: list[tuple[str, Callable[[Axes], object]]] = []
-    if any(r["metric"] == "p_at_least_one_match" for r in summary):
-        jobs.append(("match-probability", lambda ax: plot_match_probability(summary, ax)))
-    for exp in ("match", "pattern"):
-        if any(r["experiment"] == exp for r in tables.get("example_matches", [])):
-            jobs.append(
-                (
-                    f"{exp}-example",
-                    functools.partial(plot_match_example, tables["example_matches"], sites, exp),
-                )
-            )
-    if tables.get("paths"):
-        jobs.append(("path-failure", lambda ax: plot_path_failure(tables["paths"], ax)))
-    if tables.get("end_to_end"):
-        jobs.append(
-            ("end-to-end", lambda ax: plot_end_to_end(tables["end_to_end"], sites, None, ax))
-        )
     out = []
-    for name, draw in jobs:
+    for name, draw in _figures(tables, summary).items():
+        if draw is None:
+            continue
         fig, ax = plt.subplots(figsize=(6.0, 5.0))
         draw(ax)
         fig.tight_layout()

@@ -19,7 +19,7 @@ import numpy as np
 from scipy import stats
 
 from radiopose.security.experiments import EXPERIMENTS, Row, RunOutput, SpoofConfig
-from radiopose.tables import atomic_writer, write_table
+from radiopose.tables import atomic_writer, outputs_manifest, write_table
 
 PAPER: dict[str, dict[str, Any]] = {
     "match": {"value": 0.522, "ci95": 0.040, "text": "0.522 ± 0.040"},
@@ -38,17 +38,19 @@ TABLE_ORDER = (
     "sites",
     "timings",
 )
-FIGURES = ("match-probability", "match-example", "pattern-example", "path-failure", "end-to-end")
-"""The figures :func:`radiopose.security.figures.make_figures` can draw (``<name>.png``)."""
 
 
 def output_names() -> list[str]:
-    """Every file name ``radiopose spoof`` (the experiments) may write into its directory."""
+    """Every file name ``radiopose spoof`` (the experiments) may write into its directory,
+    its manifest (:func:`radiopose.tables.replace_outputs`) last."""
+    from radiopose.security.figures import FIGURES  # imports this module: not at the top
+
     return [
         "report.md",
         "summary.csv",
         *(f"{name}.csv" for name in TABLE_ORDER),
         *(f"{name}.png" for name in FIGURES),
+        outputs_manifest("spoof"),
     ]
 
 
