@@ -178,6 +178,19 @@ def test_a_quarter_circle_is_refused_not_filled_to_a_full_pattern(tmp_path):
     assert "radians" not in str(err.value)
 
 
+def test_a_gap_through_zero_names_its_ends_in_range():
+    """Motor azimuths 100–200° were reported as 'motor azimuths 200–460° (a 260° gap)'."""
+    with pytest.raises(CoverageGapError) as err:
+        enrol(_slice(np.arange(100.0, 200.5, 0.5)))
+    assert "leave motor azimuths 200–100° through 0° (a 260° gap) unmeasured" in str(err.value)
+    with pytest.raises(CoverageGapError) as err:  # ends at 360 exactly: no wrap
+        enrol(_slice(np.arange(0.0, 90.5, 0.5)))
+    assert "leave motor azimuths 90–360° (a 270° gap)" in str(err.value)
+    with pytest.raises(CoverageGapError) as err:  # one azimuth: 90–450° before
+        enrol(_slice([90.0, 90.0]))
+    assert "leave every motor azimuth but 90° (a 360° gap) unmeasured" in str(err.value)
+
+
 def test_azimuths_in_radians_are_named_as_such():
     with pytest.raises(CoverageGapError, match=r"radians\? motor_azimuth_deg is in degrees"):
         enrol(_slice(np.linspace(0.0, 2 * np.pi, 100)))

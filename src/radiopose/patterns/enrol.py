@@ -336,8 +336,14 @@ def _check_coverage(
                 f"; every motor azimuth lies in [0, {RADIAN_HINT_MAX:g}]: radians? "
                 "motor_azimuth_deg is in degrees"
             )
+        if gap >= 360.0:  # one azimuth
+            span = f"every motor azimuth but {_deg(lo)}°"
+        elif lo + gap > 360.0:
+            span = f"motor azimuths {_deg(lo)}–{_deg(lo + gap - 360.0)}° through 0°"
+        else:
+            span = f"motor azimuths {_deg(lo)}–{_deg(lo + gap)}°"
         raise CoverageGapError(
-            f"measurements leave motor azimuths {_deg(lo)}–{_deg(lo + gap)}°{where} "
+            f"measurements leave {span}{where} "
             f"(a {_deg(gap)}° gap) unmeasured; at most {MAX_FILL_GAP_DEG:g}° can be "
             f"filled{hint}",
             column="motor_azimuth_deg",
