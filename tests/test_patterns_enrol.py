@@ -229,6 +229,37 @@ def test_a_four_stop_plan_with_encoder_noise_is_filled():
         enrol(m, EnrolConfig(polar_step_deg=1.0))
 
 
+def test_a_cut_through_the_poles_is_refused_with_what_to_measure():
+    """A sphere measured as one great circle through the poles (motor azimuths 0 and
+    180° at every elevation) is refused: every ring would be half invented. The error
+    said only 'a 180° gap at elevation 5°'; it now names the cut and what to add, and
+    the orthogonal cut (90 and 270°) makes four azimuths per ring, which is filled."""
+
+    def cuts(*azimuths):
+        rows = [(a, e) for e in np.arange(0.0, 181.0, 5.0) for a in azimuths]
+        return Measurements([r[0] for r in rows], [r[1] for r in rows], np.full(len(rows), -50.0))
+
+    with pytest.raises(CoverageGapError) as err:
+        enrol(cuts(0.0, 180.0))
+    assert str(err.value) == (
+        "column 'motor_azimuth_deg': measurements leave motor azimuths 180–360° at "
+        "elevation 5° (a 180° gap) unmeasured; at most 90° can be filled; every elevation "
+        "off the poles has at most 2 motor azimuths (a cut through the poles: the fill "
+        "would invent half of every ring): measure at least 4, at most 90° apart "
+        "(e.g. add the orthogonal cut)"
+    )
+    with pytest.raises(CoverageGapError, match="a cut through the poles"):
+        enrol(cuts(0.0))  # half a cut
+    sphere = enrol(cuts(0.0, 90.0, 180.0, 270.0))
+    assert sphere.polar_deg.size == 37
+    with pytest.raises(CoverageGapError) as err:  # rings of 3 azimuths: a plain gap
+        enrol(cuts(0.0, 90.0, 180.0))
+    assert "a 180° gap" in str(err.value) and "cut through the poles" not in str(err.value)
+    with pytest.raises(CoverageGapError) as err:  # a slice of 2 azimuths is no cut
+        enrol(_slice([0.0, 180.0]))
+    assert "cut through the poles" not in str(err.value)
+
+
 def test_sphere_elevation_gaps_are_refused_and_poles_need_one_azimuth():
     az = np.arange(0.0, 360.0, 45.0)
     rows = [(a, e) for e in (100.0, 120.0, 150.0) for a in az]

@@ -320,10 +320,13 @@ def _check_coverage(
     ``d_phi, d_theta``, degrees, binned to polar rows ``j_po`` of ``po_grid``)."""
     n_po = po_grid.size
     worst: tuple[float, float, float] | None = None  # (gap, start phi, polar angle)
+    most_azimuths = 0  # distinct azimuths of the fullest ring (off the poles)
     for j in np.unique(j_po):
         if n_po > 1 and j in (0, n_po - 1):  # a pole row is one direction
             continue
-        gap, start = largest_circular_gap(d_phi[j_po == j])
+        ring = d_phi[j_po == j]
+        most_azimuths = max(most_azimuths, np.unique(ring).size)
+        gap, start = largest_circular_gap(ring)
         if worst is None or gap > worst[0]:
             worst = (gap, start, float(po_grid[j]))
     if worst is not None and _too_wide(worst[0]):
@@ -331,8 +334,14 @@ def _check_coverage(
         lo = float(wrap_deg(360.0 - (start + gap)))  # the motor turns the other way
         where = f" at elevation {theta:g}°" if n_po > 1 else ""
         hint = ""
-        if float(np.max(motor_azimuth_deg)) <= RADIAN_HINT_MAX:
+        if n_po > 1 and most_azimuths <= 2:  # principal-plane cuts, not a sphere
             hint = (
+                "; every elevation off the poles has at most 2 motor azimuths (a cut "
+                "through the poles: the fill would invent half of every ring): measure at "
+                f"least 4, at most {MAX_FILL_GAP_DEG:g}° apart (e.g. add the orthogonal cut)"
+            )
+        if float(np.max(motor_azimuth_deg)) <= RADIAN_HINT_MAX:
+            hint += (
                 f"; every motor azimuth lies in [0, {RADIAN_HINT_MAX:g}]: radians? "
                 "motor_azimuth_deg is in degrees"
             )
