@@ -916,6 +916,20 @@ def test_mitll_captures_of_one_or_two_angles_are_rejected(tmp_path):
     assert read_mitll(d).azimuth_deg.size == 360  # gaps of at most 90°: filled
 
 
+def test_mitll_angles_in_radians_hint_names_the_angle_column(tmp_path):
+    """The radians hint said 'motor_azimuth_deg is in degrees' under column 'Angle':
+    it names the column of the file being read."""
+    d = tmp_path / "rad"
+    d.mkdir()
+    for k, angle in enumerate((0.0, 1.57, 3.14, 4.71)):
+        _mitll_file(d / f"c{k}.csv", angle, {37: -60.0 - k})
+    with pytest.raises(InputError) as err:
+        read_mitll(d)
+    assert (err.value.path, err.value.column) == (str(d), "Angle")
+    assert str(err.value).endswith("radians? Angle is in degrees")
+    assert "motor_azimuth_deg" not in str(err.value)
+
+
 # ---------------------------------------------------------------- large BASTA files
 def _compact_basta(theta_step: float, phi_step: float) -> str:
     """A BASTA JSON as compact as such files get: no spaces, one decimal."""

@@ -290,7 +290,37 @@ class PolarStepError(InputError):
 class CoverageGapError(InputError):
     """The measurements leave a gap wider than :data:`MAX_FILL_GAP_DEG` for the
     fill (raised by :func:`enrol`; :func:`enrol_csv` names the file). ``column``
-    is ``motor_azimuth_deg`` or ``motor_elevation_deg``."""
+    is ``motor_azimuth_deg`` or ``motor_elevation_deg``.
+
+    ``radians``: every motor azimuth lies in ``[0, RADIAN_HINT_MAX]``; the message
+    then ends with a hint naming ``column`` as in degrees. :meth:`at` reports the
+    error at a file and, for an importer, its own column (MIT LL: ``Angle``), so
+    the hint names the column of the file being read.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        *,
+        column: str,
+        path: str | os.PathLike[str] | None = None,
+        radians: bool = False,
+    ) -> None:
+        self.gap_reason = message
+        self.radians = radians
+        hint = (
+            f"; every motor azimuth lies in [0, {RADIAN_HINT_MAX:g}]: radians? "
+            f"{column} is in degrees"
+            if radians
+            else ""
+        )
+        super().__init__(message + hint, path=path, column=column)
+
+    def at(self, path: str | os.PathLike[str], column: str | None = None) -> CoverageGapError:
+        """This error reported at ``path`` and ``column`` (default: its own column)."""
+        return CoverageGapError(
+            self.gap_reason, column=column or self.column or "", path=path, radians=self.radians
+        )
 
 
 def largest_circular_gap(azimuth_deg: ArrayLike) -> tuple[float, float]:
@@ -340,11 +370,6 @@ def _check_coverage(
                 "through the poles: the fill would invent half of every ring): measure at "
                 f"least 4, at most {MAX_FILL_GAP_DEG:g}° apart (e.g. add the orthogonal cut)"
             )
-        if float(np.max(motor_azimuth_deg)) <= RADIAN_HINT_MAX:
-            hint += (
-                f"; every motor azimuth lies in [0, {RADIAN_HINT_MAX:g}]: radians? "
-                "motor_azimuth_deg is in degrees"
-            )
         if gap >= 360.0:  # one azimuth
             span = f"every motor azimuth but {_deg(lo)}°"
         elif lo + gap > 360.0:
@@ -356,6 +381,7 @@ def _check_coverage(
             f"(a {_deg(gap)}° gap) unmeasured; at most {MAX_FILL_GAP_DEG:g}° can be "
             f"filled{hint}",
             column="motor_azimuth_deg",
+            radians=float(np.max(motor_azimuth_deg)) <= RADIAN_HINT_MAX,
         )
     if n_po > 1:
         edges = np.concatenate([[0.0], np.unique(d_theta), [180.0]])
@@ -644,7 +670,7 @@ def enrol_csv(
             raise
         raise table.error(int(rows[0]), "motor_elevation_deg", exc.reason) from None
     except CoverageGapError as exc:
-        raise CoverageGapError(exc.reason, path=path, column=exc.column) from None
+        raise exc.at(path) from None
 
 
 def simulate_positioner_measurements(

@@ -256,4 +256,4 @@ def read_mitll(
     try:
         return enrol(measurements, config, name=name)
     except CoverageGapError as exc:  # the capture Angles are the motor azimuths
-        raise CoverageGapError(exc.reason, path=first, column="Angle") from None
+        raise exc.at(first, "Angle") from None
