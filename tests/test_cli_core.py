@@ -119,6 +119,27 @@ def test_simulate_errors_one_line(tmp_path, capsys, args, needle):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize(
+    ("receivers", "reason"),
+    [
+        ("2", "every method skips a packet heard by fewer than 3 receivers)"),
+        ("17", "a scenario has at most 16)"),
+    ],
+)
+def test_simulate_receivers_range_gives_the_reason_of_the_bound_crossed(
+    tmp_path, capsys, receivers, reason
+):
+    """`--receivers 17` was refused because 'every method skips a packet heard by fewer
+    than 3 receivers': that reason is the floor's; the ceiling is the scenario's maximum."""
+    code, _, err = run(["simulate", "-o", str(tmp_path / "x"), "--receivers", receivers], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert err.rstrip().endswith(
+        f"--receivers {receivers} is out of range (allowed: 3 to 16; {reason}"
+    )
+    other = "fewer than" if receivers == "17" else "at most 16"
+    assert other not in err
+
+
 def test_simulate_receivers_floor_is_the_trackers():
     """`radiopose simulate --receivers 2` wrote a scenario on which every method
     gave 0 % coverage: each skips a packet heard by fewer than

@@ -191,10 +191,14 @@ def simulate(
         rate_change: dict[str, Any] = {rate: tuple(rotation_rate_dps)}
         motion = replace(motion, **rate_change)
     if not MIN_RECEIVERS <= receivers <= MAX_RECEIVERS:
+        why = (
+            f"every method skips a packet heard by fewer than {MIN_RECEIVERS} receivers"
+            if receivers < MIN_RECEIVERS
+            else f"a scenario has at most {MAX_RECEIVERS}"
+        )
         raise InputError(
             f"--receivers {receivers} is out of range (allowed: {MIN_RECEIVERS} to "
-            f"{MAX_RECEIVERS}; every method skips a packet heard by fewer than "
-            f"{MIN_RECEIVERS} receivers)"
+            f"{MAX_RECEIVERS}; {why})"
         )
     try:
         cfg = ScenarioConfig(
