@@ -320,6 +320,19 @@ def check_output_paths(
                     break
 
 
+def check_output_dir(
+    out: str | os.PathLike[str], files: Sequence[str] = (), subdirs: Sequence[str] = ()
+) -> None:
+    """Refuse, before any work, an output directory that could not be written: ``out``
+    or one of its ``subdirs`` an existing file, a parent of it a file, or one of the
+    ``files`` (names in ``out``) an existing directory. The directories are checked
+    first, so the error names the path given. Nothing is created
+    (:func:`check_output_paths`)."""
+    root = Path(out)
+    check_output_paths(dirs=[root, *(root / d for d in subdirs)])
+    check_output_paths(files=[root / name for name in files])
+
+
 def outputs_manifest(command: str) -> str:
     """The name of the file in which ``radiopose <command>`` lists, in its output
     directory, the files it wrote there (see :func:`replace_outputs`)."""

@@ -119,17 +119,15 @@ def evaluate(
     )
     from radiopose.evaluate.runner import plan, run_experiments, write_results
     from radiopose.tables import (
-        check_output_paths,
+        check_output_dir,
         outputs_manifest,
         removed_outputs_note,
         replace_outputs,
     )
 
     # Before any run (run_experiments checks parts/): nothing is created here.
-    check_output_paths(dirs=[out, out / "figures"])
     outputs = ["results.csv", "results.parquet", "report.md", "report.html", "invocations.jsonl"]
-    outputs.append(outputs_manifest("evaluate"))
-    check_output_paths(files=[out / name for name in outputs])
+    check_output_dir(out, [*outputs, outputs_manifest("evaluate")], subdirs=["figures"])
     command = _command(list(experiments or []), out, runs, quick, scheduler, workers)
     show_bar = not quiet and sys.stderr.isatty()
     if show_bar:

@@ -97,7 +97,7 @@ def spoof(
     )
     from radiopose.security.runner import RunStore, default_workers, map_runs
     from radiopose.simulate import ScenarioConfig
-    from radiopose.tables import removed_outputs_note, replace_outputs
+    from radiopose.tables import check_output_dir, removed_outputs_note, replace_outputs
 
     exps = parse_experiments(tuple(experiments or ()))
     n_runs = runs if runs is not None else (3 if quick else 20)
@@ -127,7 +127,7 @@ def spoof(
         if targets < 1:
             raise InputError(f"--targets must be at least 1, got {targets}")
         config = replace(config, n_targets=targets)
-    _check_out(out, output_names(), subdirs=("parts",))  # before the runs, not after
+    check_output_dir(out, output_names(), subdirs=("parts",))  # before the runs, not after
     tasks = plan_tasks(exps, n_runs)
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
@@ -204,17 +204,6 @@ def spoof(
         print(removed_outputs_note("spoof", out, stale), file=sys.stderr)
 
 
-def _check_out(out: Path, files: list[str], subdirs: tuple[str, ...] = ()) -> None:
-    """Refuse, before any run, an output directory that could not be written: ``out``
-    (or one of its ``subdirs``) an existing file, a parent of it a file, or one of the
-    ``files`` it receives an existing directory. The error names the path (the CLI
-    prints it as one line, exit 2); nothing is created."""
-    from radiopose.tables import check_output_paths
-
-    check_output_paths(dirs=[out, *(out / d for d in subdirs)])
-    check_output_paths(files=[out / name for name in files])
-
-
 def _spoof_detect(
     out: Path, quick: bool, runs: int | None, seed: int, workers: int | None, quiet: bool
 ) -> None:
@@ -234,13 +223,14 @@ def _spoof_detect(
     )
     from radiopose.security.detection import DetectorConfig
     from radiopose.security.runner import default_workers
+    from radiopose.tables import check_output_dir
 
     plan = DetectPlan.quick(20_000 + seed) if quick else DetectPlan(seed=20_000 + seed)
     if runs is not None:
         if runs < 1:
             raise InputError(f"--runs must be at least 1, got {runs}")
         plan = replace(plan, attack_runs=runs)
-    _check_out(out, ["detection.csv", "roc.csv"])  # before the runs, not after
+    check_output_dir(out, ["detection.csv", "roc.csv"])  # before the runs, not after
     n_workers = default_workers() if workers is None else workers
     t0 = time.perf_counter()
     n_tasks = len(plan.sigmas_db) * (len(plan.attacks) * plan.attack_runs + plan.genuine_chunks)

@@ -49,7 +49,7 @@ from radiopose.parallel import WORKER_ENV as WORKER_ENV  # re-exported: the old 
 from radiopose.parallel import connect_scheduler as connect_scheduler  # re-exported
 from radiopose.parallel import default_workers, run_on_dask
 from radiopose.simulate import ScenarioConfig
-from radiopose.tables import check_output_paths
+from radiopose.tables import check_output_dir
 from radiopose.tracker import METHODS, TrackerConfig
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -482,8 +482,7 @@ def run_experiments(
     out = Path(out_dir)
     # A file where a directory goes fails now, not when the first run ends; nothing is
     # created (a command that fails before any run ends leaves nothing behind).
-    check_output_paths(dirs=[out, out / "parts"])
-    check_output_paths(files=[out / "parts" / f"{name}.csv" for name in names])
+    check_output_dir(out, [f"parts/{name}.csv" for name in names], subdirs=["parts"])
     tasks = plan(experiments)
     parts = {e.name: PartFile(out / "parts" / f"{e.name}.csv", columns_for(e)) for e in experiments}
     done: set[str] = set()
