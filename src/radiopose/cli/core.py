@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -49,6 +51,18 @@ def _named_options(exc: InputError) -> InputError:
         for setting in ("3-D scenario setting", "scenario setting"):  # the longer first
             reason = reason.replace(f"{setting} {field_name} =", flag)
     return InputError(reason, path=exc.path, line=exc.line, column=exc.column)
+
+
+@contextlib.contextmanager
+def _options_named() -> Iterator[None]:
+    """A scenario range error raised inside the block names the option
+    (:func:`_named_options`), for ``simulate`` and the demos."""
+    from radiopose.errors import InputError
+
+    try:
+        yield
+    except InputError as exc:
+        raise _named_options(exc) from None
 
 
 _REAL_DEMO_IGNORES = {
@@ -200,7 +214,7 @@ def simulate(
             f"--receivers {receivers} is out of range (allowed: {MIN_RECEIVERS} to "
             f"{MAX_RECEIVERS}; {why})"
         )
-    try:
+    with _options_named():  # name the option, not the scenario's field
         cfg = ScenarioConfig(
             size_m=size_m,
             step_m=step_m,
@@ -219,8 +233,6 @@ def simulate(
             from radiopose.simulate.handheld import HandheldConfig
 
             HandheldConfig.from_scenario(cfg).validate()
-    except InputError as exc:  # name the option, not the scenario's field
-        raise _named_options(exc) from None
     capture_cfg = None
     if not pcap:
         values = (clock_offset_ms, clock_drift_ppm, jitter_us, duplicates)
@@ -370,19 +382,19 @@ def demo(
         from radiopose.cli import packet_progress
         from radiopose.demo3d import DEMO3D_DURATION_S, DEMO3D_INTERVAL_MS, run_demo3d
 
-        try:
-            with packet_progress("filter, offline", sys.stderr.isatty()) as (progress, say):
-                run_demo3d(
-                    out,
-                    seed=seed,
-                    noise_db=noise_db,
-                    duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
-                    interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
-                    echo=say,
-                    progress=progress,
-                )
-        except InputError as exc:  # a scenario range error names the option
-            raise _named_options(exc) from None
+        with (
+            _options_named(),
+            packet_progress("filter, offline", sys.stderr.isatty()) as (progress, say),
+        ):
+            run_demo3d(
+                out,
+                seed=seed,
+                noise_db=noise_db,
+                duration_s=DEMO3D_DURATION_S if duration_s is None else duration_s,
+                interval_ms=DEMO3D_INTERVAL_MS if interval_ms is None else interval_ms,
+                echo=say,
+                progress=progress,
+            )
         return
     if real:
         ignored = _given(ctx, _REAL_DEMO_IGNORES)
@@ -417,7 +429,7 @@ def demo(
         raise InputError("--method applies to --live (the offline demo runs every method)")
     from radiopose.demo import DEMO_DURATION_S, DEMO_INTERVAL_MS, run_demo
 
-    try:
+    with _options_named():
         run_demo(
             out,
             seed=seed,
@@ -426,5 +438,3 @@ def demo(
             interval_ms=DEMO_INTERVAL_MS if interval_ms is None else interval_ms,
             echo=print,
         )
-    except InputError as exc:  # a scenario range error names the option
-        raise _named_options(exc) from None
