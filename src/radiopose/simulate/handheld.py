@@ -40,6 +40,7 @@ from radiopose.patterns.synthetic import smartphone_like
 from radiopose.simulate.channel import LogDistance, link_rss_dbm
 from radiopose.simulate.scenario import (
     DEFAULT_TRANSMITTER,
+    MAX_RECEIVERS,
     ScenarioConfig,
     Simulation,
     check_grid_limits,
@@ -137,7 +138,7 @@ class HandheldConfig:
                 "> 0, with z_min_m <= z_max_m",
             ),
             ("survey_step_m", 0 < self.survey_step_m <= self.size_m, "(0, size_m]"),
-            ("n_receivers", 3 <= self.n_receivers <= 16, "3 to 16"),
+            ("n_receivers", 3 <= self.n_receivers <= MAX_RECEIVERS, f"3 to {MAX_RECEIVERS}"),
             ("noise_db", 0 <= self.noise_db <= 30, "[0, 30]"),
             ("interval_ms", 0.01 <= self.interval_ms <= 60_000, "[0.01, 60000]"),
             ("duration_s", 0 < self.duration_s <= 3600, "(0, 3600]"),
