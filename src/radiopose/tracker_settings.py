@@ -199,9 +199,12 @@ def read_tracker_settings(path: str | os.PathLike[str]) -> TrackerSettings:
             overrides[key] = sec.string(key, choices=_STRING_CHOICES.get(key))
         elif key == POSE3D_TABLE:
             pose3d = _read_pose3d(sec.section(POSE3D_TABLE))
-    top = {k: "the top level, above [filter]" for k in ("smoothing_lag_s", "live_method")}
-    sec.finish(allowed=[*kinds, POSE3D_TABLE], elsewhere=top)
-    root.finish(allowed=("smoothing_lag_s", "live_method", "filter"))
+    top_level = ("smoothing_lag_s", "live_method")  # the keys above [filter]
+    sec.finish(
+        allowed=[*kinds, POSE3D_TABLE],
+        elsewhere={k: "the top level, above [filter]" for k in top_level},
+    )
+    root.finish(allowed=(*top_level, "filter"))
     for table, cls, given in (
         (("filter",), FilterConfig, overrides),
         (("filter", POSE3D_TABLE), Pose3dConfig, pose3d),
