@@ -3,21 +3,27 @@
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
+import pkgutil
 from pathlib import Path
 
+import anyio
 import matplotlib
 import pytest
 
 # pytest rewrites (parses) on first import every module of a distribution that
 # ships a pytest plugin, anyio among them. Starlette serves a file through
-# anyio's thread pool, which imports anyio's asyncio backend lazily: in a
-# server thread, while the main thread parses a test module, CPython 3.11's
-# ast.parse is not thread-safe ("SystemError: AST constructor recursion depth
-# mismatch", a CI failure of the dashboard test on a fresh clone). Imported
-# here, once, in the main thread.
-with contextlib.suppress(ImportError):  # another anyio layout: nothing to pre-import
-    import anyio._backends._asyncio  # noqa: F401
+# anyio, which imports its modules lazily (the asyncio backend for the thread
+# pool; since anyio 4.16 also ``_core._fileio`` for ``open_file``): in a server
+# thread, while the main thread parses a test module, CPython 3.11's ast.parse
+# is not thread-safe ("SystemError: AST constructor recursion depth mismatch",
+# CI failures of the dashboard test on a fresh clone, sessions 24 and 27). So
+# every anyio module is imported here, once, in the main thread; one that
+# cannot be imported (the trio backend without trio) is skipped.
+for _module in pkgutil.walk_packages(anyio.__path__, "anyio."):
+    with contextlib.suppress(ImportError):
+        importlib.import_module(_module.name)
 
 matplotlib.use("Agg")
 
