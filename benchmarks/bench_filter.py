@@ -1,6 +1,7 @@
 """The Bayesian tracker (``filter``): packets/s and memory, as ratios against ``full``.
 
-Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--markdown FILE]``):
+Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--busy] [--parts]
+[--markdown FILE]``):
 
 1. **Warm, in process.** The paper's standard scenario (201 × 201 positions ×
    360 azimuths, 4 receivers, a packet every 5 ms), an ``N``-packet trace
@@ -37,6 +38,13 @@ Sections (``python -m benchmarks filter [--packets N] [--repeat R] [--parts] [--
    (``live_resolve_times_s = ()``), alternating, ``R`` repeats, median; the
    ratio is with / without, and the slowest single ``update`` (ms) shows the
    re-solves' stall.
+1c. **Beside a busy process** (``--busy``): streaming ``filter`` and ``full``
+   (warm, the same trace) idle, then beside one other process that
+   busy-loops on a core (started 1.5 s before), then the same with the
+   compiled work's threads started regardless of the machine's load (the
+   spare-core look forced to yes: what the load-average rule did before
+   session 28); alternating, ``R`` repeats, median; the ratio is against
+   the idle rate of the same method in this run.
 4. **Where a warm packet spends its CPU time** (``--parts``): each part of
    ``filter`` (the fused kernel, the re-entry and its searches, σ, moments,
    smoother, the adapter) timed by a wrapper around its calls, batch and
@@ -52,10 +60,12 @@ less; all ratios are filter over full in rate terms (> 1: filter faster).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -171,6 +181,87 @@ def section_live(n_packets: int, repeat: int) -> list[dict]:
         }
         for label, rs in rates.items()
     ]
+
+
+@contextlib.contextmanager
+def _busy_core() -> Iterator[None]:
+    """One other process busy-looping on a core for the block (started 1.5 s
+    before it, so that the spare-core look sees it), then killed."""
+    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(1.5)
+        yield
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+@contextlib.contextmanager
+def _threads_regardless() -> Iterator[None]:
+    """The compiled work on two threads whatever the machine runs: the
+    spare-core look answers yes (as the 1-minute load average did, before
+    session 28, for a load below the core count)."""
+    import radiopose.filtering.particle as particle
+    import radiopose.likelihood.compiled as compiled
+
+    saved = compiled.spare_core, particle.spare_core
+    compiled.spare_core = particle.spare_core = lambda: True
+    try:
+        yield
+    finally:
+        compiled.spare_core, particle.spare_core = saved
+
+
+def section_busy(n_packets: int, repeat: int) -> list[dict]:
+    """Section 1c: streaming ``filter`` and ``full`` idle, beside one busy
+    process, and beside it with the threads started regardless."""
+    sim = standard_trace(n_packets)
+    scorer = ShiftScorer(candidate_space(sim.site, TX))
+    obs = group_packets(sim.packets)
+    cfg = TrackerConfig(kernel="numba")
+
+    def stream(method: str) -> float:
+        tracker = Tracker(sim.site, method, cfg, scorers={TX: scorer})
+        tracker.update(obs[0])
+        t0 = time.perf_counter()
+        for o in obs[1:]:
+            tracker.update(o)
+        return (len(obs) - 1) / (time.perf_counter() - t0)
+
+    for m in METHODS:  # warm
+        stream(m)
+    conditions = {
+        "idle": contextlib.nullcontext,
+        "beside a busy process": _busy_core,
+        "beside a busy process, threads regardless": _busy_threads_regardless,
+    }
+    rates: dict[tuple[str, str], list[float]] = {}
+    for _ in range(repeat):
+        for label, ctx in conditions.items():
+            with ctx():
+                for m in METHODS:
+                    rates.setdefault((label, m), []).append(stream(m))
+    out = []
+    for label in conditions:
+        for m in METHODS:
+            r = rates[(label, m)]
+            out.append(
+                {
+                    "condition": label,
+                    "method": m,
+                    "packets": len(obs),
+                    "packets_per_s": float(np.median(r)),
+                    "range": f"{min(r):.0f}-{max(r):.0f}",
+                    "ratio_vs_idle": float(np.median(r) / np.median(rates[("idle", m)])),
+                }
+            )
+    return out
+
+
+@contextlib.contextmanager
+def _busy_threads_regardless() -> Iterator[None]:
+    with _busy_core(), _threads_regardless():
+        yield
 
 
 LIVE_LAG_S = 0.25
@@ -437,6 +528,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--parts", action="store_true", help="also the CPU time of each part of filter (section 4)"
     )
+    ap.add_argument(
+        "--busy",
+        action="store_true",
+        help="also streaming beside one busy-looping process (section 1c)",
+    )
     ap.add_argument("--markdown", help="also write the tables to this Markdown file")
     args = ap.parse_args(argv)
     lines = [f"Machine: `{machine()}`", ""]
@@ -455,6 +551,12 @@ def main(argv: list[str] | None = None) -> int:
         section_live(args.packets, args.repeat),
         {"packets_per_s": ".0f", "ratio_vs_without": ".2f", "slowest_update_ms": ".0f"},
     )
+    if args.busy:
+        lines += [f"### 1c. Beside a busy process ({args.packets} packets, streaming)", ""]
+        lines += table(
+            section_busy(args.packets, args.repeat),
+            {"packets_per_s": ".0f", "ratio_vs_idle": ".2f"},
+        )
     if not args.skip_process:
         with tempfile.TemporaryDirectory() as tmp:
             rows = section_process(args.packets, args.repeat, Path(tmp))

@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from radiopose.filtering import FilterModel
 from radiopose.filtering import kernels as K  # noqa: N812
@@ -311,20 +313,92 @@ def test_particles_on_two_threads_give_the_same_estimates(monkeypatch):
     np.testing.assert_array_equal(a.position_std_m, b.position_std_m)
 
 
-def test_spare_core_follows_the_load_once_a_second(monkeypatch):
+def test_spare_core_follows_the_other_processes_once_a_second(monkeypatch):
+    """A core is spare while the other processes leave 1.5 of this process's
+    cores free (looked at once a second); never with one numba thread."""
+    free = [2.0]
     monkeypatch.setattr(compiled, "threads", lambda: 2)
-    monkeypatch.setattr(compiled.os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(compiled, "free_cores", lambda: free[0])
     monkeypatch.setattr(compiled, "_SPARE", [-math.inf, False])
-    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (0.9, 0.0, 0.0))
     assert compiled.spare_core() is True
-    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (17.0, 0.0, 0.0))
+    free[0] = 1.0  # another process took a core
     assert compiled.spare_core() is True  # read at most once a second
     compiled._SPARE[0] = -math.inf
     assert compiled.spare_core() is False
+    free[0] = 1.6
+    compiled._SPARE[0] = -math.inf
+    assert compiled.spare_core() is True
     monkeypatch.setattr(compiled, "threads", lambda: 1)
-    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    free[0] = 2.0
     compiled._SPARE[0] = -math.inf
     assert compiled.spare_core() is False  # NUMBA_NUM_THREADS=1: never
+
+
+def test_free_cores_subtracts_the_other_processes_cpu(monkeypatch):
+    """Free cores: the affinity's cores minus the busy CPU seconds per second
+    not spent by this process; the load average (plus this process's own core)
+    stands in without /proc/stat or a long enough interval."""
+    monkeypatch.setattr(compiled.os, "sched_getaffinity", lambda pid: {0, 1})
+    monkeypatch.setattr(compiled.os, "getloadavg", lambda: (1.7, 0.0, 0.0))
+    samples = iter([(10.0, 100.0, 5.0), (12.0, 103.0, 6.0), (12.1, 103.2, 6.1), None])
+    monkeypatch.setattr(compiled, "cpu_sample", lambda: next(samples))
+    monkeypatch.setattr(compiled, "_STAT_SAMPLE", [None])
+    assert compiled.free_cores() == pytest.approx(2 - 1.7 + 1)  # no earlier look: the load
+    # 2 s later: 3 busy CPU s, 1 of them this process's -> others used 1 core
+    assert compiled.free_cores() == pytest.approx(1.0)
+    # 0.1 s later: too short an interval, the load; the last sample stays
+    assert compiled.free_cores() == pytest.approx(1.3)
+    assert compiled._STAT_SAMPLE[0] == (12.0, 103.0, 6.0)
+    assert compiled.free_cores() == pytest.approx(1.3)  # /proc/stat unreadable
+
+
+STAT = """cpu  900 10 300 5000 40 0 5 7 0 0
+cpu0 400 5 100 2500 20 0 2 3 0 0
+cpu1 500 5 200 2500 20 0 3 4 0 0
+intr 12345 0 0
+ctxt 999
+"""
+
+
+def test_busy_cpu_s_reads_the_processors_of_the_affinity():
+    """Busy = user + nice + system + irq + softirq + steal of the listed
+    processors (not idle, iowait, or the machine's total line), in seconds."""
+    assert compiled.busy_cpu_s(STAT, {0}, 100.0) == pytest.approx(5.10)
+    assert compiled.busy_cpu_s(STAT, {0, 1}, 100.0) == pytest.approx(5.10 + 7.12)
+    assert compiled.busy_cpu_s(STAT, {1, 7}, 50.0) == pytest.approx(14.24)
+    with pytest.raises(ValueError, match="none of this process"):
+        compiled.busy_cpu_s(STAT, {5}, 100.0)
+    with pytest.raises(ValueError, match="cpu0 has 3 columns"):
+        compiled.busy_cpu_s("cpu0 1 2 3\n", {0}, 100.0)
+
+
+@given(
+    ticks=st.lists(
+        st.lists(st.integers(0, 10**9), min_size=5, max_size=10), min_size=1, max_size=8
+    ),
+    data=st.data(),
+)
+def test_busy_cpu_s_is_every_column_but_idle_and_iowait(ticks, data):
+    lines = [f"cpu{i} " + " ".join(map(str, t)) for i, t in enumerate(ticks)]
+    cpus = data.draw(st.sets(st.integers(0, len(ticks) - 1), min_size=1))
+    want = sum(sum(ticks[i][:8]) - ticks[i][3] - ticks[i][4] for i in cpus)
+    text = "cpu  1 2 3 4 5\n" + "\n".join(lines) + "\nintr 1 2\n"
+    assert compiled.busy_cpu_s(text, cpus, 100.0) == pytest.approx(want / 100.0)
+
+
+@pytest.mark.skipif(compiled.cpu_sample() is None, reason="no /proc/stat here")
+def test_cpu_sample_sees_another_process_burn_cpu():
+    """A child that burns 0.5 CPU s shows as at least 0.4 s of busy CPU not spent
+    by this process, between two samples (whatever else the machine runs)."""
+    import subprocess
+    import sys
+
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.5: pass"
+    a = compiled.cpu_sample()
+    subprocess.run([sys.executable, "-c", burn], check=True)
+    b = compiled.cpu_sample()
+    assert a is not None and b is not None
+    assert (b[1] - a[1]) - (b[2] - a[2]) >= 0.4
 
 
 @pytest.mark.filterwarnings("ignore:.*fork.*:DeprecationWarning")

@@ -47,13 +47,22 @@ def same(a, b):
     np.testing.assert_array_equal(a.mse_db2, b.mse_db2)
 
 
-@pytest.mark.parametrize("parallel", [False, True])
+@pytest.mark.parametrize(("parallel", "spare"), [(False, True), (True, True), (True, False)])
 @pytest.mark.parametrize("k", [1, 100])
-def test_equals_reference(space, k, parallel):
+def test_equals_reference(space, k, parallel, spare, monkeypatch):
+    """Serial, parallel, and parallel on a busy machine (no core spare: the
+    serial kernel, and the exact pass on one thread) give the reference's top-k."""
+    import radiopose.likelihood.compiled as compiled
+
+    monkeypatch.setattr(compiled, "spare_core", lambda: spare)
     rng = np.random.default_rng(1)
     fast, ref = ShiftScorer(space, parallel=parallel), ReferenceScorer(space)
+    calls: list[int] = []
+    kernel = fast._kernel
+    fast._kernel = lambda *a: calls.append(1) or kernel(*a)
     for heard in packets(space, rng):
         same(fast.score_heard(heard, k), ref.score_heard(heard, k))
+    assert bool(calls) == (parallel and spare)  # the parallel region only with a spare core
 
 
 def test_threshold_pass_through_the_heaps_equals_reference(space, monkeypatch):
@@ -220,3 +229,35 @@ def test_k_beyond_the_grid_returns_every_candidate_best_first(space, parallel):
         top = fast.score_heard(heard, k)
         assert top.candidate_idx.size == space.n_candidates
         same(top, ref.score_heard(heard, k))
+
+
+def test_a_busy_machine_does_not_launch_numbas_threads():
+    """With no core spare, a parallel scorer's search (its heaps, main pass and
+    exact pass) runs serially without starting numba's threading layer: once
+    started as OpenMP, the process may no longer fork the filter's offline
+    passes (forked.numba_fork_safe). A fresh process, since this one may have
+    started it already."""
+    import subprocess
+    import sys
+
+    code = f"""
+import numba, numpy as np
+import radiopose.likelihood.compiled as compiled
+from radiopose.likelihood import candidate_space
+from radiopose.likelihood.candidates import HeardRss
+from radiopose.simulate import ScenarioConfig, simulate
+cfg = ScenarioConfig(size_m=6.0, step_m=0.25, duration_s=0.05, min_receiver_spacing_m=2.0)
+space = candidate_space(simulate(cfg, seed=20261123).site, {TX!r})
+compiled.spare_core = lambda: False
+compiled.DENSE_MAX_VALUES = 0  # the threshold pass through the heaps too
+sc = compiled.ShiftScorer(space, parallel=True)
+top = sc.score_heard(HeardRss(np.arange(4), np.array([-50.0, -55.0, -60.0, -52.0])), 5000)
+assert top.candidate_idx.size == 5000
+try:
+    layer = numba.threading_layer()
+except ValueError:
+    layer = None
+print(layer)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "None", out.stdout + out.stderr

@@ -259,10 +259,13 @@ def candidate_mse_db2(expected_dbm: FloatArray, heard: HeardRss) -> FloatArray:
     return acc / heard.n_heard
 
 
-def exact_mse_db2(space: CandidateSpace, heard: HeardRss, candidate_idx: IntArray) -> FloatArray:
+def exact_mse_db2(
+    space: CandidateSpace, heard: HeardRss, candidate_idx: IntArray, parallel: bool = True
+) -> FloatArray:
     """Exact float64 MSE ``(n,)`` of the given candidates for one packet, dB².
 
     Equal, bit for bit, to ``candidate_mse_db2(expected_rss_dbm(...), heard)``;
-    computed for the heard receivers only, in one compiled pass.
+    computed for the heard receivers only, in one compiled pass (on numba's
+    threads for many candidates unless ``parallel`` is false; the same values).
     """
-    return mse_db2(space, heard.receiver_index, heard.rss_dbm, candidate_idx)
+    return mse_db2(space, heard.receiver_index, heard.rss_dbm, candidate_idx, parallel)

@@ -465,7 +465,8 @@ class ShiftScorer(ScorerBase):
         pick = np.ascontiguousarray(pick)
         if pick.size * per_pos > DENSE_MAX_VALUES:
             # many (pitch, roll) rows or a cold start: per-chunk heaps, not one big array
-            pv, _ = self._kernel(
+            kernel = self._kernel if spare_core() else _shift_topk_serial  # busy: one thread
+            pv, _ = kernel(
                 w, r, *self._kernel_args(), pick, j0, cnt, kk, self.block, np.float32(np.inf)
             )
             vals = pv[np.isfinite(pv)]
@@ -541,10 +542,10 @@ class ShiftScorer(ScorerBase):
                     w, r, self.pre_lo, self.pre_hi, positions, positions is self.all_positions, cut
                 )
             args = (*self._kernel_args(), run_pos, j0, cnt, kk_eff, self.block, np.float32(thr0))
-            if self.parallel:
+            if self.parallel and spare_core():
                 out_v, out_i = self._kernel(w, r, *args)
                 thr_used = float(thr0)
-            else:  # one thread: the chunks share their threshold (speed only)
+            else:  # one thread (or no core spare): the chunks share their threshold
                 out_v, out_i, thr_used = _shift_topk_shared(w, r, *args)
             ok = out_i.ravel() >= 0
             v = out_v.ravel()[ok].astype(np.float64)
@@ -584,7 +585,9 @@ class ShiftScorer(ScorerBase):
             self._hint = hint
         else:
             self._slot_hints[slot] = hint
-        mse = exact_mse_db2(self.space, heard, short)
+        # its parallel kernel only with a spare core (without numba.set_num_threads:
+        # in a forked child that would start numba's threads, which ends the child)
+        mse = exact_mse_db2(self.space, heard, short, parallel=spare_core())
         return select_topk(short, mse, k)
 
     def score_heard(self, heard: HeardRss, k: int) -> TopK:
@@ -736,23 +739,94 @@ def claim_core(n: int = 1) -> None:
 
 
 def spare_core() -> bool:
-    """Whether a second Python thread is worth starting for compiled work now:
-    numba may use two or more threads (``NUMBA_NUM_THREADS``) and the machine's
-    1-minute load average is below its number of cores (read at most once a
-    second). On a busy machine the second thread waits for a core while the
-    first waits for it: measured slower in wall and CPU time at loads of 15-23
-    on 2 cores (docs/performance.md, "The Bayesian tracker"). Results never
-    depend on it. No while this process's forked workers
-    (:func:`claim_core`) leave fewer than two of numba's threads' cores."""
+    """Whether a second thread is worth starting for compiled work now: numba may
+    use two or more threads (``NUMBA_NUM_THREADS``) and the other processes on
+    this process's cores left at least :data:`SPARE_CORES_MIN` of them free since
+    the last look (:func:`free_cores`; looked at most once a second). On a busy
+    machine a parallel region's second thread waits for a core, and the first
+    waits for it at the region's end: `full` streamed 190 packets/s beside one
+    busy process on 2 cores with two threads and 450 with one
+    (docs/performance.md, "A spare core, measured"). Results never depend on it.
+    No while this process's forked workers (:func:`claim_core`) leave fewer than
+    two of numba's threads' cores."""
     now = time.monotonic()
     if now - _SPARE[0] >= 1.0:
-        try:
-            load = os.getloadavg()[0]
-            cores = len(os.sched_getaffinity(0))
-        except (AttributeError, OSError):
-            load, cores = 0.0, os.cpu_count() or 1
-        _SPARE[0], _SPARE[1] = now, threads() > 1 and load < cores
+        free = free_cores()
+        _SPARE[0], _SPARE[1] = now, threads() > 1 and free >= SPARE_CORES_MIN
     return bool(_SPARE[1]) and threads() - _CLAIMED[0] > 1
+
+
+SPARE_CORES_MIN = 1.5
+"""Cores of this process's affinity that the other processes must leave free for
+:func:`spare_core` to answer yes: this process's own thread and most of another
+core."""
+
+_STAT_SAMPLE: list[tuple[float, float, float] | None] = [None]  # the last cpu_sample()
+
+
+def busy_cpu_s(stat_text: str, cpus: set[int], clock_ticks_per_s: float) -> float:
+    """CPU seconds that the processors ``cpus`` have spent busy since boot, from
+    the text of Linux's ``/proc/stat``: per ``cpuN`` line, every column but idle
+    and iowait (user, nice, system, irq, softirq, steal; guest time is counted
+    in user), in clock ticks. Raises :class:`ValueError` for a malformed line or
+    when none of ``cpus`` is listed."""
+    busy, seen = 0, 0
+    for line in stat_text.splitlines():
+        name, _, rest = line.partition(" ")
+        if not name.startswith("cpu") or name == "cpu":
+            continue
+        if int(name[3:]) not in cpus:
+            continue
+        ticks = [int(x) for x in rest.split()[:8]]
+        if len(ticks) < 5:
+            raise ValueError(f"/proc/stat: {name} has {len(ticks)} columns, not 5 or more")
+        busy += sum(ticks) - ticks[3] - ticks[4]
+        seen += 1
+    if not seen:
+        raise ValueError("/proc/stat lists none of this process's processors")
+    return busy / clock_ticks_per_s
+
+
+def cpu_sample() -> tuple[float, float, float] | None:
+    """``(monotonic s, busy CPU s of this process's processors, this process's
+    CPU s)`` now, or ``None`` where Linux's ``/proc/stat`` cannot be read."""
+    try:
+        cpus = os.sched_getaffinity(0)
+        with open("/proc/stat", encoding="ascii") as f:
+            text = f.read()
+        busy = busy_cpu_s(text, cpus, float(os.sysconf("SC_CLK_TCK")))
+    except (AttributeError, OSError, ValueError):
+        return None
+    return time.monotonic(), busy, time.process_time()
+
+
+def free_cores() -> float:
+    """Cores of this process's affinity not used by other processes (forked
+    workers of this one included) since the last call, averaged over that
+    interval: their number minus (the processors' busy CPU seconds minus this
+    process's own) per second. Where ``/proc/stat`` cannot be read, or the last
+    call was less than 0.2 s ago (or there was none), the 1-minute load average
+    stands in: cores minus the load plus one (the load counts this process's
+    own running thread)."""
+    sample, last = cpu_sample(), _STAT_SAMPLE[0]
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cores = os.cpu_count() or 1
+    if sample is not None and last is not None and sample[0] - last[0] >= 0.2:
+        _STAT_SAMPLE[0] = sample
+        others = ((sample[1] - last[1]) - (sample[2] - last[2])) / (sample[0] - last[0])
+        return cores - max(others, 0.0)
+    if last is None:
+        _STAT_SAMPLE[0] = sample
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):
+        load = 0.0
+    return cores - load + 1.0
+
+
+_STAT_SAMPLE[0] = cpu_sample()  # the first look's interval starts at import
 
 
 def threads() -> int:

@@ -164,14 +164,22 @@ def serial_only() -> None:
     _SERIAL_ONLY[0] = True
 
 
-def mse_db2(space, receiver_index: NDArray, rss_dbm: NDArray, candidate_idx: NDArray) -> NDArray:
+def mse_db2(
+    space,
+    receiver_index: NDArray,
+    rss_dbm: NDArray,
+    candidate_idx: NDArray,
+    parallel: bool = True,
+) -> NDArray:
     """Exact MSE ``(n,)`` dB² of candidates over the heard receivers.
 
     ``(1/h) Σ_q (rss_q − RSS_{r_q})²``, summed in the order of ``receiver_index``
-    (NaN where a heard receiver's ``M_r(p)`` is NaN).
+    (NaN where a heard receiver's ``M_r(p)`` is NaN). On numba's threads for
+    :data:`PARALLEL_MIN_CANDIDATES` or more candidates, unless ``parallel`` is
+    false or :func:`serial_only` was called (the same values either way).
     """
     cand = _candidates(space, candidate_idx)
-    parallel = cand.size >= PARALLEL_MIN_CANDIDATES and not _SERIAL_ONLY[0]
+    parallel = parallel and cand.size >= PARALLEL_MIN_CANDIDATES and not _SERIAL_ONLY[0]
     fn = _mse_parallel if parallel else _mse_serial
     return fn(
         cand,
