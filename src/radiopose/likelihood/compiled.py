@@ -585,8 +585,10 @@ class ShiftScorer(ScorerBase):
             self._hint = hint
         else:
             self._slot_hints[slot] = hint
-        # its parallel kernel only with a spare core (without numba.set_num_threads:
-        # in a forked child that would start numba's threads, which ends the child)
+        # its parallel kernel only with a spare core; chosen here rather than by
+        # numba.set_num_threads, which would start numba's threading layer: once
+        # started as OpenMP the process may not fork the filter's offline passes
+        # (forked.numba_fork_safe)
         mse = exact_mse_db2(self.space, heard, short, parallel=spare_core())
         return select_topk(short, mse, k)
 
