@@ -151,6 +151,36 @@ def test_estimates_csv_round_trip(tmp_path):
     assert list(back.packet_id) == ["0", "3"] and list(back.method) == ["full", "full"]
 
 
+@pytest.mark.parametrize("with_std", [False, True])
+def test_estimates_are_read_from_a_pipe(tmp_path, with_std):
+    """``score truth.csv <(...)``: the estimates file is read once, front to back
+    (the optional uncertainty columns once made it read the header first, and a
+    pipe then had nothing left for the rows)."""
+    import os
+
+    tr = _truth()
+    e = _est(tr, [0, 3, 5])
+    if with_std:
+        e = Estimates(
+            *(getattr(e, f) for f in ("timestamp_s", "transmitter", "packet_id")),
+            e.position_m, e.orientation_deg, e.method,
+            position_std_m=np.array([0.1, 0.2, 0.3]), azimuth_std_deg=np.array([1.0, 2.0, 3.0]),
+        )  # fmt: skip
+    write_estimates_csv(e, tmp_path / "e.csv")
+    r, w = os.pipe()  # the file's few hundred bytes fit the pipe's buffer
+    os.write(w, (tmp_path / "e.csv").read_bytes())
+    os.close(w)
+    try:
+        back = read_estimates_csv(f"/dev/fd/{r}")
+    finally:
+        os.close(r)
+    assert list(back.packet_id) == ["0", "3", "5"]
+    if with_std:
+        np.testing.assert_allclose(back.position_std_m, [0.1, 0.2, 0.3])
+    else:
+        assert back.position_std_m is None
+
+
 def test_duplicate_truth_and_estimate_rows_are_errors(tmp_path):
     from radiopose.estimates import read_estimates_csv, write_estimates_csv
     from radiopose.packets import read_truth_csv, write_truth_csv

@@ -169,6 +169,23 @@ def test_atomic_writer_writes_through_links_and_special_files(tmp_path):
     assert Path("/dev/null").is_char_device()
 
 
+def test_atomic_writer_writes_to_stdout_when_it_is_a_pipe(tmp_path):
+    """``-o /dev/stdout`` into a pipe: /dev/stdout links to /proc/self/fd/1, whose
+    link text for a pipe ("pipe:[N]") is no path; the name given is opened (it
+    once tried to make a temporary file in /proc/N/fd and failed after the work)."""
+    import subprocess
+    import sys
+
+    code = (
+        "from radiopose.tables import atomic_writer\n"
+        "with atomic_writer('/dev/stdout') as fh:\n"
+        "    fh.write('a,b\\n1,2\\n')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "a,b\n1,2\n"
+
+
 def test_an_output_may_not_overwrite_an_input(tmp_path):
     from radiopose.tables import check_outputs_not_inputs
 

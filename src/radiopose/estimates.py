@@ -19,7 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from radiopose.packets import POSE_COLUMNS, pose_columns, read_pose_columns
-from radiopose.tables import Column, read_header, read_table, reject_repeated_rows, write_table
+from radiopose.tables import Column, read_table, reject_repeated_rows, write_table
 from radiopose.units import MAX_ABS_TIME_S, FloatArray
 
 POSITION_ONLY_METHODS = frozenset({"lms"})
@@ -140,9 +140,8 @@ STD_COLUMNS = (
 def read_estimates_csv(path: str | os.PathLike[str]) -> Estimates:
     """Read and validate ``estimates.csv`` (with the optional uncertainty columns
     when the header has both)."""
-    header = read_header(path)
-    with_sd = all(c.name in header for c in STD_COLUMNS)
-    t = read_table(path, ESTIMATE_COLUMNS + (STD_COLUMNS if with_sd else ()))
+    t = read_table(path, ESTIMATE_COLUMNS, optional=STD_COLUMNS)
+    with_sd = STD_COLUMNS[0].name in t.columns
     reject_repeated_rows(
         t, ("transmitter", "packet_id", "method"), "a second estimate of {} packet {} by {}"
     )

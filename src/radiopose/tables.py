@@ -138,18 +138,13 @@ def _parse_number(text: str, col: Column, path: Path, line: int) -> float | int:
     return value
 
 
-def read_header(path: str | os.PathLike[str]) -> list[str]:
-    """The header names of a CSV file (empty if it cannot be read: :func:`read_table`
-    then reports why), for tables with optional columns."""
-    try:
-        with open(path, newline="", encoding="utf-8-sig") as fh:
-            return [h.strip() for h in next(csv.reader(fh), [])]
-    except (OSError, UnicodeDecodeError, csv.Error):
-        return []
-
-
-def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table:
+def read_table(
+    path: str | os.PathLike[str], columns: Sequence[Column], optional: Sequence[Column] = ()
+) -> Table:
     """Read and validate a contract CSV table.
+
+    The file is read once, front to back, so a pipe (``<(...)``, ``/dev/stdin``)
+    is read like a file.
 
     Parameters
     ----------
@@ -157,6 +152,10 @@ def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table
         The CSV file (UTF-8, header row, comma separated).
     columns
         The required columns; others in the file are ignored.
+    optional
+        Columns read, and validated like the required ones, when the header has
+        every one of them (a group given together or not at all); the table
+        then holds them (``name in table.columns``).
 
     Raises
     ------
@@ -171,6 +170,8 @@ def read_table(path: str | os.PathLike[str], columns: Sequence[Column]) -> Table
             if header is None:
                 raise InputError("empty file, expected a header row", path=p, line=1)
             header = [h.strip() for h in header]
+            if optional and all(c.name in header for c in optional):
+                columns = [*columns, *optional]
             index: dict[str, int] = {}
             for col in columns:
                 if col.name not in header:
@@ -248,14 +249,21 @@ def atomic_writer(path: str | os.PathLike[str], mode: str = "w") -> Iterator[IO[
     renaming over it would replace the device node or pipe with a file.
     """
     target = Path(path)
-    if target.is_symlink():
-        target = Path(os.path.realpath(target))
     check_output_paths(files=[target])
-    if target.exists() and not target.is_file():
+    try:
+        special = not stat.S_ISREG(os.stat(target).st_mode)  # through any link
+    except OSError:  # missing (or a dangling link): a new file
+        special = False
+    if special:
+        # opened by the name given, not the link's target: /dev/stdout names
+        # /proc/self/fd/1, whose target text for a pipe ("pipe:[N]") is no path
         kw: dict[str, Any] = {"newline": "", "encoding": "utf-8"} if "b" not in mode else {}
         with open(target, mode, **kw) as fh:
             yield fh
         return
+    if target.is_symlink():
+        target = Path(os.path.realpath(target))
+        check_output_paths(files=[target])
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
