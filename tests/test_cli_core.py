@@ -275,6 +275,20 @@ def test_packet_progress_shown_and_not(capsys):
     assert "[b]not markup[/b]" in capsys.readouterr().out
 
 
+def test_method_progress_names_the_method_it_is_on(capsys):
+    """The demo's bar over several methods in turn (``radiopose demo`` on a
+    terminal): the callback ``run_methods`` takes, and a print beside the bar."""
+    from radiopose.cli import method_progress
+
+    with method_progress("localising", False) as (progress, say):
+        assert progress is None
+    with method_progress("localising", True) as (progress, say):
+        assert progress is not None
+        progress("full", 3, 10)
+        say("[b]not markup[/b]")
+    assert "[b]not markup[/b]" in capsys.readouterr().out
+
+
 def test_outputs_never_overwrite_inputs(tmp_path, capsys):
     """``-o`` naming an input (the packets, a file of the site, the pattern to
     plot) is a one-line error before any work, and the input is intact."""

@@ -87,11 +87,36 @@ def test_demo_writes_non_trivial_figures_and_estimates(demo_run) -> None:
     assert (d / "scenario" / "truth.csv").is_file() and (d / "scenario" / "packets.csv").is_file()
 
 
+def test_demo_follows_every_methods_packets(tmp_path: Path, capsys, monkeypatch) -> None:
+    """On a terminal the demo's bar follows each method's packets to the last
+    (``radiopose demo`` once printed only "localising ..." for 20 s)."""
+    import radiopose.cli as cli
+
+    seen: list[tuple[str, int, int]] = []
+
+    @contextlib.contextmanager
+    def recording(label: str, show: bool):  # type: ignore[no-untyped-def]
+        yield (lambda m, d, t: seen.append((m, d, t))), print
+
+    monkeypatch.setattr(cli, "method_progress", recording)
+    code, _, _ = _run(["demo", "-o", str(tmp_path / "d"), "--duration-s", "1"], capsys)
+    assert code == 0
+    assert {m for m, _, _ in seen} == set(METHODS)
+    for m in METHODS:
+        _, done, total = [x for x in seen if x[0] == m][-1]
+        assert done == total == 50  # 1 s, a packet every 20 ms
+
+
 def test_demo_method_option_is_for_live(tmp_path: Path, capsys) -> None:
     code, _, err = _run(["demo", "-o", str(tmp_path / "d"), "--method", "full"], capsys)
     assert code == 2 and "--method applies to --live" in err and err.count("\n") == 1
     code, _, err = _run(["demo", "-o", str(tmp_path / "d"), "--live", "--method", "x"], capsys)
     assert code == 2 and "--method must be one of" in err and err.count("\n") == 1
+    for pose in ("2d", "3d"):  # --port, even at its default value, only with --live
+        code, _, err = _run(
+            ["demo", "-o", str(tmp_path / "d"), "--pose", pose, "--port", "8000"], capsys
+        )
+        assert code == 2 and "--port applies to --live" in err and err.count("\n") == 1
     assert not (tmp_path / "d").exists()
 
 

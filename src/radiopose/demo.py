@@ -63,6 +63,7 @@ def run_demo(
     duration_s: float = DEMO_DURATION_S,
     interval_ms: float = DEMO_INTERVAL_MS,
     echo: Callable[[str], None] = print,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> list[Path]:
     """Run the demo into ``out_dir``; return the paths written.
 
@@ -80,6 +81,9 @@ def run_demo(
         Time between packets, milliseconds.
     echo
         Receives every printed line.
+    progress
+        Called as ``progress(method, done, total)`` over each method's packets
+        (a progress bar: ``radiopose demo`` on a terminal).
     """
     import matplotlib
 
@@ -125,7 +129,7 @@ def run_demo(
         )
         for p in written:
             say(f"wrote {p}")
-        run_demo_pipeline(sim, stage, echo=say)  # prints its table and what it wrote
+        run_demo_pipeline(sim, stage, echo=say, progress=progress)  # prints its table, files
     written = [out / p.relative_to(stage) for p in written]
     echo(f"demo finished in {time.perf_counter() - t0:.1f} s")
     return written

@@ -62,23 +62,35 @@ def count_progress(label: str, *, elapsed: bool = True, description: bool = Fals
 
 
 @contextmanager
-def packet_progress(
+def method_progress(
     label: str, show: bool
-) -> Iterator[tuple[Callable[[int, int], None] | None, Callable[[str], None]]]:
+) -> Iterator[tuple[Callable[[str, int, int], None] | None, Callable[[str], None]]]:
     """A transient bar over packets (:func:`count_progress`) while the block runs,
-    when ``show``. Yields ``(progress, echo)``: the ``progress(done, total)``
-    callback :func:`radiopose.tracker.locate` takes, and a print that does not
-    break the bar; ``(None, print)`` when not shown."""
+    when ``show``, for several methods in turn: it names the one it is on. Yields
+    ``(progress, echo)``: the ``progress(method, done, total)`` callback
+    :func:`radiopose.evaluate.run_methods` takes, and a print that does not break
+    the bar; ``(None, print)`` when not shown."""
     if not show:
         yield None, print
         return
-    with count_progress(label, elapsed=False) as bar:
-        task = bar.add_task("packets", total=None)
+    with count_progress(label, elapsed=False, description=True) as bar:
+        task = bar.add_task("", total=None)
 
-        def progress(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
+        def progress(method: str, done: int, total: int) -> None:
+            bar.update(task, completed=done, total=total, description=method)
 
         yield progress, partial(bar.console.print, markup=False, highlight=False)
+
+
+@contextmanager
+def packet_progress(
+    label: str, show: bool
+) -> Iterator[tuple[Callable[[int, int], None] | None, Callable[[str], None]]]:
+    """:func:`method_progress` for one method: yields the ``progress(done,
+    total)`` callback :func:`radiopose.tracker.locate` takes (or ``None``) and
+    the print."""
+    with method_progress(label, show) as (progress, echo):
+        yield (None if progress is None else partial(progress, "")), echo
 
 
 def _register() -> None:

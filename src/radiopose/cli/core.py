@@ -372,6 +372,8 @@ def demo(
         raise InputError(f"--seed must be a non-negative integer below 2**63, got {seed}")
     if pose not in ("2d", "3d"):
         raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
+    if not live and not real and _given(ctx, {"port": "--port"}):
+        raise InputError("--port applies to --live (the offline demo starts no server)")
     if pose == "3d":
         if live or real:
             raise InputError("--pose 3d runs the offline demo only (not with --live or --real)")
@@ -427,14 +429,18 @@ def demo(
         return
     if method != "filter":
         raise InputError("--method applies to --live (the offline demo runs every method)")
+    import sys
+
+    from radiopose.cli import method_progress
     from radiopose.demo import DEMO_DURATION_S, DEMO_INTERVAL_MS, run_demo
 
-    with _options_named():
+    with _options_named(), method_progress("localising", sys.stderr.isatty()) as (progress, say):
         run_demo(
             out,
             seed=seed,
             noise_db=noise_db,
             duration_s=DEMO_DURATION_S if duration_s is None else duration_s,
             interval_ms=DEMO_INTERVAL_MS if interval_ms is None else interval_ms,
-            echo=print,
+            echo=say,
+            progress=progress,
         )

@@ -151,6 +151,7 @@ def run_demo_pipeline(
     *,
     config: TrackerConfig | None = None,
     echo: Callable[[str], None] | None = None,
+    progress: Callable[[str, int, int], None] | None = None,
 ) -> tuple[list[TableRow], list[Path]]:
     """Every method on a simulation, an error table and the figures.
 
@@ -162,6 +163,7 @@ def run_demo_pipeline(
     track with its stated uncertainty beside ``full``'s estimates and the
     truth, azimuth and errors over time: :func:`radiopose.plots.track_figure`)
     into ``out_dir``, and prints the table and the ``filter``'s calibration.
+    ``progress(method, done, total)`` follows each method's packets.
 
     Returns
     -------
@@ -175,7 +177,7 @@ def run_demo_pipeline(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scorer = build_scorer(sim, (config or TrackerConfig()).kernel)
-    runs = run_methods(sim, METHOD_NAMES, config, scorer)
+    runs = run_methods(sim, METHOD_NAMES, config, scorer, progress)
     rows = [summarise([runs[m]], sim.config.noise_db) for m in METHOD_NAMES]
     say(format_table(rows))
     cal = calibration(runs["filter"])
