@@ -710,9 +710,13 @@ def test_cli_simulate_pcap_duplicates_are_dropped_by_the_rule(
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--duplicates", "1.5"], "duplicate_fraction must be in [0, 1]"),
-        (["--jitter-us", "-1"], "jitter_s must be in"),
-        (["--clock-drift-ppm", "nan"], "drift_max_ppm must be in"),
+        (["--duplicates", "1.5"], "--duplicates 1.5 is out of range (allowed: [0, 1])"),
+        (["--jitter-us", "-1"], "--jitter-us -1 is out of range (allowed: [0, 1000])"),
+        (["--clock-drift-ppm", "nan"], "--clock-drift-ppm nan is out of range"),
+        (
+            ["--clock-offset-ms", "-1"],
+            "--clock-offset-ms -1 is out of range (allowed: [0, 3.6e+06])",
+        ),
     ],
 )
 def test_cli_simulate_pcap_bad_settings(

@@ -445,8 +445,9 @@ class CaptureConfig:
     jitter_s: float = 20e-6
     duplicate_fraction: float = 0.0
 
-    def validate(self) -> None:
-        """Raise :class:`ValueError` naming the first setting out of range."""
+    def out_of_range(self) -> tuple[str, float, float, float] | None:
+        """The first setting out of its range as ``(name, value, low, high)``
+        (NaN is out of every range), or ``None``."""
         checks = (
             ("clock_offset_max_s", self.clock_offset_max_s, 0.0, 3600.0),
             ("drift_max_ppm", self.drift_max_ppm, 0.0, 1000.0),
@@ -455,7 +456,15 @@ class CaptureConfig:
         )
         for name, value, lo, hi in checks:
             if not lo <= value <= hi:
-                raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value}")
+                return name, float(value), lo, hi
+        return None
+
+    def validate(self) -> None:
+        """Raise :class:`ValueError` naming the first setting out of range."""
+        bad = self.out_of_range()
+        if bad is not None:
+            name, value, lo, hi = bad
+            raise ValueError(f"{name} must be in [{lo:g}, {hi:g}], got {value}")
 
 
 def whole_dbm(packets: Packets) -> Packets:

@@ -40,16 +40,36 @@ _SCENARIO_FLAGS = {
 """``radiopose simulate``'s option for each ScenarioConfig / HandheldConfig field it
 sets (their range errors name the option; ``demo`` shares the names it has)."""
 
+_MOTION_FLAGS = {
+    "speed_mps": "--speed-mps",
+    "linear_rate_deg_s": "--rotation-rate-dps",
+    "fast_rate_deg_s": "--rotation-rate-dps",
+}
+"""The same for the MotionConfig fields the options set (``--rotation-rate-dps``
+sets the rate of the ``--rotation`` chosen)."""
+
+_PCAP_FLAGS = {
+    "clock_offset_max_s": ("--clock-offset-ms", 1e3),
+    "drift_max_ppm": ("--clock-drift-ppm", 1.0),
+    "jitter_s": ("--jitter-us", 1e6),
+    "duplicate_fraction": ("--duplicates", 1.0),
+}
+"""``simulate --pcap``'s option for each CaptureConfig field, and the option's units
+per the field's (milliseconds and microseconds for seconds)."""
+
 
 def _named_options(exc: InputError) -> InputError:
     """``exc`` with each ``[3-D ]scenario setting FIELD =`` of :data:`_SCENARIO_FLAGS`
-    named as its option: ``--noise-db -1.0 is out of range (allowed: [0, 30])``."""
+    (and ``motion setting FIELD =`` of :data:`_MOTION_FLAGS`) named as its option:
+    ``--noise-db -1.0 is out of range (allowed: [0, 30])``."""
     from radiopose.errors import InputError
 
     reason = exc.reason
     for field_name, flag in _SCENARIO_FLAGS.items():
         for setting in ("3-D scenario setting", "scenario setting"):  # the longer first
             reason = reason.replace(f"{setting} {field_name} =", flag)
+    for field_name, flag in _MOTION_FLAGS.items():
+        reason = reason.replace(f"motion setting {field_name} =", flag)
     return InputError(reason, path=exc.path, line=exc.line, column=exc.column)
 
 
@@ -254,10 +274,13 @@ def simulate(
             jitter_s=jitter_us / 1e6,
             duplicate_fraction=duplicates,
         )
-        try:
-            capture_cfg.validate()
-        except ValueError as exc:
-            raise InputError(f"--pcap settings: {exc}") from None
+        bad = capture_cfg.out_of_range()
+        if bad is not None:  # named as the option, in its units
+            field_name, value, lo, hi = bad
+            flag, k = _PCAP_FLAGS[field_name]
+            raise InputError(
+                f"{flag} {value * k:g} is out of range (allowed: [{lo * k:g}, {hi * k:g}])"
+            )
     if pose not in ("2d", "3d"):
         raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
     if pose == "3d":  # pose3d: the hand-held scenario takes the shared settings only

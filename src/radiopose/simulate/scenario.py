@@ -163,15 +163,15 @@ class ScenarioConfig:
                 )
         if round(self.duration_s / (self.interval_ms / 1000.0)) < 1:
             raise InputError(
-                f"duration_s = {self.duration_s!r} is shorter than one packet interval "
-                f"({self.interval_ms:g} ms): no packet would be sent"
+                f"scenario setting duration_s = {self.duration_s!r} is shorter than one "
+                f"packet interval ({self.interval_ms:g} ms): no packet would be sent"
             )
         self.motion.validate()
         self.channel.validate()
         if self.size_m <= 2 * self.motion.margin_m:
             raise InputError(
-                f"size_m = {self.size_m!r} leaves no room to walk: the device keeps "
-                f"{self.motion.margin_m:g} m from every edge, so size_m must exceed "
+                f"scenario setting size_m = {self.size_m!r} leaves no room to walk: the device "
+                f"keeps {self.motion.margin_m:g} m from every edge, so size_m must exceed "
                 f"{2 * self.motion.margin_m:g} m"
             )
         check_grid_limits(
@@ -181,12 +181,15 @@ class ScenarioConfig:
         for name in ("step_m", "survey_step_m"):
             if not grid_steps(self.size_m, getattr(self, name))[1]:
                 raise InputError(
-                    f"{name} = {getattr(self, name)!r} does not divide size_m = {self.size_m!r}: "
+                    f"scenario setting {name} = {getattr(self, name)!r} does not divide size_m = "
+                    f"{self.size_m!r}: "
                     "the grid would stop short of the area's edge"
                 )
         n = round(360.0 / self.azimuth_step_deg)
         if abs(n * self.azimuth_step_deg - 360.0) > 1e-6:
-            raise InputError(f"azimuth step {self.azimuth_step_deg:g} deg does not divide 360")
+            raise InputError(
+                f"scenario setting azimuth_step_deg = {self.azimuth_step_deg!r} does not divide 360"
+            )
         if round(self.duration_s / (self.interval_ms / 1000.0)) > 2_000_000:
             raise InputError("more than 2,000,000 packets: shorten duration_s or raise interval_ms")
 
