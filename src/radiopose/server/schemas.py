@@ -9,12 +9,16 @@ stores nothing:
   stored as nanoseconds in a signed 64-bit integer, whose limit is 9.22e9 s);
 * ``frame_sha256`` 64 hex digits, ``transmitter`` a transmitter id (1–64
   printable characters, no commas or whitespace: a MAC address or a name);
-* ``rss_dbm`` finite within :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`;
+* ``rss_dbm`` finite;
 * numbers are JSON numbers (``strict``: ``"12.5"`` or ``true`` is a 422, not
   converted), and no text holds a NUL or another control character.
 
-Receiver and transmitter ids must also be known to the site; that is checked
-by the endpoint (``422``).
+The receiver id must also be known to the site (``422``, checked by the
+endpoint). A frame of a transmitter that is not enrolled, or with an RSS
+outside :data:`radiopose.capture.PLAUSIBLE_RSS_DBM`, is skipped and counted
+in the answer (:class:`ReportAck`), as ``radiopose sync`` skips and counts it:
+a sniffer reports every frame it hears, and one stranger must not cost the
+batch.
 """
 
 from __future__ import annotations
@@ -23,7 +27,6 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from radiopose.capture.records import PLAUSIBLE_RSS_DBM
 from radiopose.ids import transmitter_id_problem
 
 MAX_FRAMES_PER_BATCH = 5_000
@@ -60,10 +63,7 @@ class FrameReport(BaseModel):
     ]
     frame_sha256: Annotated[str, Field(pattern=r"^[0-9a-fA-F]{64}$")]
     transmitter: TransmitterId
-    rss_dbm: Annotated[
-        float,
-        Field(strict=True, ge=PLAUSIBLE_RSS_DBM[0], le=PLAUSIBLE_RSS_DBM[1], allow_inf_nan=False),
-    ]
+    rss_dbm: Annotated[float, Field(strict=True, allow_inf_nan=False)]
 
 
 class ReportBatch(BaseModel):
@@ -77,11 +77,16 @@ class ReportBatch(BaseModel):
 
 
 class ReportAck(BaseModel):
-    """The answer to a stored (or already stored) batch."""
+    """The answer to a stored (or already stored) batch: the frames stored, and
+    those skipped because their transmitter is not enrolled or their RSS is
+    outside :data:`radiopose.capture.PLAUSIBLE_RSS_DBM` (counted again for a
+    batch sent again; nothing is stored then)."""
 
     batch_id: str
     frames_stored: int
     duplicate: bool
+    frames_not_enrolled: int = 0
+    frames_implausible_rss: int = 0
 
 
 class Estimate(BaseModel):

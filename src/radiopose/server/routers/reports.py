@@ -4,7 +4,11 @@ from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, Response
 
-from radiopose.capture.records import canonical_transmitter, transmitter_id_problem
+from radiopose.capture.records import (
+    PLAUSIBLE_RSS_DBM,
+    canonical_transmitter,
+    transmitter_id_problem,
+)
 from radiopose.server.db import Database
 from radiopose.server.deps import API, DB, AnyRole, ReceiverRole, Worker
 from radiopose.server.schemas import ReportAck, ReportBatch
@@ -28,20 +32,28 @@ def add_routes(router: APIRouter) -> None:
 def post_reports(
     batch: ReportBatch, who: ReceiverRole, response: Response, db: DB, worker: Worker
 ) -> ReportAck:
-    """Store a batch of one receiver's frame reports (answered once durably stored)."""
+    """Store a batch of one receiver's frame reports (answered once durably stored).
+    Frames of transmitters that are not enrolled, or with an implausible RSS, are
+    skipped and counted in the answer; the rest of the batch is stored."""
     if who.receiver_id != batch.receiver_id:
         raise HTTPException(403, f"this token may post only as receiver {who.receiver_id!r}")
     receivers, transmitters = known_ids(db)
     if batch.receiver_id not in receivers:
         raise HTTPException(422, f"unknown receiver {batch.receiver_id!r}")
     rows = []
+    not_enrolled = implausible = 0
+    lo, hi = PLAUSIBLE_RSS_DBM
     for i, f in enumerate(batch.frames):
         problem = transmitter_id_problem(f.transmitter)
         if problem:
             raise HTTPException(422, f"frames[{i}]: {problem}")
         mac = canonical_transmitter(f.transmitter)
-        if mac not in transmitters:
-            raise HTTPException(422, f"frames[{i}]: transmitter {mac} is not enrolled")
+        if mac not in transmitters:  # another device the sniffer heard: skipped, counted
+            not_enrolled += 1
+            continue
+        if not lo <= f.rss_dbm <= hi:  # a radio's glitch: skipped and counted, as sync does
+            implausible += 1
+            continue
         rows.append((round(f.timestamp_s * 1e9), f.frame_sha256.lower(), mac, round(f.rss_dbm, 3)))
     rows.sort(key=lambda r: r[0])
     new, _ = db.store_batch(batch.receiver_id, batch.batch_id, rows)
@@ -51,7 +63,11 @@ def post_reports(
     else:
         response.status_code = 200
     return ReportAck(
-        batch_id=batch.batch_id, frames_stored=len(rows) if new else 0, duplicate=not new
+        batch_id=batch.batch_id,
+        frames_stored=len(rows) if new else 0,
+        duplicate=not new,
+        frames_not_enrolled=not_enrolled,
+        frames_implausible_rss=implausible,
     )
 
 
