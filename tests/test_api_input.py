@@ -138,6 +138,30 @@ def test_a_receiver_twice_in_a_python_packet_names_no_line(small_sim):
     assert "line" not in str(err.value)
 
 
+def test_rows_of_one_packet_at_different_times_are_an_error(small_sim, tmp_path):
+    """A reused packet id (rows 0.375 s apart under one id) was merged into one
+    packet at its first row's time and estimated; it is an error naming the
+    row, its column and the first row's line, from a file and from Python."""
+    from radiopose.packets import read_packets_csv, write_packets_csv
+
+    pk = small_sim.packets
+    first = pk.packet_id[0]
+    rows = np.flatnonzero(pk.packet_id == first)
+    t = pk.timestamp_s.copy()
+    t[rows[-1]] += 0.375
+    moved = replace(pk, timestamp_s=t)
+    with pytest.raises(InputError, match=f"rows of packet {first} of .* disagree") as err:
+        group_packets(moved)
+    assert "line" not in str(err.value)
+    path = tmp_path / "packets.csv"
+    write_packets_csv(moved, path)
+    with pytest.raises(InputError) as err:
+        locate(small_sim.site, read_packets_csv(path), "top")
+    message = str(err.value)
+    assert f"packets.csv:{rows[-1] + 2}, column 'timestamp_s'" in message
+    assert "(line 2)" in message and "\n" not in message
+
+
 @pytest.mark.parametrize("method", ["filter", "top"])
 def test_a_packet_given_twice_counts_once(small_sim, method):
     """The duplicate is skipped, and every other estimate is what it is

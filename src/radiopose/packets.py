@@ -192,15 +192,31 @@ def group_packets(packets: Packets) -> list[PacketObservation]:
     Raises
     ------
     InputError
-        Columns of different lengths (:func:`check_packet_arrays`).
+        Columns of different lengths (:func:`check_packet_arrays`), or rows of one
+        packet with different ``timestamp_s`` (a packet is sent once: the contract's
+        "one row per packet per receiver"; ``sync`` gives all of a packet's rows
+        its one time).
     """
     check_packet_arrays(packets)
     order: dict[tuple[str, str], list[int]] = {}
     for i, (tx, pid) in enumerate(zip(packets.transmitter, packets.packet_id, strict=True)):
         order.setdefault((str(tx), str(pid)), []).append(i)
     out = []
+    t_s = packets.timestamp_s
     for (tx, pid), rows in order.items():
         idx = np.asarray(rows)
+        other = np.flatnonzero(t_s[idx] != t_s[idx[0]])
+        if other.size:
+            j = int(idx[other[0]])
+            first = "" if packets.lines is None else f" (line {int(packets.lines[idx[0]])})"
+            raise InputError(
+                f"rows of packet {pid} of {tx} disagree on timestamp_s: "
+                f"{_show(t_s[j])} here, {_show(t_s[idx[0]])} in its first row{first}; "
+                "a packet is sent once, at one time (a packet_id reused?)",
+                path=packets.path,
+                line=None if packets.lines is None else int(packets.lines[j]),
+                column="timestamp_s",
+            )
         out.append(
             PacketObservation(
                 pid,
