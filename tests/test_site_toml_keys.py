@@ -250,3 +250,16 @@ def test_load_toml_pathological(tmp_path, text, needle):
     p.write_text(text)
     with pytest.raises(InputError, match=needle):
         load_toml(p)
+
+
+def test_load_toml_takes_a_bom_and_names_the_line_of_a_bad_byte(tmp_path):
+    """A UTF-8 byte order mark (Notepad's) is ignored, as in the CSV files; a
+    byte that is not UTF-8 is named with its line (it had none)."""
+    p = tmp_path / "c.toml"
+    p.write_bytes(b"\xef\xbb\xbfa = 1\n[t]\nx = 2\n")
+    doc = load_toml(p)
+    assert doc == {"a": 1, "t": {"x": 2}} and doc.key_lines[("t", "x")] == 3
+    p.write_bytes(b"a = 1\n# caf\xe9\nb = 2\n")
+    with pytest.raises(InputError, match=r"not UTF-8 text \(byte 0xe9\)") as exc:
+        load_toml(p)
+    assert exc.value.line == 2 and "c.toml:2:" in str(exc.value)

@@ -51,12 +51,15 @@ def load_toml(path: str | os.PathLike[str]) -> TomlDocument:
     """Parse a TOML file; errors become one-line :class:`InputError` s.
 
     Returns the document as a ``dict`` (a :class:`TomlDocument`, which also
-    carries the line of every key for later error messages).
+    carries the line of every key for later error messages). A leading UTF-8
+    byte order mark (which some Windows editors write) is ignored, as in the
+    CSV files.
     """
+    raw = b""
     try:
         with open(path, "rb") as fh:
             raw = fh.read()
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")
         data = tomllib.loads(text)
     except FileNotFoundError:
         raise InputError("file not found", path=path) from None
@@ -68,8 +71,11 @@ def load_toml(path: str | os.PathLike[str]) -> TomlDocument:
         if m:
             reason += f" (column {m.group(2)})"
         raise InputError(f"invalid TOML: {reason}", path=path, line=line) from None
-    except UnicodeDecodeError:
-        raise InputError("invalid TOML: not UTF-8 text", path=path) from None
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise InputError(
+            f"invalid TOML: not UTF-8 text (byte 0x{raw[exc.start]:02x})", path=path, line=line
+        ) from None
     except RecursionError:
         raise InputError("invalid TOML: arrays or tables nested too deeply", path=path) from None
     except ValueError:  # tomllib lets int("<over 4300 digits>") through
