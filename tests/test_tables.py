@@ -252,3 +252,19 @@ def test_replace_outputs_removes_only_what_its_manifest_lists(tmp_path):
     assert replace_outputs(out, "test", [out / "a.csv"]) == []
     with pytest.raises(ValueError):  # a written file must be inside the directory
         replace_outputs(out, "test", [tmp_path / "outside.csv"])
+
+
+def test_an_unclosed_quote_is_named_at_its_records_first_line(tmp_path):
+    """An unclosed quote makes the CSV reader run to the end of the file: the
+    error names the line where the record starts (it named the file's last
+    line), and says what probably happened; blank lines are counted."""
+    rows = ["a,b,c", "1,2,3", "", "3,4,5", '5,"6,7', *[f"{i},{i},{i}" for i in range(7, 40)]]
+    p = tmp_path / "t.csv"
+    p.write_text("\n".join(rows) + "\n")
+    with pytest.raises(InputError) as err:
+        read_table(p, [Column("a"), Column("b"), Column("c")])
+    assert err.value.line == 5
+    assert "a quoted field runs from line 5 to 38: a quote not closed?" in str(err.value)
+    rows[4] = '5,"6",7'  # closed: read on
+    p.write_text("\n".join(rows) + "\n")
+    assert list(read_table(p, [Column("a"), Column("b"), Column("c")]).lines[:3]) == [2, 4, 5]

@@ -166,6 +166,7 @@ def read_table(
     with _open_text(p) as fh:
         try:
             reader = csv.reader(fh)
+            read_to = 0  # the last line of the last whole record: a bad one starts after it
             header = next(reader, None)
             if header is None:
                 raise InputError("empty file, expected a header row", path=p, line=1)
@@ -189,15 +190,23 @@ def read_table(
             values: dict[str, list] = {c.name: [] for c in columns}
             lines: list[int] = []
             width = len(header)
+            read_to = reader.line_num
             for row in reader:
-                line = reader.line_num
+                # a record's first line (a quoted field may run over several)
+                line, read_to = read_to + 1, reader.line_num
                 if not row or all(not f.strip() for f in row):
                     continue  # blank lines are not rows
                 if len(row) != width:
                     short = len(row) < width
+                    runs = (
+                        f" (a quoted field runs from line {line} to {read_to}: a quote not closed?)"
+                        if read_to > line
+                        else ""
+                    )
                     raise InputError(
                         f"row has {len(row)} fields, header has {width}"
-                        + ("" if short else f" (extra after '{header[-1].strip()}')"),
+                        + ("" if short else f" (extra after '{header[-1].strip()}')")
+                        + runs,
                         path=p,
                         line=line,
                         column=header[len(row)].strip() if short else None,
@@ -218,7 +227,10 @@ def read_table(
                 f"not UTF-8 text ({exc.reason})", path=p, line=bad_line, column=column
             ) from None
         except csv.Error as exc:
-            raise InputError(f"malformed CSV: {exc}", path=p, line=reader.line_num) from None
+            # the record's first line, not the reader's (an unclosed quote reads to
+            # the end of the file)
+            hint = " (a quote opened here is not closed)" if "end of data" in str(exc) else ""
+            raise InputError(f"malformed CSV: {exc}{hint}", path=p, line=read_to + 1) from None
     arrays: dict[str, NDArray] = {}
     for col in columns:
         if col.kind == "float":
