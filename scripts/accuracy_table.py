@@ -13,7 +13,11 @@ table is built once per seed.
 Usage::
 
     python scripts/accuracy_table.py [--seeds 10] [--first-seed 1000] [--out docs/accuracy.md]
-        [--quick]
+        [--sigmas 0.5 1 ...] [--duration-s 2] [--quick]
+
+``--quick`` runs the smoke site instead (``ScenarioConfig.smoke()``: 10 × 10 m,
+0.25 m grid, 0.2 s traces unless ``--duration-s``) and needs ``--out``; its
+table says so.
 
 Runtime: ≈ 10 min for the full table on 2 cores with the compiled kernel
 (≈ 55 min with the numpy kernel, which gives the same estimates).
@@ -32,6 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, format_table, run_methods, summarise
+from radiopose.scripting import (
+    check_output,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import METHODS, TrackerConfig
 
@@ -41,6 +53,11 @@ LITERAL = "full, per-packet acquisition"
 SIGMAS_DB = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0)
 PAPER_ORIENTATION_MEAN_DEG = {0.5: 7.6, 3.0: 61.8}
 PAPER_POSITION_REDUCTION = {0.5: 0.82, 3.0: 0.36}
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 run``, ``2 runs``."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def bounds_report(rows) -> list[str]:
@@ -80,20 +97,35 @@ def bounds_report(rows) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--first-seed", type=int, default=1000)
-    ap.add_argument("--duration-s", type=float, default=ScenarioConfig().duration_s)
-    ap.add_argument("--sigmas", type=float, nargs="+", default=list(SIGMAS_DB))
+    ap.add_argument("--seeds", type=positive_int, default=10, help="number of seeds (runs per σ)")
+    ap.add_argument("--first-seed", type=non_negative_int, default=1000)
+    ap.add_argument(
+        "--duration-s", type=positive_float, default=None,
+        help="trace length, seconds (default: the scenario's, 2 s; 0.2 s with --quick)",
+    )  # fmt: skip
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=list(SIGMAS_DB))
     ap.add_argument(
         "--out", type=Path, default=None, help="default docs/accuracy.md; required with --quick"
     )
-    ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
+    ap.add_argument(
+        "--quick", action="store_true",
+        help="the smoke site (ScenarioConfig.smoke(): 10 m, 0.25 m grid, 0.2 s traces): "
+        "checks that it runs",
+    )  # fmt: skip
     args = ap.parse_args(argv)
     if args.out is None:
         if args.quick:  # a smoke table once replaced the real one (commit cb73384)
             ap.error("--quick writes a smoke table: give --out (docs/accuracy.md is the real one)")
         args.out = Path("docs/accuracy.md")
+    if args.out.suffix == ".json":
+        ap.error(f"--out {args.out}: the table's JSON is written beside it as .json; give a .md")
+    check_output(ap, "--out", files=[args.out, args.out.with_suffix(".json")])
     base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
+    if args.duration_s is not None:
+        base = replace(base, duration_s=args.duration_s)
+    with usage_errors(ap):  # σ and duration within the scenario's ranges, before the runs
+        for sigma in args.sigmas:
+            replace(base, noise_db=sigma).validate()
 
     t0 = time.perf_counter()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
@@ -101,8 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     for seed in seeds:
         scorer = None
         for sigma in args.sigmas:
-            duration_s = base.duration_s if args.quick else args.duration_s
-            cfg = replace(base, noise_db=sigma, duration_s=duration_s)
+            cfg = replace(base, noise_db=sigma)
             sim = simulate(cfg, seed=seed)
             if scorer is None:  # same site for every σ of a seed
                 scorer = build_scorer(sim, "numba")
@@ -147,15 +178,24 @@ def main(argv: list[str] | None = None) -> int:
     command = shlex.join(
         ["python", "scripts/accuracy_table.py", *(sys.argv[1:] if argv is None else argv)]
     )
+    if args.quick:
+        title = "# Accuracy on the smoke site (`--quick`: not the paper's standard scenario)"
+        scenario = "Smoke site (`ScenarioConfig.smoke()`"
+    else:
+        title = "# Accuracy on the paper's standard scenario"
+        scenario = "Standard scenario (`ScenarioConfig()`"
+    used = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}–{seeds[-1]}"
     text = [
-        "# Accuracy on the paper's standard scenario",
+        title,
         "",
         f"Produced by `{command}` (do not edit by hand).",
         "",
-        f"Standard scenario (`ScenarioConfig()`: 20 × 20 m, 0.1 m and 1° candidate grid, "
-        f"4 receivers, a packet every 5 ms, straight line with linear rotation, "
-        f"{args.duration_s:g} s per run = {n_packets // len(seeds)} packets), "
-        f"{len(seeds)} runs per σ (seeds {seeds[0]}–{seeds[-1]}, never used by tests), "
+        f"{scenario}: {base.size_m:g} × {base.size_m:g} m, {base.step_m:g} m and "
+        f"{base.azimuth_step_deg:g}° candidate grid, {_count(base.n_receivers, 'receiver')}, "
+        f"a packet every {base.interval_ms:g} ms, straight line with linear rotation, "
+        f"{base.duration_s:g} s per run = {_count(n_packets // len(seeds), 'packet')}), "
+        f"{_count(len(seeds), 'run')} per σ ({used}"
+        f"{'' if args.quick else ', never used by tests'}), "
         "default pipeline parameters (`TrackerConfig()`: the paper's, and track "
         "acquisition pooled over 0.1 s). Errors are pooled over "
         "the estimates of all runs; coverage = estimates ÷ packets. `lms` estimates "
@@ -208,4 +248,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

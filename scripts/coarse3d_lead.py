@@ -30,6 +30,7 @@ from radiopose.filtering import particle3d
 from radiopose.filtering.coarse3d import CoarseScorer, read_windows, window_path
 from radiopose.likelihood import candidate_space
 from radiopose.packets import group_packets
+from radiopose.scripting import positive_float, positive_int, run_script, usage_errors
 from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, Simulation, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
@@ -64,11 +65,14 @@ def main(argv: list[str] | None = None) -> int:
         "--seeds", type=seed_range, nargs="+", default=[range(7104, 7105)],
         help="seeds or ranges FIRST-LAST",
     )  # fmt: skip
-    ap.add_argument("--receivers", type=int, default=6)
-    ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
-    ap.add_argument("--duration-s", type=float, default=4.0)
+    ap.add_argument("--receivers", type=positive_int, default=6)
+    ap.add_argument("--sigma", type=positive_float, default=1.0, help="simulated σ, dB")
+    ap.add_argument("--duration-s", type=positive_float, default=4.0)
     ap.add_argument("--no-pipeline", action="store_true", help="the coarse path only")
     args = ap.parse_args(argv)
+    with usage_errors(ap):  # the scenario's ranges (3 receivers at least), before the runs
+        replace(HandheldConfig(), n_receivers=args.receivers, noise_db=args.sigma,
+                duration_s=args.duration_s).validate()  # fmt: skip
     print("| seed | pipeline: position m / rotation ° (azimuth °) | coarse path: position m / "
           "azimuth ° (max) | CPU s (pipeline, path) |")  # fmt: skip
     print("|---|---|---|---|")
@@ -95,4 +99,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -33,6 +33,14 @@ from pathlib import Path
 import numpy as np
 
 from radiopose.packets import Packets
+from radiopose.scripting import (
+    check_output,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.security.detection import DetectorConfig, score_track
 from radiopose.simulate.channel import link_rss_dbm
 from radiopose.simulate.handheld import HandheldConfig, handheld_path, simulate_handheld
@@ -136,19 +144,29 @@ def table(runs: list[Run]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--first-seed", type=int, default=21_000)
-    ap.add_argument("--duration-s", type=float, default=60.0)
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 1.0, 3.0])
-    ap.add_argument("--receivers", type=int, default=6)
+    ap.add_argument("--seeds", type=positive_int, default=10, help="number of seeds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=21_000)
+    ap.add_argument("--duration-s", type=positive_float, default=60.0)
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=[0.5, 1.0, 3.0])
+    ap.add_argument("--receivers", type=positive_int, default=6)
     ap.add_argument("--out", type=Path)
     ap.add_argument("--quick", action="store_true", help="tiny site, one seed, 4 s")
     args = ap.parse_args(argv)
+    if args.out is not None:
+        check_output(ap, "--out", files=[args.out])
     base = HandheldConfig(n_receivers=args.receivers, duration_s=args.duration_s)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     if args.quick:
         base = replace(base, duration_s=4.0, size_m=10.0, step_m=0.5, survey_step_m=1.0)
         seeds = range(args.first_seed, args.first_seed + 1)
+    with usage_errors(ap):  # the scenario's ranges (3 receivers at least), before the runs
+        for sigma in args.sigmas:
+            replace(base, noise_db=sigma).validate()
+    if round(base.duration_s / (base.interval_ms / 1000.0)) < 2:  # a genuine span to score
+        ap.error(
+            f"--duration-s must hold two packets at least (one every {base.interval_ms:g} ms), "
+            f"got {args.duration_s}"
+        )
     detector = DetectorConfig()
     runs = []
     for sigma in args.sigmas:
@@ -161,9 +179,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(text)
     if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text + "\n", encoding="utf-8")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

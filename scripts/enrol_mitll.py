@@ -26,6 +26,7 @@ import matplotlib.pyplot as plt
 from radiopose.patterns.importers import read_mitll
 from radiopose.patterns.pattern import write_pattern_csv
 from radiopose.patterns.plot import plot_polar, save_pattern_figure
+from radiopose.scripting import check_output, run_script
 
 ROOT = Path(__file__).resolve().parents[1]
 PATTERNS_DIR = ROOT / "src" / "radiopose" / "data" / "patterns"
@@ -41,10 +42,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--patterns-dir", type=Path, default=PATTERNS_DIR)
     parser.add_argument("--figures-dir", type=Path, default=FIGURES_DIR)
     args = parser.parse_args(argv)
+    if not args.data.is_dir():  # checked before anything is read or written
+        parser.error(f"--data {args.data}: no such directory (the MIT LL chamber captures)")
+    for folder in PHONES.values():
+        if not (args.data / folder).is_dir():
+            parser.error(f"--data {args.data}: no {folder}/ in it (the MIT LL chamber captures)")
+    check_output(parser, "--patterns-dir", dirs=[args.patterns_dir])
+    check_output(parser, "--figures-dir", dirs=[args.figures_dir])
+    check_output(parser, "--patterns-dir", files=[args.patterns_dir / f"{n}.csv" for n in PHONES])
+    figures = [args.figures_dir / f"pattern-{n}.png" for n in [*PHONES, "phones"]]
+    check_output(parser, "--figures-dir", files=figures)
+    # every phone read before anything is written: a bad capture leaves no output
+    patterns = {name: read_mitll(args.data / folder, name=name) for name, folder in PHONES.items()}
     fig = plt.figure(figsize=(5.5, 5.5))
     ax = fig.add_subplot(projection="polar")
-    for name, folder in PHONES.items():
-        pattern = read_mitll(args.data / folder, name=name)
+    for name, pattern in patterns.items():
         write_pattern_csv(pattern, args.patterns_dir / f"{name}.csv")
         save_pattern_figure(pattern, args.figures_dir / f"pattern-{name}.png")
         lo, hi = pattern.range_dbi
@@ -59,4 +71,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -81,6 +81,14 @@ from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.filtering import FilterConfig
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.packets import Packets
+from radiopose.scripting import (
+    check_output,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, seed_range, simulate
 from radiopose.simulate.trajectories import RotationKind
 from radiopose.tracker import TrackerConfig
@@ -218,16 +226,18 @@ def _table(done: list, sigmas: list[float], variants: list[str], seeds: range) -
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument(
-        "--seed-sets", type=seed_range, nargs="+", default=[range(1000, 1010), range(1010, 1030)],
+        "--seed-sets", type=seed_range, nargs="+", default=None,
         help="seed ranges FIRST-LAST, one table each (default 1000-1009 1010-1029)",
     )  # fmt: skip
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=[0.5, 3.0])
     ap.add_argument(
         "--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS),
         help="rows to run (default all)",
     )  # fmt: skip
-    ap.add_argument("--seeds", type=int, default=None, help="with --first-seed: one set of N seeds")
-    ap.add_argument("--first-seed", type=int, default=None)
+    ap.add_argument(
+        "--seeds", type=positive_int, default=None, help="with --first-seed: one set of N seeds"
+    )
+    ap.add_argument("--first-seed", type=non_negative_int, default=None)
     ap.add_argument(
         "--set", nargs="*", default=[], metavar="FIELD=VALUE",
         help="FilterConfig overrides for the filter rows (tuning: on seeds 7000-7059 only)",
@@ -237,14 +247,30 @@ def main(argv: list[str] | None = None) -> int:
         help="the device's rotation (MotionConfig.rotation; default the standard scenario's "
         "linear; periodic: the motion experiment's human-like sway)",
     )  # fmt: skip
-    ap.add_argument("--jobs", type=int, default=1, help="worker processes (runs in parallel)")
+    ap.add_argument(
+        "--jobs", type=positive_int, default=1, help="worker processes (runs in parallel)"
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
+    if args.out is not None:
+        check_output(ap, "--out", files=[args.out])
     if args.seeds is not None or args.first_seed is not None:
+        if args.seed_sets is not None:
+            ap.error("--seed-sets or --seeds/--first-seed, not both")
         first = 1000 if args.first_seed is None else args.first_seed
         args.seed_sets = [range(first, first + (10 if args.seeds is None else args.seeds))]
+    elif args.seed_sets is None:
+        args.seed_sets = [range(1000, 1010), range(1010, 1030)]
     overrides = overrides_or_exit(ap, args.set)
     variants = [v for v in VARIANTS if v in args.variants]
+    with usage_errors(ap):  # σ within the scenario's range, before the runs
+        for sigma in args.sigmas:
+            ScenarioConfig(noise_db=sigma).validate()
+    with usage_errors(ap, "--set"):  # the overrides with each row's own settings
+        for name in variants:
+            cfg, _, method = VARIANTS[name]
+            if method == "filter":
+                replace(cfg, filter=replace(cfg.filter, **overrides))
     seeds = sorted({s for r in args.seed_sets for s in r})
     tasks = [
         (sigma, seed, tuple(variants), overrides, args.rotation)
@@ -276,9 +302,10 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines) + "\n"
     print(text)
     if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(text, encoding="utf-8")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -24,6 +24,7 @@ import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.packets import Packets
+from radiopose.scripting import non_negative_int, positive_int, run_script
 from radiopose.simulate import MotionConfig, ScenarioConfig, Simulation, simulate
 
 SCENARIOS: dict[str, ScenarioConfig] = {
@@ -47,8 +48,8 @@ def _gapped(sim: Simulation) -> Simulation:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=3)
-    ap.add_argument("--first-seed", type=int, default=1000)
+    ap.add_argument("--seeds", type=positive_int, default=3, help="number of seeds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=1000)
     args = ap.parse_args(argv)
     t0 = time.perf_counter()
     lines = [
@@ -87,4 +88,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

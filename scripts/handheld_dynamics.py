@@ -19,6 +19,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from radiopose.scripting import positive_float, run_script, usage_errors
 from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, handheld_path
 
@@ -26,10 +27,16 @@ from radiopose.simulate.handheld import HandheldConfig, handheld_path
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=seed_range, default=range(9000, 9010), help="FIRST-LAST")
-    ap.add_argument("--duration-s", type=float, default=4.0)
+    ap.add_argument("--duration-s", type=positive_float, default=4.0)
     args = ap.parse_args(argv)
     cfg = replace(HandheldConfig(), duration_s=args.duration_s)
+    with usage_errors(ap):  # the scenario's range of durations
+        cfg.validate()
     t = np.arange(0.0, cfg.duration_s, 0.005)
+    if t.size < 2:  # the rates need two samples
+        ap.error(
+            f"--duration-s must be above 0.005 s (two samples at 200 Hz), got {cfg.duration_s}"
+        )
     print("| seed | azimuth acceleration RMS °/s² | peak °/s² | peak rate °/s | pitch rate RMS °/s "
           "| roll rate RMS °/s |")  # fmt: skip
     print("|---|---|---|---|---|---|")
@@ -51,4 +58,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -67,6 +67,14 @@ from radiopose.filtering.config import overrides_or_exit
 from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import Scorer
 from radiopose.packets import group_packets
+from radiopose.scripting import (
+    finite_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import Tracker, TrackerConfig
 from radiopose.tracker.resolve import Solver
@@ -150,9 +158,9 @@ def prefix_bound(sim: Simulation, scorer: Scorer, fcfg: FilterConfig, lag_s: flo
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--first-seed", type=int, default=1000)
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[0.5, 3.0])
+    ap.add_argument("--seeds", type=positive_int, default=5, help="number of seeds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=1000)
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=[0.5, 3.0])
     ap.add_argument(
         "--variants", nargs="+", default=list(VARIANTS), choices=[*VARIANTS, ANCHOR, BOUND],
         help="which rows (default: the filter's four; 'textbook' adds issue 15's anchor, "
@@ -163,15 +171,15 @@ def main(argv: list[str] | None = None) -> int:
         help="FilterConfig overrides for every variant",
     )  # fmt: skip
     ap.add_argument(
-        "--duration-s", type=float, default=None,
+        "--duration-s", type=finite_float, default=None,
         help="trace length, seconds (default: the scenario's 2 s)",
     )  # fmt: skip
     ap.add_argument(
-        "--settle-s", type=float, default=None,
+        "--settle-s", type=finite_float, default=None,
         help="also report the errors from this many seconds into each trace on",
     )  # fmt: skip
     ap.add_argument(
-        "--bins-s", type=float, default=None,
+        "--bins-s", type=finite_float, default=None,
         help="also a table of the orientation error (mean of runs) in time bins of this width",
     )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
@@ -189,6 +197,13 @@ def main(argv: list[str] | None = None) -> int:
     width = args.bins_s
     if width is not None and not 0 < width <= base.duration_s:
         ap.error(f"--bins-s must be in (0, {base.duration_s:g}], got {width}")
+    with usage_errors(ap):  # σ and duration within the scenario's ranges, before the runs
+        for sigma in args.sigmas:
+            replace(base, noise_db=sigma).validate()
+    with usage_errors(ap, "--set"):  # the overrides with each variant's own settings
+        for lag_s, offline in variants.values():
+            fcfg = FilterConfig() if offline else LIVE_FILTER
+            TrackerConfig(smoothing_lag_s=lag_s, filter=replace(fcfg, **overrides))
     edges = [] if width is None else list(np.arange(0.0, base.duration_s - 1e-9, width))
     bin_lines = [
         "| σ (dB) | variant | " + " | ".join(f"{a:g}–{a + width:g} s" for a in edges) + " |",
@@ -268,4 +283,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -40,6 +40,14 @@ import numpy as np
 
 from radiopose.capture.records import FrameRecords, read_pcap
 from radiopose.capture.writer import write_receiver_pcaps
+from radiopose.scripting import (
+    check_output,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.server.app import import_site_dir
 from radiopose.server.db import Database
 from radiopose.server.live import LiveConfig, LivePipeline
@@ -50,21 +58,29 @@ BATCH_S = 0.1
 """Trace seconds per batch of one receiver (the agents' batch interval)."""
 
 
+def scene_config(
+    kind: str, n_rx: int, interval_ms: float, duration_s: float, size_m: float = 20.0
+) -> HandheldConfig | ScenarioConfig:
+    """The configuration of :func:`scene`."""
+    spacing_m = min(4.0, size_m / 3.0)
+    if kind == "3d":
+        return HandheldConfig(
+            size_m=size_m, n_receivers=n_rx, interval_ms=interval_ms, duration_s=duration_s,
+            min_receiver_spacing_m=spacing_m,
+        )  # fmt: skip
+    return ScenarioConfig(
+        size_m=size_m, step_m=0.25, azimuth_step_deg=5.0, n_receivers=n_rx,
+        interval_ms=interval_ms, duration_s=duration_s, min_receiver_spacing_m=spacing_m,
+    )  # fmt: skip
+
+
 def scene(
     kind: str, n_rx: int, interval_ms: float, duration_s: float, seed: int, size_m: float = 20.0
 ) -> Simulation:
     """The 3-D hand-held scenario or its 2-D baseline (``size_m`` square, 0.25 m, 5°)."""
-    spacing_m = min(4.0, size_m / 3.0)
-    if kind == "3d":
-        cfg3 = HandheldConfig(
-            size_m=size_m, n_receivers=n_rx, interval_ms=interval_ms, duration_s=duration_s,
-            min_receiver_spacing_m=spacing_m,
-        )  # fmt: skip
-        return simulate_handheld(cfg3, seed=seed)
-    cfg = ScenarioConfig(
-        size_m=size_m, step_m=0.25, azimuth_step_deg=5.0, n_receivers=n_rx,
-        interval_ms=interval_ms, duration_s=duration_s, min_receiver_spacing_m=spacing_m,
-    )  # fmt: skip
+    cfg = scene_config(kind, n_rx, interval_ms, duration_s, size_m)
+    if isinstance(cfg, HandheldConfig):
+        return simulate_handheld(cfg, seed=seed)
     return simulate(cfg, seed=seed)
 
 
@@ -161,14 +177,19 @@ def paced(db: Database, bs: list[tuple[float, str, str, list[Any]]], n_packets: 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration-s", type=float, default=10.0)
-    ap.add_argument("--interval-ms", type=float, default=20.0)
-    ap.add_argument("--receivers", type=int, default=6)
-    ap.add_argument("--seed", type=int, default=18300)
-    ap.add_argument("--size-m", type=float, default=20.0, help="side of both sites, m")
+    ap.add_argument("--duration-s", type=positive_float, default=10.0)
+    ap.add_argument("--interval-ms", type=positive_float, default=20.0)
+    ap.add_argument("--receivers", type=positive_int, default=6)
+    ap.add_argument("--seed", type=non_negative_int, default=18300)
+    ap.add_argument("--size-m", type=positive_float, default=20.0, help="side of both sites, m")
     ap.add_argument("--paced", action="store_true", help="also measure the lag in real time")
     ap.add_argument("--out", type=Path, default=None, help="also write the table here")
     a = ap.parse_args(argv)
+    if a.out is not None:
+        check_output(ap, "--out", files=[a.out])
+    with usage_errors(ap):  # both sites' ranges (3 receivers at least), before the runs
+        for kind in ("2d", "3d"):
+            scene_config(kind, a.receivers, a.interval_ms, a.duration_s, a.size_m).validate()
     rows = []
     with tempfile.TemporaryDirectory(prefix="radiopose-live3d-") as tmp_name:
         tmp = Path(tmp_name)
@@ -210,9 +231,10 @@ def main(argv: list[str] | None = None) -> int:
     text = "\n".join(lines)
     print(text)
     if a.out is not None:
+        a.out.parent.mkdir(parents=True, exist_ok=True)
         a.out.write_text(text + "\n", encoding="utf-8")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

@@ -56,6 +56,7 @@ from radiopose.filtering.reverse import pose_residuals_db, profile_offset
 from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import HeardRss, MemoScorer, candidate_space
 from radiopose.packets import Packets, group_packets
+from radiopose.scripting import non_negative_int, positive_float, run_script, usage_errors
 from radiopose.simulate import ScenarioConfig, Simulation, simulate
 from radiopose.tracker import TrackerConfig
 
@@ -312,8 +313,10 @@ def diagnose_candidates(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, nargs="+", default=[7030], help="tuning seeds only")
-    ap.add_argument("--sigma", type=float, default=3.0, help="simulated σ, dB")
+    ap.add_argument(
+        "--seeds", type=non_negative_int, nargs="+", default=[7030], help="tuning seeds only"
+    )
+    ap.add_argument("--sigma", type=positive_float, default=3.0, help="simulated σ, dB")
     ap.add_argument("--loud", action="store_true", help="the device 6 dB above its enrolled power")
     ap.add_argument("--reverse", action="store_true", help="also the reversed pass's track")
     ap.add_argument(
@@ -329,11 +332,18 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
+    if args.set and not args.candidates:
+        ap.error("--set overrides the offline default of --candidates: give --candidates")
+    if args.candidates and (args.reverse or args.arbiter):
+        ap.error("--candidates runs the offline default: --reverse and --arbiter do not apply")
+    with usage_errors(ap):  # σ within the scenario's range, before the runs
+        replace(ScenarioConfig(), noise_db=args.sigma).validate()
     seeds = [5] if args.quick else args.seeds
     if args.candidates:
         tcfg = TrackerConfig()
         overrides = overrides_or_exit(ap, args.set)
-        tcfg = replace(tcfg, filter=replace(tcfg.filter, **overrides))
+        with usage_errors(ap, "--set"):
+            tcfg = replace(tcfg, filter=replace(tcfg.filter, **overrides))
         diagnose_candidates(seeds, args.sigma, args.loud, args.quick, tcfg)
         return 0
     rows = diagnose(seeds, args.sigma, args.loud, args.reverse, args.quick, args.arbiter)
@@ -344,4 +354,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

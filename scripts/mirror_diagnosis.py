@@ -17,6 +17,13 @@ import numpy as np
 from radiopose.likelihood import candidate_space, exact_mse_db2
 from radiopose.likelihood.compiled import ShiftScorer
 from radiopose.packets import group_packets
+from radiopose.scripting import (
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.units import angle_diff_deg
 
@@ -53,14 +60,16 @@ def diagnose(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("seed", type=int, nargs="?", default=1006)
-    ap.add_argument("sigma_db", type=float, nargs="?", default=0.5, help="RSS noise σ, dB")
-    ap.add_argument("--packets", type=int, default=100, help="first packets to look at")
+    ap.add_argument("seed", type=non_negative_int, nargs="?", default=1006)
+    ap.add_argument("sigma_db", type=positive_float, nargs="?", default=0.5, help="RSS noise σ, dB")
+    ap.add_argument("--packets", type=positive_int, default=100, help="first packets to look at")
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
+    with usage_errors(ap):  # σ within the scenario's range, before the simulation
+        replace(ScenarioConfig(), noise_db=args.sigma_db).validate()
     diagnose(args.seed, args.sigma_db, args.packets, args.quick)
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -29,6 +29,7 @@ from radiopose.filtering import FilterModel
 from radiopose.filtering.offset_profile import CoarseTable, offset_profile
 from radiopose.likelihood import Scorer, candidate_space
 from radiopose.packets import group_packets
+from radiopose.scripting import positive_float, positive_int, run_script, usage_errors
 from radiopose.simulate import ScenarioConfig, seed_range, simulate
 
 
@@ -37,8 +38,14 @@ class _NoScorer:
 
 
 def _grid(text: str) -> tuple[float, float]:
-    a, _, b = text.partition(":")
-    return float(a), float(b)
+    """``STEP_M:STEP_DEG``, both finite and > 0 (the parser's usage error otherwise)."""
+    a, colon, b = text.partition(":")
+    if not colon:
+        raise argparse.ArgumentTypeError(f"{text!r} is not STEP_M:STEP_DEG")
+    try:
+        return positive_float(a), positive_float(b)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"{text!r} is not STEP_M:STEP_DEG: {exc}") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -46,15 +53,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--seeds", type=seed_range, default=range(7300, 7301), help="FIRST-LAST (tuning seeds only)"
     )
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[3.0])
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=[3.0])
     ap.add_argument("--loud", action="store_true", help="also the device 6 dB above its power")
     ap.add_argument("--grids", type=_grid, nargs="+", default=[(1.0, 15.0)], help="STEP_M:STEP_DEG")
-    ap.add_argument("--windows", type=float, nargs="+", default=[0.1], help="window lengths, s")
-    ap.add_argument("--grid-sigmas", type=float, nargs="+", default=[0.5], help="σ_g, dB")
-    ap.add_argument("--stride", type=int, default=1, help="every n-th window only")
+    ap.add_argument(
+        "--windows", type=positive_float, nargs="+", default=[0.1], help="window lengths, s"
+    )
+    ap.add_argument("--grid-sigmas", type=positive_float, nargs="+", default=[0.5], help="σ_g, dB")
+    ap.add_argument("--stride", type=positive_int, default=1, help="every n-th window only")
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     args = ap.parse_args(argv)
     base = ScenarioConfig.smoke() if args.quick else ScenarioConfig()
+    with usage_errors(ap):  # σ within the scenario's range, before the runs
+        for sigma in args.sigmas:
+            replace(base, noise_db=sigma).validate()
     seeds = [5] if args.quick else args.seeds
     offsets = np.arange(-12.0, 12.01, 0.5)
     devices = [0.0, 6.0] if args.loud else [0.0]
@@ -112,4 +124,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

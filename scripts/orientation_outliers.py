@@ -28,6 +28,14 @@ from dataclasses import replace
 import numpy as np
 
 from radiopose.evaluate.demo import build_scorer, run_methods
+from radiopose.scripting import (
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import ScenarioConfig, simulate
 from radiopose.tracker import TrackerConfig
 
@@ -35,12 +43,15 @@ TEST_GRID = {"step_m": 0.2, "azimuth_step_deg": 2.0, "duration_s": 0.5}
 """The grid and trace length of tests/test_accuracy.py."""
 
 
-def main(argv: list[str] | None = None) -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--first-seed", type=int, default=2000)
-    ap.add_argument("--seeds", type=int, default=50)
-    ap.add_argument("--sigma", type=float, default=0.5, help="RSS noise σ, dB")
-    ap.add_argument("--windows", type=float, nargs="+", default=[0.0, 0.1], help="seconds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=2000)
+    ap.add_argument("--seeds", type=positive_int, default=50, help="number of seeds")
+    ap.add_argument("--sigma", type=positive_float, default=0.5, help="RSS noise σ, dB")
+    ap.add_argument(
+        "--windows", type=non_negative_float, nargs="+", default=[0.0, 0.1],
+        help="acquisition windows, seconds (0: per packet)",
+    )  # fmt: skip
     ap.add_argument("--grid", choices=("standard", "test"), default="standard")
     ap.add_argument("--method", choices=("full", "location", "orientation"), default="full")
     args = ap.parse_args(argv)
@@ -48,6 +59,10 @@ def main(argv: list[str] | None = None) -> None:
     scenario = replace(ScenarioConfig(), noise_db=args.sigma)
     if args.grid == "test":
         scenario = replace(scenario, **TEST_GRID)
+    with usage_errors(ap):  # σ and the windows within their ranges, before the runs
+        scenario.validate()
+        for w in args.windows:
+            TrackerConfig(acquisition_window_s=w)
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     runs: dict[float, list] = {w: [] for w in args.windows}
     for seed in seeds:
@@ -76,7 +91,8 @@ def main(argv: list[str] | None = None) -> None:
                 f"  seeds {seeds[b]}–{seeds[min(b + 9, len(rs) - 1)]}: pooled "
                 f"{float(np.mean(np.concatenate(block))):.2f}°; per run: {cells}"
             )
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(run_script(main))

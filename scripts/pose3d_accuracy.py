@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -57,6 +56,16 @@ from radiopose.filtering import FilterConfig, particle3d
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.refine3d import MotionPrior, refine_track
 from radiopose.likelihood import candidate_space
+from radiopose.scripting import (
+    check_output,
+    finite_float,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
 from radiopose.tracker.batch import _check_packets as check_packets
@@ -138,32 +147,32 @@ def pooled(runs: list[AxisErrors]) -> dict[str, float]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--first-seed", type=int, default=1100)
-    ap.add_argument("--receivers", type=int, nargs="+", default=[4, 6, 8])
-    ap.add_argument("--sigmas", type=float, nargs="+", default=[1.0])
-    ap.add_argument("--duration-s", type=float, default=4.0)
+    ap.add_argument("--seeds", type=positive_int, default=10, help="number of seeds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=1100)
+    ap.add_argument("--receivers", type=positive_int, nargs="+", default=[4, 6, 8])
+    ap.add_argument("--sigmas", type=positive_float, nargs="+", default=[1.0])
+    ap.add_argument("--duration-s", type=positive_float, default=4.0)
     mode_group = ap.add_mutually_exclusive_group()
     mode_group.add_argument("--causal", action="store_true", help="causal filter (no smoother)")
     mode_group.add_argument(
-        "--live-lag-s", type=float, default=None,
+        "--live-lag-s", type=finite_float, default=None,
         help="the live server's filter: this smoothing lag (at most 0.25 s), no refinement",
     )  # fmt: skip
     ap.add_argument(
         "--offset-prior-sd-db",
-        type=float,
+        type=positive_float,
         default=FilterConfig().offset_prior_sd_db,
         help="prior σ of the transmit-power offset (default: the filter's)",
     )
     ap.add_argument(
         "--heading-prior-deg",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         help="also run each condition with the hand-held heading prior at this spread (0: no)",
     )
     ap.add_argument(
         "--power-error-db",
-        type=float,
+        type=finite_float,
         default=0.0,
         help="also run each condition with devices.csv's power this many dB too low (0: no)",
     )
@@ -179,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--refine-hybrid-s",
-        type=float,
+        type=non_negative_float,
         default=0.0,
         help="also run each condition with the refinement's hybrid start (segments of this "
         "many seconds; Pose3dConfig.refine_hybrid_segment_s)",
@@ -191,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--refine-accel",
-        type=float,
+        type=non_negative_float,
         nargs=2,
         metavar=("HEIGHT_MPS2", "TILT_DPS2"),
         help="also run each condition (and its oracle with --oracle) with the refinement's "
@@ -199,14 +208,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--refine-polish",
-        type=int,
+        type=positive_int,
         nargs="+",
-        default=[1],
+        default=None,
         help="with --refine-accel: one row per value of Pose3dConfig.refine_polish_starts",
     )
     ap.add_argument(
         "--polish-modes",
-        type=float,
+        type=non_negative_float,
         nargs=3,
         metavar=("K", "MARGIN", "SWITCH"),
         help="also run each condition polishing up to K distinct refined tracks within MARGIN "
@@ -228,7 +237,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--restarts",
-        type=int,
+        type=non_negative_int,
         nargs="+",
         default=[],
         metavar="N",
@@ -237,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--offline-particles",
-        type=int,
+        type=positive_int,
         nargs="+",
         default=[],
         metavar="N",
@@ -247,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--angular-noise",
-        type=float,
+        type=positive_float,
         nargs="+",
         default=[],
         metavar="DPS2",
@@ -256,7 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument(
         "--tilt-noise",
-        type=float,
+        type=positive_float,
         nargs="+",
         default=[],
         metavar="DPS",
@@ -281,6 +290,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.live_lag_s is not None and not 0.0 <= args.live_lag_s <= 0.25:
         ap.error(f"--live-lag-s must lie in [0, 0.25] s (the live server's), got {args.live_lag_s}")
+    if args.polish_modes and not (args.polish_modes[0].is_integer() and args.polish_modes[0] >= 1):
+        ap.error(f"--polish-modes: K must be an integer >= 1, got {args.polish_modes[0]:g}")
+    if args.refine_polish and not args.refine_accel:
+        ap.error("--refine-polish applies with --refine-accel only")
+    if args.out is not None:
+        check_output(ap, "--out", files=[args.out])
     if args.quick:
         args.seeds, args.receivers, args.duration_s = 1, [6], 0.5
     seeds = range(args.first_seed, args.first_seed + args.seeds)
@@ -305,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
         hq, tq = args.refine_accel
         acc = {"refine_height_accel_noise_mps2": hq, "refine_tilt_accel_noise_dps2": tq}
         label = f"refinement prior constant-rate (height {hq:g}, tilt {tq:g})"
-        for k in args.refine_polish:
+        for k in args.refine_polish or [1]:
             variants.append((f"{label}, polish {k}", {**acc, "refine_polish_starts": k}, 0.0))
         if args.oracle:
             variants.append(("oracle, " + label, acc, math.nan))
@@ -340,6 +355,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.power_error_db:
         e = args.power_error_db
         variants.append((f"devices.csv power {e:g} dB low", {}, e))
+    if not variants:
+        ap.error("--only-variants skips the standard row: ask for another row too")
+    with usage_errors(ap):  # every run's settings within their ranges, before the runs
+        for n_rx in args.receivers:
+            for sigma in args.sigmas:
+                replace(HandheldConfig(), n_receivers=n_rx, noise_db=sigma,
+                        duration_s=args.duration_s).validate()  # fmt: skip
+        FilterConfig(offset_prior_sd_db=args.offset_prior_sd_db)
+        for _, p3, _ in variants:
+            replace(particle3d.Pose3dConfig(), **p3)
     t0 = time.time()
     for n_rx in args.receivers:
         for sigma in args.sigmas:
@@ -386,9 +411,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(text)
     if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(text, encoding="utf-8")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

@@ -16,7 +16,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import sys
 from dataclasses import replace
 
 import numpy as np
@@ -26,6 +25,7 @@ from radiopose.filtering import kernels as K  # noqa: N812 - the kernels' column
 from radiopose.filtering.particle3d import FilterModel3d, Pose3dConfig
 from radiopose.geometry import relative_rotation_angle_deg
 from radiopose.likelihood import candidate_space
+from radiopose.scripting import non_negative_int, positive_int, run_script, usage_errors
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 
 SCENE = HandheldConfig(
@@ -35,10 +35,12 @@ SCENE = HandheldConfig(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--receivers", type=int, default=6)
-    ap.add_argument("--seed", type=int, default=424242)
-    ap.add_argument("--starts", type=int, default=150)
+    ap.add_argument("--receivers", type=positive_int, default=6)
+    ap.add_argument("--seed", type=non_negative_int, default=424242)
+    ap.add_argument("--starts", type=positive_int, default=150)
     args = ap.parse_args(argv)
+    with usage_errors(ap):  # the scene's range of receivers (3 at least)
+        replace(SCENE, n_receivers=args.receivers).validate()
     k = args.receivers
     sim = simulate_handheld(replace(SCENE, n_receivers=k), seed=args.seed)
     site = sim.site
@@ -74,4 +76,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

@@ -51,6 +51,13 @@ from radiopose.errors import InputError
 from radiopose.evaluate.pose3d import axis_errors, axis_errors_of
 from radiopose.filtering.config import overrides_or_exit
 from radiopose.filtering.particle3d import Pose3dConfig
+from radiopose.scripting import (
+    non_negative_float,
+    positive_float,
+    positive_int,
+    run_script,
+    usage_errors,
+)
 from radiopose.simulate import seed_range
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.tracker import TrackerConfig, locate
@@ -62,9 +69,9 @@ def main(argv: list[str] | None = None) -> int:
         "--seeds", type=seed_range, nargs="+", default=[range(7104, 7105)],
         help="seeds or ranges FIRST-LAST",
     )  # fmt: skip
-    ap.add_argument("--receivers", type=int, default=6)
-    ap.add_argument("--sigma", type=float, default=1.0, help="simulated σ, dB")
-    ap.add_argument("--duration-s", type=float, default=4.0)
+    ap.add_argument("--receivers", type=positive_int, default=6)
+    ap.add_argument("--sigma", type=positive_float, default=1.0, help="simulated σ, dB")
+    ap.add_argument("--duration-s", type=positive_float, default=4.0)
     ap.add_argument("--pose3d-set", nargs="*", default=[], metavar="FIELD=VALUE")
     ap.add_argument(
         "--sim-set", nargs="*", default=[], metavar="FIELD=VALUE",
@@ -73,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     )  # fmt: skip
     ap.add_argument("--oracle", action="store_true", help="compare with the truth's basin")
     ap.add_argument(
-        "--segment-s", type=float, default=0.0,
+        "--segment-s", type=non_negative_float, default=0.0,
         help="also the largest over the median segment's data term per reading, segments "
         "of this many seconds (σ-free: a track wrong over part of its length fits worse there)",
     )  # fmt: skip
@@ -84,6 +91,12 @@ def main(argv: list[str] | None = None) -> int:
         replace(HandheldConfig(), **sim_over).validate()
     except InputError as exc:
         ap.error(f"--sim-set {exc}")
+    options = {"n_receivers": "--receivers", "noise_db": "--sigma", "duration_s": "--duration-s"}
+    for name in sim_over.keys() & options.keys():
+        ap.error(f"--sim-set {name}: give {options[name]} instead")
+    with usage_errors(ap):  # the scenario's ranges (3 receivers at least), before the runs
+        replace(HandheldConfig(), n_receivers=args.receivers, noise_db=args.sigma,
+                duration_s=args.duration_s, **sim_over).validate()  # fmt: skip
     kept: dict[str, Any] = {}
     original = refine3d.refine_smoothed
 
@@ -184,4 +197,4 @@ def _versus_truth(model, rows, ests, sigma, config, a, kw, truth) -> dict[str, f
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

@@ -26,6 +26,7 @@ import numpy as np
 from radiopose.realdata import experiment as X  # noqa: N812 - read as X.run_track
 from radiopose.realdata.build import ImportSettings
 from radiopose.realdata.tetam import read_dataset, shipped_dataset_dir
+from radiopose.scripting import check_output, run_script
 
 PUBLISHED = (
     ("best neural-network fingerprinting (2025 study)", 1.90, 1.55),
@@ -47,10 +48,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dataset", type=Path, default=shipped_dataset_dir())
     ap.add_argument("--out", type=Path, default=Path("docs/real-data-results.md"))
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--tracks", nargs="*", default=None, help="Only these tracks (names).")
+    ap.add_argument("--tracks", nargs="+", default=None, help="Only these tracks (names).")
     args = ap.parse_args(argv)
-    if args.out.is_dir():  # checked before the ~10 min run, not after it
-        ap.error(f"--out {args.out}: a directory; give the Markdown file to write")
+    if not args.dataset.is_dir():
+        ap.error(f"--dataset {args.dataset}: no such directory")
+    if args.out.suffix == ".json":
+        ap.error(f"--out {args.out}: the results' JSON is written beside it as .json; give a .md")
+    # checked before the ~10 min run, not after it
+    check_output(ap, "--out", files=[args.out, args.out.with_suffix(".json")])
     if args.quick:
         X.FILTER_CANDIDATES = X.FILTER_CANDIDATES[1:2] + X.FILTER_CANDIDATES[4:5]
     t0 = time.perf_counter()
@@ -58,6 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     settings = ImportSettings()
     tracks = X.load_tracks(ds, settings)
     names = [t.name for t in tracks]
+    unknown = sorted(set(args.tracks or ()) - set(names))
+    if unknown:  # before the tracks are localised
+        ap.error(f"--tracks: no track {', '.join(map(repr, unknown))} (tracks: {', '.join(names)})")
     chosen = [t for t in tracks if args.tracks is None or t.name in args.tracks]
     results, checks, headings = [], {}, {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -178,4 +186,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

@@ -12,7 +12,6 @@ chosen per track by the cross-validation of ``scripts/real_data.py``
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -24,7 +23,8 @@ import numpy as np
 from radiopose.realdata import experiment as X  # noqa: N812 - read as X.run_filter
 from radiopose.realdata.build import ImportSettings
 from radiopose.realdata.tetam import read_dataset, shipped_dataset_dir
-from radiopose.tracker import locate
+from radiopose.scripting import non_negative_int, positive_int, run_script, usage_errors
+from radiopose.tracker import TrackerConfig, locate
 
 BASE: tuple[tuple[str, object], ...] = (
     ("huber_c", 1.0),
@@ -77,10 +77,14 @@ def _run(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
-    ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--seed", type=int, default=0, help="TrackerConfig.seed (0: as scored)")
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=list(VARIANTS))
+    ap.add_argument("--jobs", type=positive_int, default=1)
+    ap.add_argument(
+        "--seed", type=non_negative_int, default=0, help="TrackerConfig.seed (0: as scored)"
+    )
     args = ap.parse_args(argv)
+    with usage_errors(ap):  # the seed within TrackerConfig's range, before the runs
+        TrackerConfig(seed=args.seed)
     with ProcessPoolExecutor(args.jobs) as pool:
         futs = [pool.submit(_run, v, VARIANTS[v], args.seed) for v in args.variants]
         for f in futs:
@@ -96,4 +100,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import chi2
 
+from radiopose.scripting import check_output, non_negative_int, run_script
 from radiopose.security.attacks import ATTACKS
 from radiopose.security.detect_experiment import (
     ROTATIONS,
@@ -535,20 +536,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gap", action="store_true", help="also the gap test vs silent")
     ap.add_argument(
         "--oracle",
-        type=int,
+        type=non_negative_int,
         default=0,
         metavar="RUNS",
         help="only the oracle bound of fixed and moving over RUNS tuning runs per case",
     )
     ap.add_argument(
         "--split",
-        type=int,
+        type=non_negative_int,
         nargs=2,
         default=None,
         metavar=("RUNS", "CHUNKS"),
         help="only the continuity test vs fixed and moving: RUNS runs, CHUNKS genuine chunks",
     )
     args = ap.parse_args(argv)
+    if args.split and args.split[0] < 1:
+        ap.error(f"--split: RUNS must be an integer >= 1, got {args.split[0]}")
+    if args.split and args.oracle:
+        ap.error("--split or --oracle, not both (each runs alone)")
+    extras = [f"--{x}" for x in ("calibrate", "grid", "gap") if getattr(args, x)]
+    if extras and (args.split or args.oracle):
+        only = "--split" if args.split else "--oracle"
+        ap.error(f"{only} runs alone: {', '.join(extras)} do not apply")
+    check_output(ap, "--out", dirs=[args.out])
+    written = "split.md" if args.split else "oracle.md" if args.oracle else "summary.md"
+    check_output(ap, "--out", files=[args.out / written])
     plan = PLANS[args.plan]
     args.out.mkdir(parents=True, exist_ok=True)
     if args.split:
@@ -609,4 +621,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(run_script(main))

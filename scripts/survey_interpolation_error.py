@@ -29,6 +29,7 @@ import numpy as np
 from radiopose.patterns import isotropic
 from radiopose.patterns.pattern import Pattern
 from radiopose.patterns.synthetic import smartphone_like
+from radiopose.scripting import non_negative_float, non_negative_int, positive_int, run_script
 from radiopose.simulate import ScenarioConfig, link_rss_dbm, simulate
 from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
 from radiopose.site import Site, assemble_site
@@ -155,22 +156,24 @@ def height_model_error(
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--first-seed", type=int, default=100)
+    ap.add_argument("--seeds", type=positive_int, default=5, help="number of seeds")
+    ap.add_argument("--first-seed", type=non_negative_int, default=100)
     ap.add_argument("--quick", action="store_true", help="a small site: checks that it runs")
     ap.add_argument(
         "--pose", choices=("2d", "3d"), default="2d",
         help="3d: the 3-D filter's channel: the survey's map, detrended maps, receiver gain",
     )  # fmt: skip
     ap.add_argument(
-        "--rx-pattern-error-db", type=float, default=0.0,
+        "--rx-pattern-error-db", type=non_negative_float, default=0.0,
         help="3d: the models' receiver patterns off by a smooth pattern of this range, dB",
     )  # fmt: skip
     ap.add_argument(
-        "--rx-orientation-error-deg", type=float, default=0.0,
+        "--rx-orientation-error-deg", type=non_negative_float, default=0.0,
         help="3d: the models' receiver azimuth and pitch off by a normal error of this SD",
     )  # fmt: skip
     args = ap.parse_args(argv)
+    if args.pose == "2d" and (args.rx_pattern_error_db or args.rx_orientation_error_deg):
+        ap.error("--rx-pattern-error-db and --rx-orientation-error-deg apply with --pose 3d only")
     seeds = range(args.first_seed, args.first_seed + args.seeds)
     if args.pose == "3d":
         height_model_error(
@@ -182,4 +185,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(run_script(main))

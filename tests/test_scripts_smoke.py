@@ -9,10 +9,17 @@ global of ``radiopose.realdata.experiment``, so it runs in a subprocess. The
 scripts whose smallest run is still long (standard-site filter runs, the real
 site's cross-validation, the detector's quick plan, every 3-D variant of
 ``pose3d_accuracy.py``) are marked ``slow``.
+
+Bad input (:data:`BAD_ARGUMENTS`) must be each script's usage error before any
+work: exit status 2, one line naming the option, no traceback, nothing written
+(:mod:`radiopose.scripting`'s types and checks; :func:`~radiopose.scripting.run_script`
+for what is found only during the work).
 """
 
 from __future__ import annotations
 
+import argparse
+import errno
 import importlib.util
 import os
 import re
@@ -56,7 +63,7 @@ def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
     argv = ["--quick", "--seeds", "1", "--first-seed", "5", "--sigmas", "1", "--out", str(out)]
     printed = _run(SCRIPTS / "accuracy_table.py", argv, capsys)
     text = out.read_text(encoding="utf-8")
-    assert text.startswith("# Accuracy on the paper's standard scenario")
+    assert text.startswith("# Accuracy on the smoke site (`--quick`")
     assert printed.strip() == text.strip()
     for method in ("full", "location", "orientation", "top", "lms"):
         assert any(f"| {method} " in row or f"| `{method}`" in row for row in _table_rows(text))
@@ -68,6 +75,27 @@ def test_accuracy_table(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> N
         _load(SCRIPTS / "accuracy_table.py").main(["--quick", "--seeds", "1", "--sigmas", "1"])
     assert exit_.value.code == 2
     assert "--quick writes a smoke table" in capsys.readouterr().err
+
+
+def test_accuracy_table_quick_header(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """--quick's header describes the smoke site that ran (it said 20 × 20 m, 0.1 m,
+    2 s = 40 packets, "1 runs"), with singular and plural right; --duration-s is
+    honoured with --quick (it was ignored and the header said 0 s)."""
+    out = tmp_path / "one.md"
+    argv = ["--quick", "--seeds", "1", "--first-seed", "5", "--sigmas", "1", "--out", str(out)]
+    _run(SCRIPTS / "accuracy_table.py", argv, capsys)
+    text = out.read_text(encoding="utf-8")
+    assert text.startswith("# Accuracy on the smoke site (`--quick`: not the paper's standard")
+    assert "Smoke site (`ScenarioConfig.smoke()`: 10 × 10 m, 0.25 m and 1° candidate grid, " in text
+    assert "0.2 s per run = 40 packets), 1 run per σ (seed 5), default pipeline" in text
+    assert "20 × 20 m" not in text and "never used by tests" not in text
+    out = tmp_path / "two.md"
+    argv = ["--quick", "--seeds", "2", "--first-seed", "5", "--sigmas", "1", "--duration-s", "0.3",
+            "--out", str(out)]  # fmt: skip
+    _run(SCRIPTS / "accuracy_table.py", argv, capsys)
+    text = out.read_text(encoding="utf-8")
+    assert "0.3 s per run = 60 packets), 2 runs per σ (seeds 5–6), default pipeline" in text
+    assert f"Produced by `python scripts/accuracy_table.py {shlex.join(argv)}`" in text
 
 
 def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
@@ -339,7 +367,10 @@ def test_pose3d_identifiability(capsys: pytest.CaptureFixture[str]) -> None:
 @pytest.mark.slow
 def test_real_data_ablation(capsys: pytest.CaptureFixture[str]) -> None:
     printed = _run(SCRIPTS / "real_data_ablation.py", ["--variants", "base", "--jobs", "1"], capsys)
-    assert _table_rows(printed)
+    # one line per variant, not a table: the pooled errors, then each track's mean
+    [line] = printed.splitlines()
+    assert line.startswith("base ") and " seed 0 mean " in line and " median " in line
+    assert len(line.split("|")) == 3
 
 
 def test_coarse3d_lead(capsys: pytest.CaptureFixture[str]) -> None:
@@ -370,6 +401,223 @@ def test_pose3d_misfit(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exc:  # the scenario's overrides are checked too
         _load(SCRIPTS / "pose3d_misfit.py").main(["--sim-set", "pitch_range_deg=(70.0,20.0)"])
     assert exc.value.code == 2
+
+
+# ---------------------------------------------- bad input: one line, exit status 2
+BAD_ARGUMENTS: list[tuple[str, list[str], str]] = [
+    # (script, argv ({tmp}: an empty directory holding an empty file "file"), the error says)
+    ("orientation_outliers", ["--grid", "test", "--seeds", "0"],
+     "argument --seeds: must be an integer >= 1, got '0'"),
+    ("orientation_outliers", ["--sigma", "nan"], "argument --sigma: must be a finite number"),
+    ("orientation_outliers", ["--windows", "-1"], "argument --windows: must be a finite"),
+    ("orientation_outliers", ["--first-seed", "-5"],
+     "argument --first-seed: must be an integer >= 0, got '-5'"),
+    ("mirror_diagnosis", ["1", "nan"], "argument sigma_db: must be a finite number, got 'nan'"),
+    ("mirror_diagnosis", ["1", "40", "--quick"], "noise_db = 40.0 is out of range"),
+    ("mirror_diagnosis", ["--quick", "--packets", "0"], "argument --packets: must be"),
+    ("accuracy_table", ["--quick", "--seeds", "0", "--sigmas", "1", "--out", "{tmp}/x/a.md"],
+     "argument --seeds: must be an integer >= 1"),
+    ("accuracy_table", ["--quick", "--seeds", "1", "--sigmas", "1", "--out", "{tmp}"],
+     "--out {tmp}: is a directory, expected a file path"),
+    ("accuracy_table", ["--quick", "--seeds", "1", "--sigmas", "1", "--out", "{tmp}/file/a.md"],
+     "a parent is not a directory"),
+    ("accuracy_table", ["--quick", "--seeds", "1", "--sigmas", "-1", "--out", "{tmp}/a.md"],
+     "argument --sigmas: must be a finite number > 0"),
+    ("accuracy_table", ["--quick", "--seeds", "1", "--sigmas", "1", "--duration-s", "inf",
+                        "--out", "{tmp}/a.md"], "argument --duration-s: must be a finite number"),
+    ("enrol_mitll", ["--data", "{tmp}/none", "--patterns-dir", "{tmp}/p", "--figures-dir",
+                     "{tmp}/f"], "--data {tmp}/none: no such directory"),
+    ("live_lag_accuracy", ["--quick", "--seeds", "1.5"], "--seeds: '1.5' is not an integer"),
+    ("live_lag_accuracy", ["--quick", "--sigmas", "inf"], "argument --sigmas: must be a finite"),
+    ("detect_pose3d", ["--quick", "--receivers", "2"], "n_receivers = 2 is out of range"),
+    ("detect_pose3d", ["--quick", "--sigmas", "1", "--out", "{tmp}"], "is a directory"),
+    ("filter_accuracy", ["--seeds", "1", "--jobs", "0"], "argument --jobs: must be"),
+    ("filter_accuracy", ["--seeds", "1", "--sigmas", "nan"], "argument --sigmas: must be a finite"),
+    ("filter_accuracy", ["--seeds", "1", "--first-seed", "-1"], "argument --first-seed"),
+    ("filter_scenarios", ["--seeds", "0"], "argument --seeds: must be an integer >= 1"),
+    ("handheld_dynamics", ["--seeds", "9000", "--duration-s", "0"],
+     "argument --duration-s: must be a finite number > 0"),
+    ("handheld_dynamics", ["--seeds", "9000", "--duration-s", "0.005"], "two samples at 200 Hz"),
+    ("coarse3d_lead", ["--seeds", "9000", "--no-pipeline", "--receivers", "2"],
+     "n_receivers = 2 is out of range"),
+    ("coarse3d_lead", ["--seeds", "9000", "--no-pipeline", "--sigma", "-1"], "argument --sigma"),
+    ("live_pose3d", ["--receivers", "2", "--duration-s", "1"], "n_receivers = 2 is out of range"),
+    ("live_pose3d", ["--interval-ms", "0", "--duration-s", "1"], "argument --interval-ms"),
+    ("lock_diagnosis", ["--quick", "--set", "jump_probability=0.01"], "give --candidates"),
+    ("lock_diagnosis", ["--quick", "--sigma", "0"], "--sigma: must be a finite number > 0"),
+    ("offset_profile", ["--quick", "--grids", "1:0"], "--grids: '1:0' is not STEP_M:STEP_DEG"),
+    ("offset_profile", ["--quick", "--stride", "0"], "argument --stride: must be an integer >= 1"),
+    ("pose3d_accuracy", ["--quick", "--restarts", "-1"], "argument --restarts"),
+    ("pose3d_accuracy", ["--quick", "--polish-modes", "2.5", "1", "1"], "K must be an integer"),
+    ("pose3d_accuracy", ["--quick", "--offline-particles", "5"], "offline_n_particles = 5"),
+    ("pose3d_accuracy", ["--quick", "--only-variants"], "ask for another row too"),
+    ("pose3d_identifiability", ["--starts", "0"], "argument --starts: must be an integer >= 1"),
+    ("pose3d_identifiability", ["--starts", "1", "--receivers", "2"], "n_receivers = 2"),
+    ("pose3d_misfit", ["--sim-set", "n_receivers=4"], "--sim-set n_receivers: give --receivers"),
+    ("pose3d_misfit", ["--seeds", "9000", "--duration-s", "-0.5"], "argument --duration-s"),
+    ("real_data", ["--dataset", "{tmp}/none", "--out", "{tmp}/r.md"],
+     "--dataset {tmp}/none: no such directory"),
+    ("real_data_ablation", ["--variants", "nope"], "argument --variants: invalid choice: 'nope'"),
+    ("real_data_ablation", ["--variants", "base", "--jobs", "0"], "argument --jobs"),
+    ("spoof_detection", ["--out", "{tmp}/file"], "--out {tmp}/file: is a file, expected a dir"),
+    ("spoof_detection", ["--split", "0", "0", "--out", "{tmp}/s"], "RUNS must be an integer >= 1"),
+    ("survey_interpolation_error", ["--quick", "--seeds", "1", "--rx-pattern-error-db", "2"],
+     "apply with --pose 3d only"),
+    ("survey_interpolation_error", ["--quick", "--seeds", "0"], "argument --seeds"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("script", "argv", "said"),
+    BAD_ARGUMENTS,
+    ids=[f"{s} {' '.join(a)}" for s, a, _ in BAD_ARGUMENTS],
+)
+def test_bad_arguments_are_usage_errors(
+    script: str, argv: list[str], said: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A bad count, number, seed or output path is the parser's usage error before
+    any work: exit status 2, one ``error:`` line naming it, no traceback, nothing
+    written (they were tracebacks, an empty run, or an error after the run)."""
+    (tmp_path / "file").write_text("", encoding="utf-8")
+    before = sorted(tmp_path.rglob("*"))
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    with pytest.raises(SystemExit) as exc:
+        _load(SCRIPTS / f"{script}.py").main(argv)
+    assert exc.value.code == 2
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err and captured.out == ""
+    last = captured.err.strip().splitlines()[-1]
+    assert ": error: " in last and said.format(tmp=tmp_path) in last
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_scripts_run_through_run_script() -> None:
+    """Every script's entry point is :func:`radiopose.scripting.run_script`, so an
+    error found during the work is one line with exit status 2, not a traceback."""
+    for path in sorted(SCRIPTS.glob("*.py")):
+        tail = path.read_text(encoding="utf-8").rstrip().splitlines()[-2:]
+        entry = ['if __name__ == "__main__":', "    raise SystemExit(run_script(main))"]
+        assert tail == entry, path
+
+
+def test_run_script(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """run_script: an InputError raised inside a script's main is one line on
+    stderr naming the script, exit status 2; an OSError names its file; Ctrl-C is
+    130; a bug propagates with its traceback."""
+    from radiopose.errors import InputError
+    from radiopose.scripting import run_script
+
+    module = _load(SCRIPTS / "mirror_diagnosis.py")
+    raised: list[BaseException] = []
+
+    def diagnose(*_a: object) -> None:
+        raise raised[0]
+
+    monkeypatch.setattr(module, "diagnose", diagnose)
+    raised[:] = [InputError("bad value\non two lines", path="x.csv", line=3)]
+    assert run_script(module.main, ["--quick"]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == "mirror_diagnosis.py: x.csv:3: bad value on two lines\n"
+    assert captured.out == ""
+    raised[:] = [IsADirectoryError(errno.EISDIR, "Is a directory", "/tmp/d")]
+    assert run_script(module.main, ["--quick"]) == 2
+    assert capsys.readouterr().err == "mirror_diagnosis.py: /tmp/d: Is a directory\n"
+    raised[:] = [KeyboardInterrupt()]
+    assert run_script(module.main, ["--quick"]) == 130
+    assert capsys.readouterr().err == "mirror_diagnosis.py: interrupted\n"
+    raised[:] = [ValueError("a bug")]
+    with pytest.raises(ValueError, match="a bug"):
+        run_script(module.main, ["--quick"])
+    with pytest.raises(SystemExit) as exc:  # the parser's own usage errors stay its own
+        run_script(module.main, ["--packets", "0"])
+    assert exc.value.code == 2
+    capsys.readouterr()
+    monkeypatch.setattr(module, "diagnose", lambda *_a: None)
+    assert run_script(module.main, ["--quick"]) == 0
+
+
+def test_run_script_as_a_program(tmp_path: Path) -> None:
+    """Run as ``python scripts/x.py``: an error found only during the work (a
+    seed past numpy's range, met at the second seed) is one line, status 2."""
+    r = subprocess.run(
+        [sys.executable, str(SCRIPTS / "orientation_outliers.py"), "--grid", "test",
+         "--first-seed", str(2**63 - 1), "--seeds", "2", "--windows", "0.1"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 2
+    assert r.stderr == f"orientation_outliers.py: seed {2**63} must be an integer in [0, 2**63)\n"
+
+
+@pytest.mark.parametrize(
+    ("name", "good", "bad"),
+    [
+        ("positive_int", {"1": 1, "12": 12, " 3 ": 3},
+         ["0", "-1", "1.5", "nan", "inf", "x", ""]),
+        ("non_negative_int", {"0": 0, "5": 5, "1000": 1000},
+         ["-1", "-5", "1.5", "nan", "inf", "x", ""]),
+        ("finite_float", {"0": 0.0, "-1.5": -1.5, "1e3": 1000.0, "1": 1.0},
+         ["nan", "inf", "-inf", "NaN", "x", ""]),
+        ("positive_float", {"0.5": 0.5, "1e-9": 1e-9, "3": 3.0},
+         ["0", "-0", "-1", "nan", "inf", "x"]),
+        ("non_negative_float", {"0": 0.0, "-0": 0.0, "2.5": 2.5, "1": 1.0},
+         ["-1", "-0.5", "nan", "inf", "-inf", "x"]),
+    ],
+)  # fmt: skip
+def test_type_helpers(name: str, good: dict[str, float], bad: list[str]) -> None:
+    """The scripts' argparse types: each valid string's value (an int for the
+    counts), and an ArgumentTypeError quoting each invalid string."""
+    import radiopose.scripting as scripting
+
+    helper = getattr(scripting, name)
+    for text, value in good.items():
+        got = helper(text)
+        assert got == value and type(got) is type(value), (name, text)
+    for text in bad:
+        with pytest.raises(argparse.ArgumentTypeError) as exc:
+            helper(text)
+        assert repr(text) in str(exc.value), (name, text)
+    # through a parser: its usage error, exit status 2
+    ap = argparse.ArgumentParser(prog="x.py")
+    ap.add_argument("--n", type=helper)
+    with pytest.raises(SystemExit) as exit_:
+        ap.parse_args(["--n", "nan"])
+    assert exit_.value.code == 2
+
+
+def test_check_output_and_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """check_output refuses a directory given as a file, a file given as a
+    directory and a path under a file, naming the option, and creates nothing;
+    usage_errors turns an InputError into the parser's usage error."""
+    from radiopose.errors import InputError
+    from radiopose.scripting import check_output, usage_errors
+
+    ap = argparse.ArgumentParser(prog="x.py")
+    (tmp_path / "file").write_text("", encoding="utf-8")
+    check_output(ap, "--out", files=[tmp_path / "new" / "a.md"], dirs=[tmp_path / "d"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+    for kw, said in (
+        ({"files": [tmp_path]}, f"--out {tmp_path}: is a directory, expected a file path"),
+        (
+            {"dirs": [tmp_path / "file"]},
+            f"--out {tmp_path}/file: is a file, expected a directory",
+        ),
+        (
+            {"files": [tmp_path / "file" / "a.md"]},
+            f"--out {tmp_path}/file/a.md: cannot create: a parent is not a directory",
+        ),
+    ):
+        with pytest.raises(SystemExit) as exc:
+            check_output(ap, "--out", **kw)
+        assert exc.value.code == 2
+        assert capsys.readouterr().err.strip().splitlines()[-1] == f"x.py: error: {said}"
+    with pytest.raises(SystemExit) as exc, usage_errors(ap, "--set"):
+        raise InputError("jump_probability = 2 must be in [0, 1]")
+    assert exc.value.code == 2
+    assert (
+        capsys.readouterr()
+        .err.strip()
+        .endswith("x.py: error: --set jump_probability = 2 must be in [0, 1]")
+    )
 
 
 SCRIPT_TESTS: dict[str, Callable[..., None]] = {
