@@ -5,7 +5,7 @@ Paper, "Enhanced Localisation Pipeline", steps 3, 5 and 6.
 * Weights: every top-k candidate gets the normalised, inverted MSE
   ``w = (MSE_max − MSE) / (MSE_max − MSE_min)`` (best → 1, worst → 0; all 1 if
   every MSE is equal), :func:`inverted_weights`.
-* Orientation (step 3): DBSCAN (scikit-learn) on each rotation axis separately,
+* Orientation (step 3): DBSCAN (:func:`dbscan`, below) on each rotation axis separately,
   ``ε = 2°``, ``minPts = 10``. On a periodic axis the values are duplicated at
   −360° and +360° so a cluster can form across the wrap (358°, 359°, 0°, 1°);
   only clusters whose centroid lies in the canonical range ``[0, 360)``

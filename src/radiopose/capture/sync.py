@@ -44,7 +44,7 @@ packet's time is the mean of its frames' reference-clock times, its rows are
 in receiver order. The streaming matcher closes a chain once no frame still
 to come can join it and emits exactly what the batch matcher does.
 
-The module stays one piece (~670 lines, over half of it docstrings): the
+The module stays one piece (~820 lines, a third of it docstrings): the
 clock fit, the batch matcher and the report share one set of value objects
 and one statement of the matching rules; the streaming matcher, the one part
 used apart (by the live server), lives in :mod:`radiopose.capture.streaming`.

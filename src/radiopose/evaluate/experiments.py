@@ -42,7 +42,7 @@ dotted key (``sweep.scenario.noise_db``, ``quick.runs``, ``figure[2].x``).
 The paper's five experiments ship as package data (:data:`SHIPPED`, the files in
 ``radiopose/evaluate/experiments/``) and are loaded by name with :func:`load_experiment`.
 
-The module is one piece (about 600 lines, a third of them docstrings and the
+The module is one piece (about 660 lines, a quarter of them docstrings and the
 example above): the value objects, the typed reading of each table and the
 loading share the file's dotted key names and error wording, and no part is
 used apart from the others.

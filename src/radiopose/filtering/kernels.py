@@ -17,7 +17,7 @@ grid (periodic in azimuth, polar clamped), ``(φ_r, θ_r)`` the direction to the
 receiver in the body frame of ``R = Rz(azimuth)·Rx(pitch)·Ry(roll)`` and ``b``
 the power offset.
 
-One module of ~800 lines on purpose: every kernel reads the same column
+One module of ~850 lines on purpose: every kernel reads the same column
 constants and the same off-grid lookup (inlined by numba across functions in
 one module), and the two likelihoods (the outlier mixture and the Huber
 alternative, ``FilterConfig.likelihood``) sit side by side so that a change to

@@ -54,7 +54,7 @@ Results do not depend on the number of threads: chunks are fixed and merged in
 order.
 
 The numba kernels themselves are in :mod:`radiopose.likelihood.shift_kernels`;
-this module stays one piece (~670 lines, a third of it docstrings) because the
+this module stays one piece (~850 lines, a quarter of it docstrings) because the
 table preparation, the search thresholds and the exact rescoring all rest on
 the one exactness bound above, which a split would state twice.
 """
