@@ -22,7 +22,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import httpx
@@ -35,7 +35,7 @@ from radiopose.server.app import create_app, import_site_dir
 from radiopose.server.auth import create_token
 from radiopose.server.db import Database
 from radiopose.server.live import LiveConfig
-from radiopose.simulate import ScenarioConfig, simulate
+from radiopose.simulate import ScenarioConfig, Simulation, simulate
 
 RECEIVERS = ("rx1", "rx2", "rx3")
 
@@ -73,7 +73,24 @@ def tiny(tmp_path_factory: pytest.TempPathFactory) -> Tiny:
         epoch_s=1000.0,
     )
     frames = {r: read_pcap(p, r).frames for r, p in pc.paths.items()}
+    _warm_kernels(sim)
     return Tiny(root, root / "site", dict(pc.paths), frames, str(sim.packets.transmitter[0]))
+
+
+def _warm_kernels(sim: Simulation) -> None:
+    """Compile (or load from numba's cache) the live methods' kernels in this
+    process before a server test starts: its server thread shares them, and a
+    browser test waits 30 s for the first estimate, which numba's first
+    compile on a cold cache beside another busy worker can take (a dashboard
+    test timed out so, run alone after the caches were cleared)."""
+    from radiopose.tracker import locate
+
+    pk = sim.packets
+    keep = pk.timestamp_s <= 1.0  # a second of packets
+    columns = ("packet_id", "timestamp_s", "transmitter", "receiver_id", "rss_dbm")
+    head = replace(pk, **{c: getattr(pk, c)[keep] for c in columns})
+    for method in ("full", "filter"):  # the live server's default and the filter
+        locate(sim.site, head, method)
 
 
 # ----------------------------------------------------------------------------- databases
