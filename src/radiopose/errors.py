@@ -71,6 +71,16 @@ def unreadable(path: str | PathLike[str], exc: OSError, expected: str = "a file"
     return InputError(f"cannot read: {exc.strerror}", path=path)
 
 
+def os_error_line(exc: OSError) -> str:
+    """One line for an :class:`OSError` of a path the user gave (a directory where
+    a file is expected, no permission, a full disk): ``FILENAME: REASON``, or the
+    reason alone when the error names no file. The command line's and the
+    research scripts' last resort (:func:`radiopose.cli.main`,
+    :func:`radiopose.scripting.run_script`)."""
+    where = f"{exc.filename}: " if exc.filename else ""
+    return f"{where}{exc.strerror or str(exc)}"
+
+
 def check_setting_types(config: object, what: str) -> None:
     """Check that each field of the dataclass ``config`` holds a value of its
     annotated type, so that a configuration built in Python fails at

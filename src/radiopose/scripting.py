@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
-from radiopose.errors import InputError, RadioposeError
+from radiopose.errors import InputError, RadioposeError, os_error_line
 from radiopose.tables import check_output_paths
 
 __all__ = [
@@ -202,9 +202,7 @@ def run_script(
         print(f"{name}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     except OSError as exc:
-        where = f"{exc.filename}: " if exc.filename else ""
-        reason = exc.strerror or str(exc)
-        print(f"{name}: {where}{reason}", file=sys.stderr)
+        print(f"{name}: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"{name}: interrupted", file=sys.stderr)

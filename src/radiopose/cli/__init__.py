@@ -17,7 +17,7 @@ from typing import Any
 
 import typer
 
-from radiopose.errors import RadioposeError
+from radiopose.errors import RadioposeError, os_error_line
 
 app = typer.Typer(
     name="radiopose",
@@ -158,11 +158,8 @@ def main(argv: list[str] | None = None) -> int:
     except typer.Exit as exc:
         return int(exc.exit_code or 0)
     except OSError as exc:
-        # A path the user gave cannot be read or written (a directory where a
-        # file is expected, no permission, a full disk, ...): one line, no trace.
-        where = f"{exc.filename}: " if exc.filename else ""
-        reason = exc.strerror or str(exc)
-        print(f"radiopose: {where}{reason}", file=sys.stderr)
+        # A path the user gave cannot be read or written: one line, no trace.
+        print(f"radiopose: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except typer.Abort:
         print("radiopose: aborted", file=sys.stderr)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -402,8 +403,6 @@ def demo(
             raise InputError("--pose 3d runs the offline demo only (not with --live or --real)")
         if method != "filter":
             raise InputError("--method applies to --live (the 3-D demo runs the filter)")
-        import sys
-
         from radiopose.cli import packet_progress
         from radiopose.demo3d import DEMO3D_DURATION_S, DEMO3D_INTERVAL_MS, run_demo3d
 
@@ -452,8 +451,6 @@ def demo(
         return
     if method != "filter":
         raise InputError("--method applies to --live (the offline demo runs every method)")
-    import sys
-
     from radiopose.cli import method_progress
     from radiopose.demo import DEMO_DURATION_S, DEMO_INTERVAL_MS, run_demo
 
