@@ -261,3 +261,74 @@ print(layer)
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "None", out.stdout + out.stderr
+
+
+def _tilted(space, pitches_deg, step_deg=10.0):
+    """``space`` with the given pitches (roll 0) and its own (slice) pattern."""
+    from radiopose.geometry import orientation_matrices
+    from radiopose.site import OrientationGrid
+
+    o = OrientationGrid(step_deg, tuple(pitches_deg), (0.0,)).orientations_deg()
+    return replace(space, orientations_deg=o, rotations=orientation_matrices(*o.T))
+
+
+@pytest.mark.parametrize("pitch", [89.0, 90.0])
+def test_slice_pattern_at_pitch_near_90_scores_exactly_without_retries(space, pitch):
+    """A horizontal slice seen at pitch ±89–90°: the body azimuth of a horizontal
+    direction jumps by 180°, the rotated rows cannot be resampled closely
+    (several dB), and the screened values cannot single out the k best. The
+    scorer then scores its window exactly (bounded memory) instead of retrying
+    with ever larger heaps up to the whole grid (2.9 GB and 7 s a packet on
+    the paper's grid before); the top-k is the reference's either way."""
+    s3 = _tilted(space, (-pitch, 0.0, pitch))
+    fast, ref = ShiftScorer(s3), ReferenceScorer(s3)
+    assert fast.resample_error_db > 2.0
+    for heard in packets(s3, np.random.default_rng(11), 3):
+        same(fast.score_heard(heard, 100), ref.score_heard(heard, 100))
+    assert fast.exact_fallbacks == 3 and fast.retries == 0
+    heard = packets(s3, np.random.default_rng(12), 1)[0]
+    positions = np.random.default_rng(13).choice(s3.n_positions, 60, replace=False)
+    cand = np.sort(positions)[:, None] * s3.n_orientations
+    inside = np.flatnonzero(((np.arange(36) * 10.0 - 300.0) % 360.0) <= 90.0)
+    orient = (np.arange(3)[:, None] * 36 + inside[None]).ravel()
+    cand = (cand + orient[None]).ravel()
+    expect = select_topk(cand, exact_mse_db2(s3, heard, cand), 20)
+    same(fast.score_window(heard, 20, positions, 300.0, 90.0), expect)
+
+
+def test_no_exact_fallback_where_the_rows_resample_closely(space):
+    """Pitch 0 and ±80°: the screen works (the fallback is for speed only, and
+    would cost speed where the screen prunes)."""
+    rng = np.random.default_rng(14)
+    for pitches in ((0.0,), (-80.0, 0.0, 80.0)):
+        s3 = _tilted(space, pitches)
+        fast = ShiftScorer(s3)
+        for heard in packets(s3, rng, 3):
+            same(fast.score_heard(heard, 100), ReferenceScorer(s3).score_heard(heard, 100))
+        assert fast.exact_fallbacks == 0
+
+
+def test_exact_fallback_skips_excluded_positions(space):
+    s3 = _tilted(space, (-90.0, 0.0, 90.0))
+    chan = s3.channel_db.copy()
+    chan[2, ::4] = np.nan
+    s4 = replace(s3, channel_db=chan)
+    fast = ShiftScorer(s4)
+    heard = packets(s4, np.random.default_rng(15), 1)[0]
+    top = fast.score_heard(heard, 100)
+    assert fast.exact_fallbacks == 1
+    same(top, ReferenceScorer(s4).score_heard(heard, 100))
+    assert not np.any((top.candidate_idx // s4.n_orientations) % 4 == 0)
+
+
+def test_position_lower_bound_is_below_every_orientations_exact_mse(space):
+    """The fallback's pruning bound: for every position, at most the exact MSE
+    of each of its orientations (pitch ±90 and 0, a slice pattern)."""
+    s3 = _tilted(space, (-90.0, 0.0, 90.0))
+    fast = ShiftScorer(s3)
+    for heard in packets(s3, np.random.default_rng(16), 3):
+        lb = fast._position_lower_bound(heard, fast.all_positions)
+        mse = exact_mse_db2(s3, heard, np.arange(s3.n_candidates))
+        per_position = mse.reshape(s3.n_positions, s3.n_orientations).min(axis=1)
+        assert np.all(lb <= per_position + 1e-9)
+        assert np.mean(lb > 0) > 0.05  # it prunes something
