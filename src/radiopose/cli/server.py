@@ -82,8 +82,8 @@ def serve(
         str | None,
         typer.Option(
             help="Tracker method: full, location, orientation, top, lms or filter "
-            "(default: SITE/tracker.toml's live_method, else "
-            "radiopose.tracker.DEFAULT_LIVE_METHOD, full)."
+            "(default: SITE/tracker.toml's live_method, else full at a 2-D site "
+            "and filter at a 3-D one)."
         ),
     ] = None,
     live_lag_s: Annotated[
@@ -118,7 +118,8 @@ def serve(
     from radiopose.server.app import create_app, import_site_dir
     from radiopose.server.jsonlog import configure_logging
     from radiopose.server.live import MAX_LIVE_LAG_S, LiveConfig
-    from radiopose.tracker import DEFAULT_LIVE_METHOD, METHODS, TrackerConfig
+    from radiopose.site import load_site
+    from radiopose.tracker import METHODS, TrackerConfig, default_live_method
     from radiopose.tracker_settings import (
         apply_tracker_settings,
         load_site_live_method,
@@ -128,7 +129,7 @@ def serve(
     if method is not None and method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
     # the method: --method, else the site's tracker.toml live_method, else the default
-    method = method or load_site_live_method(site) or DEFAULT_LIVE_METHOD
+    method = method or load_site_live_method(site) or default_live_method(load_site(site))
     tracker = None
     settings, settings_path = load_site_settings(site)
     if settings_path is not None:  # the site's priors for the filter ([filter], [filter.pose3d])

@@ -77,7 +77,8 @@ class LiveConfig:
     ----------
     method
         Tracker method, a name of :data:`radiopose.tracker.METHODS` (``None``:
-        :data:`radiopose.tracker.DEFAULT_LIVE_METHOD`).
+        the site's default, :func:`radiopose.tracker.default_live_method`:
+        ``full`` at a 2-D site, ``filter`` at a 3-D one).
     tracker
         Tracker parameters (``None``: the tracker's defaults, kernel included).
     live_lag_s
@@ -134,14 +135,14 @@ class LiveConfig:
                 f"live_lag_s must lie in [0, {MAX_LIVE_LAG_S}] s, got {self.live_lag_s!r}"
             )
 
-    @property
-    def method_name(self) -> str:
-        """The method's name, :data:`radiopose.tracker.DEFAULT_LIVE_METHOD` if unset."""
+    def method_for(self, site: Site) -> str:
+        """The method's name at ``site``: :attr:`method`, else the site's
+        default (:func:`radiopose.tracker.default_live_method`)."""
         if self.method is not None:
             return self.method
-        from radiopose.tracker import DEFAULT_LIVE_METHOD
+        from radiopose.tracker import default_live_method
 
-        return DEFAULT_LIVE_METHOD
+        return default_live_method(site)
 
     @property
     def partition_key(self) -> str:
@@ -259,14 +260,14 @@ class LivePipeline:
 
         self.site = build_site(self.db.site_rows())
         self.site_version = version
+        method = self.config.method_for(self.site)
         self.tracker = Tracker(
-            self.site,
-            self.config.method_name,
-            self.config.tracker,
-            lag_s=self.config.live_lag_s or None,
+            self.site, method, self.config.tracker, lag_s=self.config.live_lag_s or None
         )
+        # (states of another method, after a site change turned 2-D into 3-D, or a
+        # checkpoint of another --method, start their devices afresh)
         self.tracker.states = self.state.track_states
-        if self.config.method_name == "filter":  # spoofing alarms beside the filter (issue 19)
+        if method == "filter":  # spoofing alarms beside the filter (issue 19)
             from radiopose.server.alarms import AlarmMonitor
 
             # the detectors live in the checkpointed state (a checkpoint written before

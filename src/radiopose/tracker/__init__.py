@@ -6,7 +6,9 @@ Layout (one module per concern):
 * :mod:`~radiopose.tracker.protocol` — the :class:`Method` protocol (state, step,
   evidence, orientation, acquisition, lag) and its types;
 * :mod:`~radiopose.tracker.registry` — :data:`METHODS`, the one registry every
-  front end reads, and :data:`DEFAULT_LIVE_METHOD`;
+  front end reads, and the live server's default (:func:`default_live_method`:
+  :data:`DEFAULT_LIVE_METHOD` at a 2-D site, :data:`DEFAULT_LIVE_METHOD_3D` at
+  a 3-D one);
 * :mod:`~radiopose.tracker.paper` — the paper's top-k methods ``full``,
   ``location``, ``orientation``, ``top`` (steps 3–6, :class:`TrackState`);
 * :mod:`~radiopose.tracker.lms` — the ``lms`` baseline;
@@ -70,9 +72,11 @@ from radiopose.tracker.reasons import (
 )
 from radiopose.tracker.registry import (
     DEFAULT_LIVE_METHOD,
+    DEFAULT_LIVE_METHOD_3D,
     METHOD_NAMES,
     METHODS,
     PAPER_METHODS,
+    default_live_method,
     get_method,
     register_method,
 )
@@ -80,6 +84,7 @@ from radiopose.tracker.stream import Tracker
 
 __all__ = [
     "DEFAULT_LIVE_METHOD",
+    "DEFAULT_LIVE_METHOD_3D",
     "METHODS",
     "METHOD_NAMES",
     "PAPER_METHODS",
@@ -116,6 +121,7 @@ __all__ = [
     "TrackerConfig",
     "acquiring",
     "advance",
+    "default_live_method",
     "filter_config",
     "filter_seed",
     "get_method",
