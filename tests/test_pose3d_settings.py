@@ -390,3 +390,27 @@ def test_the_coarse_path_keys_read_and_bad_ones_are_one_line_errors(tmp_path: Pa
         with pytest.raises(InputError) as exc:
             read_tracker_settings(p)
         assert exc.value.column == f"filter.pose3d.{key}" and "\n" not in str(exc.value)
+
+
+def test_locate_notes_that_the_papers_methods_search_the_3d_grid(scene, tmp_path: Path):
+    """At a 3-D site the paper's top-k methods score every candidate per packet:
+    ``locate`` says so once on stderr and names ``--method filter``; ``lms``
+    (no candidate search) and ``filter`` get no note."""
+    import shutil
+
+    _sim, root = scene
+    site = tmp_path / "site"
+    shutil.copytree(root / "site", site, ignore=shutil.ignore_patterns("tracker.toml"))
+    lines = (root / "packets.csv").read_text().splitlines()
+    first = {ln.split(",")[0] for ln in lines[1:]}
+    keep = sorted(first, key=int)[:2]
+    packets = tmp_path / "packets.csv"
+    packets.write_text("\n".join([lines[0], *(ln for ln in lines[1:] if ln.split(",")[0] in keep)]))
+    for method, noted in (("orientation", True), ("lms", False)):
+        r = _cli("locate", str(site), str(packets), "-o", str(tmp_path / "e.csv"), "-q",
+                 "--method", method)  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note:")]
+        assert len(notes) == noted, r.stderr
+        if noted:
+            assert "3-D site" in notes[0] and "--method filter" in notes[0]

@@ -94,6 +94,17 @@ def _locate(
         gc.freeze()
     the_site = load_site(site)
     pk = read_packets_csv(packets)
+    from radiopose.site import site_is_3d
+    from radiopose.tracker import PAPER_METHODS, needs_scorer
+
+    if site_is_3d(the_site) and method in PAPER_METHODS and needs_scorer(METHODS[method]):
+        # the paper's top-k methods search the whole candidate grid per packet
+        print(
+            f"note: {site} is a 3-D site; {method} scores every candidate of every "
+            "packet there (slow: ≈ 8 packets per CPU-second on the simulated 3-D site); "
+            "--method filter tracks height, pitch and roll (docs/pose3d.md)",
+            file=sys.stderr,
+        )
     config = TrackerConfig(kernel=kernel)
     settings, settings_path = load_site_settings(site)
     if settings_path is not None:  # [filter], [filter.pose3d] and the lag
