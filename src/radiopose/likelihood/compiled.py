@@ -42,7 +42,7 @@ float64 by the reference's own function and the top-k taken with the same tie
 rule. If the ``k'``-th screened value minus its ``δ`` is not above the
 ``k``-th plus its ``δ``, some true top-k candidate could be missing, so ``k'``
 is quadrupled and the packet rescored (counted in :attr:`ShiftScorer.retries`).
-Where ``ε`` is several dB (a horizontal slice pattern seen at pitch ±85–90°:
+Where ``ε`` is several dB (a horizontal slice pattern seen at pitch ±89–90°:
 the rotated rows jump by the pattern's front-to-back difference) no shortlist
 short of the whole window can be certified; then the window is scored exactly
 in chunks, positions ordered by a lower bound of their MSE, and the search
@@ -114,13 +114,13 @@ ones use the kernel's per-chunk heaps."""
 _LAST_CALL = object()  # `slot` of a search that uses (and sets) the last call's hint
 _NO_HINT = np.empty(0, np.int64)
 PARALLEL_MIN_TERMS = 1_000_000
+"""Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 HOPELESS_FACTOR = 16.0
 """A search whose screened values cannot be told from the k-th best up to
 ``HOPELESS_FACTOR`` × the last kept value + 1 dB² scores its window exactly
 instead of retrying with ever larger heaps (:meth:`ShiftScorer._screen_hopeless`)."""
 EXACT_CHUNK = 1 << 20
 """Candidates scored per exact pass of :meth:`ShiftScorer._exact_window`."""
-"""Full-grid candidate-receiver terms from which the kernel runs on several threads."""
 
 
 class UnsupportedSpaceError(ValueError):
@@ -449,7 +449,7 @@ class ShiftScorer(ScorerBase):
         ``x ≤ X``: every candidate up to ``X`` would have to be scored exactly,
         far more than the next retry's heap holds. That happens when the
         pattern rows cannot be resampled closely (:attr:`resample_error_db` of
-        several dB: a horizontal slice pattern seen at pitch ±85–90°, where the
+        several dB: a horizontal slice pattern seen at pitch ±89–90°, where the
         body azimuth of a horizontal direction jumps by 180°). Only speed and
         memory depend on this answer, never the result."""
         x = HOPELESS_FACTOR * max(excluded, 0.0) + 1.0
