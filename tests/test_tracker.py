@@ -297,3 +297,41 @@ def test_a_state_pickled_before_the_acquisition_fields_still_loads():
     assert loaded.pending == () and loaded.acquiring_since_s is None
     _, out = track_step("full", _two_mode_candidates(), 1.1, loaded, TrackerConfig())
     assert out.ok  # 0.1 s after the last estimate: tracking, not acquiring
+
+
+@pytest.mark.parametrize("method", ["full", "filter"])
+def test_devices_of_one_pattern_and_power_share_the_scorer_tables(small_sim, method):
+    """Phones enrolled with the same pattern and transmit power share one set of
+    the compiled scorer's tables (each with its own search hints) and the
+    candidate arrays; each device's estimates are those of a tracker that saw
+    only that device. A device with another power gets its own tables."""
+    site = small_sim.site
+    d0 = site.devices[0]
+    devs = (
+        replace(d0, transmitter="aa:00:00:00:00:01"),
+        replace(d0, transmitter="aa:00:00:00:00:02"),
+        replace(d0, transmitter="aa:00:00:00:00:03", tx_power_dbm=d0.tx_power_dbm + 3.0),
+    )
+    site = replace(site, devices=devs)
+    obs = group_packets(small_sim.packets)
+    own = [
+        replace(o, transmitter=d.transmitter, packet_id=f"{i}-{o.packet_id}")
+        for o in obs
+        for i, d in enumerate(devs)
+    ]
+    together = Tracker(site, method)
+    out = [together.update(o)[0] for o in own]
+    assert sum(e is not None for e in out) >= 6  # estimates to compare
+    a, b, c = (together.device(d.transmitter) for d in devs)
+    assert b.scorer is not a.scorer and b.scorer.rows is a.scorer.rows
+    assert b.space.positions_m is a.space.positions_m and b.space.transmitter == devs[1].transmitter
+    assert c.scorer.rows is not a.scorer.rows
+    for i, d in enumerate(devs):
+        alone = Tracker(site, method)
+        mine = [o for o in own if o.transmitter == d.transmitter]
+        expect = [alone.update(o)[0] for o in mine]
+        got = [e for o, e in zip(own, out, strict=True) if o.transmitter == d.transmitter]
+        assert [e is None for e in got] == [e is None for e in expect]
+        for g, e in zip(got, expect, strict=True):
+            if e is not None:
+                assert g.position_m == e.position_m and g.orientation_deg == e.orientation_deg

@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 from radiopose.errors import InputError
 from radiopose.estimates import PoseEstimate
 from radiopose.filtering.config import MAX_LAG_S, lag_in_range
-from radiopose.likelihood import HeardRss, Scorer, candidate_space, make_scorer
+from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, candidate_space, make_scorer
 from radiopose.packets import PacketObservation, check_observation
 from radiopose.site import Site
 from radiopose.tracker.config import TrackerConfig
@@ -74,6 +75,9 @@ class Tracker:
         self.lag_s = lag_s if self.impl.lagged else None
         self.states: dict[str, Any] = {}
         self._scorers = {k.lower(): v for k, v in (scorers or {}).items()}
+        # per (pattern, transmit power): the first device's candidate space and
+        # scorer, whose arrays and tables the others with the same pair share
+        self._site_scorers: dict[tuple[str, float], tuple[CandidateSpace, Scorer | None]] = {}
         self._devices: dict[str, Device] = {}
         self._shared: dict[str, Any] = {}
         self._delayed: list[PoseEstimate] = []
@@ -92,9 +96,10 @@ class Tracker:
         dev = self._devices.get(key)
         if dev is None:
             scorer = self._scorers.get(key)
-            space = scorer.space if scorer is not None else candidate_space(self.site, transmitter)
-            if scorer is None and reads_site_scorer(self.impl, self.site):
-                scorer = make_scorer(self.config.kernel, space)
+            if scorer is not None:
+                space = scorer.space
+            else:
+                space, scorer = self._site_scorer(transmitter)
             dev = Device(
                 self.site,
                 space.transmitter,
@@ -109,6 +114,37 @@ class Tracker:
             self.impl.prepare(dev)
             self._devices[key] = dev
         return dev
+
+    def _site_scorer(self, transmitter: str) -> tuple[CandidateSpace, Scorer | None]:
+        """``transmitter``'s candidate space and scorer (``None`` if the method
+        reads none). Devices enrolled with the same pattern and transmit power
+        share the first one's arrays: its space with their own name, and its
+        compiled scorer's tables (:meth:`ShiftScorer.with_parallel
+        <radiopose.likelihood.compiled.ShiftScorer.with_parallel>`: a twin with
+        its own search hints, so the devices' searches do not slow each other).
+        The estimates are those of a scorer built per device; a site with many
+        phones of one model keeps one set of tables (6 MB on the paper's grid)."""
+        enrolled = self.site.device(transmitter)  # (InputError if not enrolled)
+        shared = (enrolled.pattern, float(enrolled.tx_power_dbm))
+        first = self._site_scorers.get(shared)
+        if first is None:
+            space = candidate_space(self.site, transmitter)
+            scorer = None
+            if reads_site_scorer(self.impl, self.site):
+                scorer = make_scorer(self.config.kernel, space)
+            self._site_scorers[shared] = (space, scorer)
+            return space, scorer
+        base_space, base = first
+        space = replace(base_space, transmitter=enrolled.transmitter)
+        if base is None:
+            return space, None
+        from radiopose.likelihood.compiled import ShiftScorer
+
+        if not isinstance(base, ShiftScorer):  # another scorer kind: its own, as before
+            return space, make_scorer(self.config.kernel, space)
+        scorer = base.with_parallel(base.parallel)
+        scorer.space = space
+        return space, scorer
 
     def is_enrolled(self, transmitter: str) -> bool:
         key = transmitter.lower()
