@@ -414,3 +414,37 @@ def test_locate_notes_that_the_papers_methods_search_the_3d_grid(scene, tmp_path
         assert len(notes) == noted, r.stderr
         if noted:
             assert "3-D site" in notes[0] and "--method filter" in notes[0]
+
+
+def test_devices_of_one_pattern_and_power_share_the_3d_model(scene):
+    """At a 3-D site the filter's arrays (height maps, coarse acquisition table)
+    are built once per pattern, power and settings among a tracker's devices;
+    each device's estimates are those of a tracker that saw only that device,
+    and a device with another power builds its own."""
+    sim, _root = scene
+    d0 = sim.site.devices[0]
+    devs = (
+        replace(d0, transmitter="aa:00:00:00:00:01"),
+        replace(d0, transmitter="aa:00:00:00:00:02"),
+        replace(d0, transmitter="aa:00:00:00:00:03", tx_power_dbm=d0.tx_power_dbm - 4.0),
+    )
+    site = replace(sim.site, devices=devs)
+    cfg = replace(TrackerConfig(), pose3d=replace(Pose3dConfig(), **SMALL_P3))
+    obs = group_packets(sim.packets)[:12]
+    own = [replace(o, transmitter=d.transmitter, packet_id=f"{i}-{o.packet_id}")
+           for o in obs for i, d in enumerate(devs)]  # fmt: skip
+    together = Tracker(site, "filter", cfg)
+    out = [together.update(o)[0] for o in own]
+    assert sum(e is not None for e in out) >= 30
+    a, b, c = (together.device(d.transmitter).engine for d in devs)
+    assert b.model3d.coarse is a.model3d.coarse and b.model3d.maps_db is a.model3d.maps_db
+    assert b.model3d.space.transmitter == devs[1].transmitter
+    assert c.model3d.coarse is not a.model3d.coarse
+    for d in devs:
+        alone = Tracker(site, "filter", cfg)
+        expect = [alone.update(o)[0] for o in own if o.transmitter == d.transmitter]
+        got = [e for o, e in zip(own, out, strict=True) if o.transmitter == d.transmitter]
+        assert [e is None for e in got] == [e is None for e in expect]
+        for g, e in zip(got, expect, strict=True):
+            if e is not None:
+                assert g.position_m == e.position_m and g.orientation_deg == e.orientation_deg

@@ -326,7 +326,7 @@ def test_devices_of_one_pattern_and_power_share_the_scorer_tables(small_sim, met
     assert b.scorer is not a.scorer and b.scorer.rows is a.scorer.rows
     assert b.space.positions_m is a.space.positions_m and b.space.transmitter == devs[1].transmitter
     assert c.scorer.rows is not a.scorer.rows
-    for i, d in enumerate(devs):
+    for d in devs:
         alone = Tracker(site, method)
         mine = [o for o in own if o.transmitter == d.transmitter]
         expect = [alone.update(o)[0] for o in mine]
