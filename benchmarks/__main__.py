@@ -1,6 +1,7 @@
-"""``python -m benchmarks [likelihood|capture|server|filter|pose3d|prune|profile] [ARGS...]``.
+"""Runs one benchmark: ``python -m benchmarks [BENCHMARK] [ARGS...]``.
 
-Runs one benchmark.
+BENCHMARK is one of likelihood, capture, server, filter, pose3d, prune,
+profile and devices.
 
 Default ``likelihood`` (kernel, pipeline, scaling, memory and start-up tables;
 see ``docs/performance.md``). The remaining arguments go to that benchmark,
@@ -16,7 +17,7 @@ import runpy
 import sys
 from pathlib import Path
 
-NAMES = ("likelihood", "capture", "server", "filter", "pose3d", "prune", "profile")
+NAMES = ("likelihood", "capture", "server", "filter", "pose3d", "prune", "profile", "devices")
 HERE = Path(__file__).resolve().parent
 
 

@@ -249,6 +249,19 @@ def test_benchmark_profile(capsys: pytest.CaptureFixture[str]) -> None:
     assert [getattr(compiled, n) for n in names] == before
 
 
+def test_benchmark_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Many devices through the live pipeline: every packet tracked (the run
+    raises otherwise), filter answers every one, the table has its rows."""
+    out = tmp_path / "devices.md"
+    argv = ["--devices", "2", "--duration-s", "0.6", "--variants", "full", "filter",
+            "--markdown", str(out)]  # fmt: skip
+    printed = _run(BENCHMARKS / "bench_devices.py", argv, capsys)
+    rows = _table_rows(printed)
+    assert len(rows) == 2 + 2 and rows[2].startswith("| 2 | full | 20 | 12 |")
+    assert rows[3].startswith("| 2 | filter | 20 | 12 | 100.0 % |")
+    assert out.read_text(encoding="utf-8").strip() == printed.strip()
+
+
 # ---------------------------------------------------- slow: long even at their smallest
 @pytest.mark.slow
 def test_filter_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
