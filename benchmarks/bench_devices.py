@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.common import emit, machine, table
 from radiopose.filtering import FilterConfig
 from radiopose.server.app import import_site_dir
 from radiopose.server.db import Database
@@ -193,17 +194,21 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     if a.markdown is not None:
         check_output(ap, "--markdown", files=[a.markdown])
-    head = ["devices", "method", "offered_per_s", "packets", "coverage", "packets_per_s",
+    cols = ["devices", "method", "offered_per_s", "packets", "coverage", "packets_per_s",
             "ratio_vs_full", "packets_per_cpu_s", "memory_growth_mb", "checkpoint_mb"]  # fmt: skip
+    fmt = {"offered_per_s": ".0f", "packets_per_s": ".0f", "ratio_vs_full": ".2f",
+           "packets_per_cpu_s": ".0f", "memory_growth_mb": ".1f",
+           "checkpoint_mb": ".2f"}  # fmt: skip
     lines = [
+        f"Machine: `{machine()}`",
+        "",
         f"Live pipeline, {a.interval_ms:g} ms between one device's packets, "
         f"{a.duration_s:g} s of trace, seed {a.seed} (`python -m benchmarks devices "
         + " ".join(sys.argv[1:] if argv is None else argv)
         + "`):",
         "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
     ]
+    table_rows: list[dict[str, Any]] = []
     with tempfile.TemporaryDirectory(prefix="radiopose-devices-") as tmp_name:
         tmp = Path(tmp_name)
         for n in a.devices:
@@ -214,29 +219,15 @@ def main(argv: list[str] | None = None) -> int:
             rows = []
             for v in a.variants:
                 row = run(site_dir, tmp / f"{n}-{v.replace(' ', '_')}.db", bs, n_packets, v)
-                row["devices"] = n
-                row["offered_per_s"] = n * 1000.0 / a.interval_ms
+                row.update(devices=n, offered_per_s=n * 1000.0 / a.interval_ms)
                 rows.append(row)
                 print(f"{n} devices: {row}", file=sys.stderr, flush=True)
             base = next((r["packets_per_s"] for r in rows if r["method"] == "full"), None)
             for r in rows:
                 r["ratio_vs_full"] = r["packets_per_s"] / base if base else float("nan")
-                cells = []
-                for h in head:
-                    v = r[h]
-                    if isinstance(v, str | int):
-                        cells.append(str(v))
-                    elif h == "coverage":
-                        cells.append(f"{100 * v:.1f} %")
-                    else:
-                        cells.append(f"{v:.0f}" if abs(v) >= 10 else f"{v:.2f}")
-                lines.append("| " + " | ".join(cells) + " |")
-    text = "\n".join(lines)
-    print(text)
-    if a.markdown is not None:
-        a.markdown.parent.mkdir(parents=True, exist_ok=True)
-        a.markdown.write_text(text + "\n", encoding="utf-8")
-    return 0
+                r["coverage"] = f"{100 * r['coverage']:.1f} %"
+                table_rows.append({c: r[c] for c in cols})
+    return emit(lines + table(table_rows, fmt), None if a.markdown is None else str(a.markdown))
 
 
 if __name__ == "__main__":
