@@ -129,6 +129,7 @@ def test_demo_method_option_is_for_live(tmp_path: Path, capsys) -> None:
         (["--duration-s", "3", "--interval-ms", "5"], "--duration-s, --interval-ms do not"),
         (["--method", "filter"], "--method does not"),
         (["--port", "8001"], "--port does not"),
+        (["--pose", "2d"], "--pose does not"),
     ],
 )
 def test_real_demo_refuses_the_options_it_would_ignore(
@@ -309,7 +310,8 @@ def test_demo_3d_tracks_a_hand_held_walk(tmp_path: Path, capsys) -> None:
     ("extra", "needle"),
     [
         (["--pose", "4d"], "--pose must be 2d or 3d"),
-        (["--pose", "3d", "--live"], "--pose 3d runs the offline demo only"),
+        (["--pose", "3d", "--live", "--method", "full"], "--pose 3d --live runs the filter"),
+        (["--pose", "3d", "--real"], "--pose 3d does not apply to --real"),
         (["--pose", "3d", "--duration-s", "-1"], "--duration-s -1.0 is out of range (allowed"),
         (["--pose", "3d", "--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0"),
         (["--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0, 30])"),
@@ -348,3 +350,33 @@ def test_pose3d_figure_draws_roll_in_one_range_and_the_errors() -> None:
     labels = [x.get_text() for ax in axes if ax.get_legend() for x in ax.get_legend().get_texts()]
     assert "position, mean 0.17 m" in labels and "rotation, mean 5.0°" in labels
     plt.close(fig)
+
+
+# ----------------------------------------------------------------------- --live, end to end
+@pytest.mark.slow
+@pytest.mark.parametrize("pose", ["2d", "3d"])
+def test_live_demo_tracks_the_replayed_walk(tmp_path: Path, pose: str) -> None:
+    """``radiopose demo --live [--pose 3d]`` for 30 s on a 4 s walk: the server
+    (its default method at the site: ``filter`` at the 3-D one) stores estimates
+    of the replayed packets; at the 3-D site with height, pitch and roll."""
+    import socket
+
+    from radiopose.server.db import Database
+    from radiopose.server.demo import run_live_demo
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    said: list[str] = []
+    tokens = run_live_demo(
+        tmp_path, duration_s=4.0, interval_ms=100.0, port=port, echo=said.append,
+        stop_after_s=30.0, pose=pose,
+    )  # fmt: skip
+    assert tokens["url"] == f"http://127.0.0.1:{port}/" and said[-1] == "stopped"
+    db = Database(f"sqlite:///{tmp_path / 'live.db'}")
+    est = db.estimates(limit=10**6)
+    assert len(est) >= 30 and {e["method"] for e in est} == {"filter"}
+    if pose == "3d":
+        z = np.array([e["z_m"] for e in est])
+        pitch = np.array([e["pitch_deg"] for e in est])
+        assert np.ptp(z) > 0.01 and np.mean(pitch) > 10.0

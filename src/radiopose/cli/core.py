@@ -94,6 +94,7 @@ _REAL_DEMO_IGNORES = {
     "interval_ms": "--interval-ms",
     "method": "--method",
     "port": "--port",
+    "pose": "--pose",
 }
 """``radiopose demo``'s options (parameter name -> option) that ``--real`` does not
 use: the real-data demo replays the shipped tracks with their own settings."""
@@ -384,7 +385,7 @@ def demo(
             "--pose",
             help="3d: a hand-held phone (height, pitch, roll) at 6 receivers at mixed heights, "
             "tracked by the filter offline, live and causal (a 10 s walk, a packet every 20 ms; "
-            "docs/pose3d.md).",
+            "with --live: a 10 m site, the server's 3-D filter; docs/pose3d.md).",
         ),
     ] = "2d",
 ) -> None:
@@ -398,9 +399,9 @@ def demo(
         raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
     if not live and not real and _given(ctx, {"port": "--port"}):
         raise InputError("--port applies to --live (the offline demo starts no server)")
-    if pose == "3d":
-        if live or real:
-            raise InputError("--pose 3d runs the offline demo only (not with --live or --real)")
+    if pose == "3d" and not live:
+        if real:
+            raise InputError("--pose 3d does not apply to --real (the BLE site is 2-D)")
         if method != "filter":
             raise InputError("--method applies to --live (the 3-D demo runs the filter)")
         from radiopose.cli import packet_progress
@@ -438,6 +439,11 @@ def demo(
 
         if method not in METHODS:
             raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+        if pose == "3d" and method != "filter":
+            raise InputError(
+                "--pose 3d --live runs the filter (the paper's methods search every candidate "
+                "per packet at a 3-D site: far too slow live; docs/methods.md)"
+            )
         run_live_demo(
             out,
             seed=seed,
@@ -447,6 +453,7 @@ def demo(
             method=method,
             port=port,
             echo=print,
+            pose=pose,
         )
         return
     if method != "filter":

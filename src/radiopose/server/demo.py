@@ -2,7 +2,10 @@
 
 Simulates a small site (10 m × 10 m, 4 receivers, a packet every 100 ms) with
 the device walking between random waypoints (rounded turns, facing the way it
-walks), writes one pcap per receiver (each with its own clock offset and
+walks) — or, with ``--pose 3d``, the hand-held phone of ``radiopose simulate
+--pose 3d`` on a 10 m site with 6 receivers at mixed heights (height, pitch
+and roll vary; the server runs the 3-D ``filter``) — writes one pcap per
+receiver (each with its own clock offset and
 drift), creates a fresh SQLite database with tokens, starts ``radiopose serve
 --method METHOD`` (default ``filter``: the dashboard draws its track with the
 stated uncertainty) and one ``radiopose receiver --replay`` per receiver as
@@ -87,11 +90,13 @@ def run_live_demo(
     port: int = 8000,
     echo: Callable[[str], None] = print,
     stop_after_s: float | None = None,
+    pose: str = "2d",
 ) -> dict[str, str]:
     """Run the live demo until Ctrl-C (or ``stop_after_s``); return URL and tokens.
 
     ``method`` is the server's tracker method; ``duration_s`` and ``interval_ms``
-    the simulated walk's length and packet interval.
+    the simulated walk's length and packet interval; ``pose`` ``"2d"`` (the
+    paper's kind of site) or ``"3d"`` (a hand-held phone at a 3-D site).
     """
     import httpx
     import numpy as np
@@ -104,18 +109,34 @@ def run_live_demo(
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = ScenarioConfig(
-        size_m=10.0,
-        step_m=0.25,
-        n_receivers=4,
-        duration_s=duration_s,
-        interval_ms=interval_ms,
-        azimuth_step_deg=3.0,
-        noise_db=noise_db,
-        min_receiver_spacing_m=4.0,
-        motion=MotionConfig(path="walk", rotation="heading"),
-    )
-    sim = simulate(cfg, seed=seed)
+    if pose == "3d":
+        from radiopose.simulate.handheld import HandheldConfig, simulate_handheld
+
+        cfg3 = HandheldConfig(
+            size_m=10.0,
+            n_receivers=6,
+            duration_s=duration_s,
+            interval_ms=interval_ms,
+            noise_db=noise_db,
+            min_receiver_spacing_m=3.0,
+        )
+        cfg3.validate()
+        sim = simulate_handheld(cfg3, seed=seed)
+    elif pose == "2d":
+        cfg = ScenarioConfig(
+            size_m=10.0,
+            step_m=0.25,
+            n_receivers=4,
+            duration_s=duration_s,
+            interval_ms=interval_ms,
+            azimuth_step_deg=3.0,
+            noise_db=noise_db,
+            min_receiver_spacing_m=4.0,
+            motion=MotionConfig(path="walk", rotation="heading"),
+        )
+        sim = simulate(cfg, seed=seed)
+    else:
+        raise InputError(f"pose must be 2d or 3d, got {pose!r}")
     sim.write(out / "scenario")
     ids = [r.receiver_id for r in sim.site.receivers]
     rng = np.random.default_rng(seed)
@@ -181,8 +202,9 @@ def run_live_demo(
                     ),
                 )
             )
+        walk = "hand-held 3-D walk" if pose == "3d" else "walk"
         echo(
-            f"{len(ids)} receiver agents replaying a {duration_s:g} s walk (a packet every "
+            f"{len(ids)} receiver agents replaying a {duration_s:g} s {walk} (a packet every "
             f"{interval_ms:g} ms) at {speed:g}x; the server tracks it with {method!r}; "
             "Ctrl-C stops"
         )
