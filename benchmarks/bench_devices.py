@@ -20,8 +20,9 @@ pipeline steps until every packet has its estimate (throughput, as in
 * **checkpoint**: the size of the last pickled pipeline state (MB).
 
 Methods: ``full``, ``filter`` (lag 0.25 s, with the live re-solve of each
-track's first 1.5 s: the default) and ``filter`` without the re-solve
-(``live_resolve_times_s = ()``).
+track's first 1.5 s: the default), ``filter`` without the re-solve
+(``live_resolve_times_s = ()``) and ``filter`` drawing full-grid hypotheses
+every 0.5 s of a track instead of 0.1 s (``reentry_interval_s = 0.5``).
 
 Usage::
 
@@ -67,6 +68,10 @@ VARIANTS: dict[str, tuple[str, TrackerConfig | None]] = {
     "filter, no re-solve": (
         "filter",
         TrackerConfig(filter=replace(FilterConfig(), live_resolve_times_s=())),
+    ),
+    "filter, re-entry 0.5 s": (
+        "filter",
+        TrackerConfig(filter=replace(FilterConfig(), reentry_interval_s=0.5)),
     ),
 }
 

@@ -175,6 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         help="trace length, seconds (default: the scenario's 2 s)",
     )  # fmt: skip
     ap.add_argument(
+        "--interval-ms", type=finite_float, default=None,
+        help="time between packets, ms (default: the scenario's 5; a phone sends every 100)",
+    )  # fmt: skip
+    ap.add_argument(
         "--settle-s", type=finite_float, default=None,
         help="also report the errors from this many seconds into each trace on",
     )  # fmt: skip
@@ -191,6 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         if not args.duration_s > 0:
             ap.error(f"--duration-s must be > 0, got {args.duration_s}")
         base = replace(base, duration_s=args.duration_s)
+    if args.interval_ms is not None:
+        base = replace(base, interval_ms=args.interval_ms)
     settle = args.settle_s
     if settle is not None and not 0 <= settle < base.duration_s:
         ap.error(f"--settle-s must be in [0, {base.duration_s:g}), got {settle}")

@@ -114,6 +114,11 @@ def test_live_lag_accuracy(capsys: pytest.CaptureFixture[str]) -> None:
     argv += ["--settle-s", "0.1", "--duration-s", "0.3"]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
     assert "after 0.1 s" in rows[0] and rows[2].count("|") == 15
+    # a phone's packet rate (--interval-ms): 0.3 s at 100 ms is 3 packets a run
+    argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--variants", "causal",
+            "--interval-ms", "100", "--duration-s", "0.3"]  # fmt: skip
+    printed = _run(SCRIPTS / "live_lag_accuracy.py", argv, capsys)
+    assert "--interval-ms 100" in printed and len(_table_rows(printed)) == 3
     # issue 15's anchor beside the filter's rows
     argv = ["--quick", "--seeds", "1", "--sigmas", "1", "--variants", "causal", "textbook"]
     rows = _table_rows(_run(SCRIPTS / "live_lag_accuracy.py", argv, capsys))
