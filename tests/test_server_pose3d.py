@@ -212,3 +212,24 @@ def test_dashboard_shows_height_pitch_and_roll(site3d: Site3d, db_url: str, page
     expect = [last["azimuth_deg"], last["pitch_deg"], last["roll_deg"]]
     assert angles == pytest.approx(expect, abs=0.5)
     assert last["z_m"] != SCENE.z_min_m and angles[1] != 0.0  # a 3-D pose, not the 2-D defaults
+
+
+def test_a_site_change_from_3d_to_2d_turns_the_default_method_and_its_alarms(
+    site3d: Site3d, tmp_path: Path
+) -> None:
+    """With no method chosen the live method follows the site: filter (and its
+    spoofing alarm monitor) at the 3-D site, then full with no monitor once the
+    stored site is 2-D (the old site's monitor once stayed on, fed full's
+    estimates against the old receivers)."""
+    from radiopose.simulate import ScenarioConfig, simulate
+
+    simulate(ScenarioConfig(size_m=6.0, step_m=0.5, duration_s=0.05), seed=2).write(tmp_path / "s2")
+    db = Database(f"sqlite:///{tmp_path / 'db.sqlite'}")
+    import_site_dir(db, site3d.site_dir)
+    p = LivePipeline(db, LiveConfig())
+    p._refresh_site()
+    assert p.tracker is not None and p.tracker.method == "filter"
+    assert p.alarm_monitor is not None and len(p.alarm_monitor.site.receiver_ids) == 6
+    import_site_dir(db, tmp_path / "s2" / "site")
+    p._refresh_site()
+    assert p.tracker.method == "full" and p.alarm_monitor is None and not p._pending_obs

@@ -267,7 +267,12 @@ class LivePipeline:
         # (states of another method, after a site change turned 2-D into 3-D, or a
         # checkpoint of another --method, start their devices afresh)
         self.tracker.states = self.state.track_states
-        if method == "filter":  # spoofing alarms beside the filter (issue 19)
+        if method != "filter":
+            # (a site change may change the default method, 3-D filter to 2-D full:
+            # the old site's alarm monitor and its pending packets go with it)
+            self.alarm_monitor = None
+            self._pending_obs = {}
+        else:  # spoofing alarms beside the filter (issue 19)
             from radiopose.server.alarms import AlarmMonitor
 
             # the detectors live in the checkpointed state (a checkpoint written before
