@@ -16,7 +16,8 @@ pipeline steps until every packet has its estimate (throughput, as in
   and CPU), and the ratio to ``full`` (the paper's pipeline, the live default
   at a 2-D site) in the same run; the **offered load** ``N × 1000 /
   interval_ms`` packets/s beside it: a rate above the load keeps up;
-* **memory**: the growth of this process's resident set over the run (MB);
+* **memory**: the peak growth of the resident set over the run (MB), each
+  variant in a forked process of its own;
 * **checkpoint**: the size of the last pickled pipeline state (MB).
 
 Methods: ``full``, ``filter`` (lag 0.25 s, with the live re-solve of each
@@ -33,6 +34,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import resource
 import sys
@@ -127,11 +129,27 @@ def batches(frames: dict[str, list[tuple[int, str, str, float]]]) -> list[tuple[
     return [(r, bid, rows) for _i, r, bid, rows in out]
 
 
-def _rss_mb() -> float:
+def _status_mb(field: str) -> float:
+    """``VmRSS`` or ``VmHWM`` (peak) of this process, MB."""
     for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
+        if line.startswith(field + ":"):
             return float(line.split()[1]) / 1024.0
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def run_apart(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -> dict:
+    """:func:`run` in a forked child of its own, so that each variant's memory
+    is measured from the same start (in one process a variant reuses what an
+    earlier one freed). In process where this one may not fork (no fork here,
+    or numba's OpenMP layer already launched, as in a test session)."""
+    import multiprocessing
+
+    from radiopose.filtering.forked import fork_available
+
+    if not fork_available():
+        return run(site_dir, db_path, bs, n_packets, variant)
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        return pool.apply(run, (site_dir, db_path, bs, n_packets, variant))
 
 
 def run(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -> dict[str, Any]:
@@ -145,7 +163,9 @@ def run(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -
         method=method, tracker=tracker, live_lag_s=0.25, calibration_s=1.0,
         idle_flush_s=1e6, batches_per_step=20, checkpoint_s=1.0,
     )  # fmt: skip
-    mem0 = _rss_mb()
+    with contextlib.suppress(OSError):  # the peak (VmHWM) from here, not the parent's
+        Path("/proc/self/clear_refs").write_text("5")
+    mem0 = _status_mb("VmRSS")
     p = LivePipeline(db, cfg)
     w0, c0 = time.perf_counter(), time.process_time()
     first: tuple[float, float, int] | None = None
@@ -176,7 +196,7 @@ def run(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -
         "packets_per_s": (n_packets - n1) / max(wall - w1, 1e-9),
         "packets_per_cpu_s": (n_packets - n1) / max(cpu - c1, 1e-9),
         "total_s": wall,
-        "memory_growth_mb": _rss_mb() - mem0,
+        "memory_growth_mb": _status_mb("VmHWM") - mem0,
         "checkpoint_mb": (len(ck[1]) if ck is not None else 0) / 1e6,
     }
     db.close()
@@ -223,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
             bs = batches(frames)
             rows = []
             for v in a.variants:
-                row = run(site_dir, tmp / f"{n}-{v.replace(' ', '_')}.db", bs, n_packets, v)
+                row = run_apart(site_dir, tmp / f"{n}-{v.replace(' ', '_')}.db", bs, n_packets, v)
                 row.update(devices=n, offered_per_s=n * 1000.0 / a.interval_ms)
                 rows.append(row)
                 print(f"{n} devices: {row}", file=sys.stderr, flush=True)

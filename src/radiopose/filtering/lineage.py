@@ -78,6 +78,15 @@ def _inject(  # pragma: no cover - compiled
         n_rows[k] = r
 
 
+INITIAL_CAPACITY = 8
+"""Packets a new :class:`Lineage` holds before its first doubling. The ring
+grows to what the lag needs and no further: every slot of a ring is written
+in turn, so a ring sized for batch ``locate``'s 1 s at 200 packets/s (256, the
+default before session 29) cost a live device 37 MB of resident memory at any
+packet rate, where a phone at 10 packets/s within a 0.25 s lag needs 4 slots
+(docs/performance.md, "Many devices in the live pipeline")."""
+
+
 class Lineage:
     """Pose rows and ancestor indices of the packets within the smoother's lag.
 
@@ -86,7 +95,8 @@ class Lineage:
     n_particles
         Particles of the filter.
     capacity
-        Initial number of packets held (doubled when exceeded).
+        Initial number of packets held (doubled when exceeded; the ring's order
+        and contents do not depend on it).
     extra_rows
         Rows per packet beyond the particles' own, for re-entered hypotheses
         (:meth:`inject`; default ``n_particles // 8``). The ring widens when
@@ -95,7 +105,7 @@ class Lineage:
     """
 
     def __init__(
-        self, n_particles: int, capacity: int = 256, extra_rows: int | None = None
+        self, n_particles: int, capacity: int = INITIAL_CAPACITY, extra_rows: int | None = None
     ) -> None:
         self.n = n_particles
         extra = n_particles // 8 if extra_rows is None else max(int(extra_rows), 0)
@@ -207,7 +217,7 @@ class Lineage:
         }
 
     def __setstate__(self, state: dict) -> None:
-        self.__init__(state["n"], max(256, state["times_s"].size))  # type: ignore[misc]
+        self.__init__(state["n"], max(INITIAL_CAPACITY, state["times_s"].size))  # type: ignore[misc]
         size = state["times_s"].size
         if state["rows"].shape[1] > self.rows.shape[1]:
             self._grow(self.capacity, state["rows"].shape[1])
