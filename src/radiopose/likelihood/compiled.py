@@ -720,7 +720,14 @@ class ShiftScorer(ScorerBase):
         azimuth_lo_deg: float,
         azimuth_span_deg: float,
     ) -> TopK:
-        """Top-k among ``positions`` × azimuths in ``[lo, lo + span]`` (wrapping).
+        """Top-k among ``positions`` × a window of candidate azimuths (wrapping).
+
+        The window is the first grid azimuth at or after ``lo`` and the next
+        ``floor(span / step)`` ones. With ``lo`` on the grid that is ``[lo, lo +
+        span]``; with ``lo`` off it, the last may lie up to one step past ``lo +
+        span`` (``lo`` 355°, ``span`` 10°, step 10°: 0° and 10°). The paper's
+        rotation windows use this, and their outputs are pinned
+        (``tests/test_method_registry.py``).
 
         Parameters
         ----------
