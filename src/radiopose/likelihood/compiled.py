@@ -607,6 +607,7 @@ class ShiftScorer(ScorerBase):
         w = w64.astype(np.float32)
         kk = k + self.oversample
         n_total = positions.size * cnt * self.n_q
+        exact: TopK | None = None  # the exact fallback's answer, when it ran
         while True:
             kk_eff = int(min(kk, max(n_total, 1)))
             thr0 = np.inf
@@ -655,13 +656,9 @@ class ShiftScorer(ScorerBase):
                     break
                 if self._screen_hopeless(kth, excluded, heard, w64):
                     self.exact_fallbacks += 1
-                    out = self._exact_window(heard, k, positions, j0, cnt)
-                    hint = np.unique(out.candidate_idx // (self.n_az * self.n_q))
-                    if slot is _LAST_CALL:
-                        self._hint = hint
-                    else:
-                        self._slot_hints[slot] = hint
-                    return out
+                    exact = self._exact_window(heard, k, positions, j0, cnt)
+                    short = exact.candidate_idx  # (the next packet's hint)
+                    break
             if kk_eff >= n_total:
                 # every candidate was scored and kept (``k`` is more than the grid or
                 # the bounded window holds): ``short`` is all of them, best first
@@ -673,6 +670,8 @@ class ShiftScorer(ScorerBase):
             self._hint = hint
         else:
             self._slot_hints[slot] = hint
+        if exact is not None:
+            return exact
         # its parallel kernel only with a spare core; chosen here rather than by
         # numba.set_num_threads, which would start numba's threading layer: once
         # started as OpenMP the process may not fork the filter's offline passes
