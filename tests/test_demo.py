@@ -311,7 +311,7 @@ def test_demo_3d_tracks_a_hand_held_walk(tmp_path: Path, capsys) -> None:
     [
         (["--pose", "4d"], "--pose must be 2d or 3d"),
         (["--pose", "3d", "--live", "--method", "full"], "--pose 3d --live runs the filter"),
-        (["--pose", "3d", "--real"], "--pose 3d does not apply to --real"),
+        (["--pose", "3d", "--real"], "--pose does not apply to --real"),
         (["--pose", "3d", "--duration-s", "-1"], "--duration-s -1.0 is out of range (allowed"),
         (["--pose", "3d", "--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0"),
         (["--noise-db", "-1"], "--noise-db -1.0 is out of range (allowed: [0, 30])"),

@@ -399,9 +399,7 @@ def demo(
         raise InputError(f"--pose must be 2d or 3d, got {pose!r}")
     if not live and not real and _given(ctx, {"port": "--port"}):
         raise InputError("--port applies to --live (the offline demo starts no server)")
-    if pose == "3d" and not live:
-        if real:
-            raise InputError("--pose 3d does not apply to --real (the BLE site is 2-D)")
+    if pose == "3d" and not live and not real:  # (--real refuses --pose with its others)
         if method != "filter":
             raise InputError("--method applies to --live (the 3-D demo runs the filter)")
         from radiopose.cli import packet_progress
