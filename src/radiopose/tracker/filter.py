@@ -715,12 +715,12 @@ def _shared_model3d(device: Device, p3: Pose3dConfig) -> FilterModel3d:
     from radiopose.filtering.particle3d import FilterModel3d
 
     enrolled = device.site.device(device.transmitter)
-    key = f"model3d {enrolled.pattern!r} {float(enrolled.tx_power_dbm)!r} {hash(p3)}"
-    built = device.shared.get(key)
-    if isinstance(built, tuple) and built[0] == p3:
-        return replace(built[1], space=device.space)
-    model3d = FilterModel3d.build3d(device.site, device.space, p3)
-    device.shared[key] = (p3, model3d)
+    models = device.shared.setdefault("filter.model3d", {})
+    key = (enrolled.pattern, float(enrolled.tx_power_dbm), p3)
+    built = models.get(key)
+    if built is not None:
+        return replace(built, space=device.space)
+    models[key] = model3d = FilterModel3d.build3d(device.site, device.space, p3)
     return model3d
 
 
