@@ -1,7 +1,7 @@
 """Runs one benchmark: ``python -m benchmarks [BENCHMARK] [ARGS...]``.
 
 BENCHMARK is one of likelihood, capture, server, filter, pose3d, prune,
-profile and devices.
+profile, devices and sharing.
 
 Default ``likelihood`` (kernel, pipeline, scaling, memory and start-up tables;
 see ``docs/performance.md``). The remaining arguments go to that benchmark,
@@ -17,7 +17,17 @@ import runpy
 import sys
 from pathlib import Path
 
-NAMES = ("likelihood", "capture", "server", "filter", "pose3d", "prune", "profile", "devices")
+NAMES = (
+    "likelihood",
+    "capture",
+    "server",
+    "filter",
+    "pose3d",
+    "prune",
+    "profile",
+    "devices",
+    "sharing",
+)
 HERE = Path(__file__).resolve().parent
 
 

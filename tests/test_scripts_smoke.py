@@ -267,6 +267,16 @@ def test_benchmark_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert out.read_text(encoding="utf-8").strip() == printed.strip()
 
 
+@pytest.mark.slow
+def test_benchmark_sharing(capsys: pytest.CaptureFixture[str]) -> None:
+    """Per-device cost in one tracker and the methods at the 3-D site (5 fresh
+    processes, about 40 s: slow)."""
+    printed = _run(BENCHMARKS / "bench_sharing.py", ["--devices", "2", "--packets", "2"], capsys)
+    rows = _table_rows(printed)
+    assert [r.split("|")[1].strip() for r in rows[2:4]] == ["2d", "3d"]
+    assert rows[-2].startswith("| full |") and rows[-1].startswith("| filter |")
+
+
 # ---------------------------------------------------- slow: long even at their smallest
 @pytest.mark.slow
 def test_filter_accuracy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -39,8 +39,9 @@ once its live variant meets the issue's goals (docs/methods.md)."""
 DEFAULT_LIVE_METHOD_3D = "filter"
 """The live server's method at a 3-D site when none is chosen: the paper's
 methods search every candidate per packet, which at a 3-D site is far too slow
-for live data (the simulated 3-D site: ``full`` 15 packets/s against 811 for
-``filter``, while the phone sends 200; docs/methods.md)."""
+for live data (the simulated 3-D site: ``full`` 15–16 packets/s against
+629–712 for ``filter``, while the phone sends 200; ``python -m benchmarks
+sharing``, docs/methods.md)."""
 
 
 def default_live_method(site: Site) -> str:
