@@ -50,9 +50,13 @@ def table(rows: list[dict], fmt: dict[str, str]) -> list[str]:
 
 
 def emit(lines: list[str], markdown: str | None) -> int:
-    """Print the report and, if ``markdown`` names a file, write it there too; 0."""
+    """Print the report and, if ``markdown`` names a file, write it there too
+    (its missing parent directories made, as ``scripting.check_output``, which
+    the benchmarks run before their work, allows); 0."""
     text = "\n".join(lines)
     print(text)
     if markdown:
-        Path(markdown).write_text(text + "\n", encoding="utf-8")
+        path = Path(markdown)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text + "\n", encoding="utf-8")
     return 0

@@ -257,7 +257,7 @@ def test_benchmark_profile(capsys: pytest.CaptureFixture[str]) -> None:
 def test_benchmark_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Many devices through the live pipeline: every packet tracked (the run
     raises otherwise), filter answers every one, the table has its rows."""
-    out = tmp_path / "devices.md"
+    out = tmp_path / "new" / "devices.md"  # (a missing directory is made, as --out allows)
     argv = ["--devices", "2", "--duration-s", "0.6", "--variants", "full", "filter",
             "--markdown", str(out)]  # fmt: skip
     printed = _run(BENCHMARKS / "bench_devices.py", argv, capsys)
