@@ -233,3 +233,35 @@ def test_a_site_change_from_3d_to_2d_turns_the_default_method_and_its_alarms(
     import_site_dir(db, tmp_path / "s2" / "site")
     p._refresh_site()
     assert p.tracker.method == "full" and p.alarm_monitor is None and not p._pending_obs
+
+
+def test_serve_without_a_method_leaves_it_to_the_stored_site(
+    site3d: Site3d, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``radiopose serve SITE`` with no ``--method`` (and no ``live_method`` in
+    tracker.toml) hands the live pipeline no method, so the default follows the
+    stored site through admin edits; it once fixed the directory's default at
+    start-up (``full`` stayed on after an edit made the site 3-D). The printed
+    line names the default at the stored site."""
+    import uvicorn
+
+    import radiopose.server.app as server_app
+    from radiopose.cli import main
+
+    seen: list[LiveConfig | None] = []
+
+    def fake_create_app(db, live=None, **_kw):  # type: ignore[no-untyped-def]
+        seen.append(live)
+        return object()
+
+    monkeypatch.setattr(server_app, "create_app", fake_create_app)
+    monkeypatch.setattr(uvicorn, "run", lambda *a, **k: None)
+    db = f"sqlite:///{tmp_path / 'x.db'}"
+    for extra, method in (((), None), (("--method", "full"), "full")):
+        seen.clear()
+        assert main(["serve", str(site3d.site_dir), "--db", db, *extra]) == 0
+        (live,) = seen
+        assert live is not None and live.method == method
+    out = capsys.readouterr().out
+    assert "live method filter (the default at this site) (lag 0.25 s)" in out
+    assert "live method full\n" in out

@@ -118,7 +118,7 @@ def serve(
     from radiopose.server.app import create_app, import_site_dir
     from radiopose.server.jsonlog import configure_logging
     from radiopose.server.live import MAX_LIVE_LAG_S, LiveConfig
-    from radiopose.site import load_site
+    from radiopose.server.sitestore import build_site
     from radiopose.tracker import METHODS, TrackerConfig, default_live_method
     from radiopose.tracker_settings import (
         apply_tracker_settings,
@@ -128,8 +128,9 @@ def serve(
 
     if method is not None and method not in METHODS:
         raise InputError(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
-    # the method: --method, else the site's tracker.toml live_method, else the default
-    method = method or load_site_live_method(site) or default_live_method(load_site(site))
+    # the method: --method, else the site's tracker.toml live_method, else (None) the
+    # default at the site the pipeline runs, which follows the stored site's admin edits
+    method = method or load_site_live_method(site)
     tracker = None
     settings, settings_path = load_site_settings(site)
     if settings_path is not None:  # the site's priors for the filter ([filter], [filter.pose3d])
@@ -153,9 +154,11 @@ def serve(
         f"site {site}: {status} (version {database.site_version()}); database {database.url}",
         flush=True,
     )
+    shown = method or default_live_method(build_site(database.site_rows()))
     print(
-        f"live method {method}"
-        + (f" (lag {live_lag_s:g} s)" if METHODS[method].lagged else "")
+        f"live method {shown}"
+        + ("" if method else " (the default at this site)")
+        + (f" (lag {live_lag_s:g} s)" if METHODS[shown].lagged else "")
         + ("" if settings_path is None else f", tracker settings from {settings_path}"),
         flush=True,
     )
