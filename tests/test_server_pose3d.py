@@ -236,7 +236,10 @@ def test_a_site_change_from_3d_to_2d_turns_the_default_method_and_its_alarms(
 
 
 def test_serve_without_a_method_leaves_it_to_the_stored_site(
-    site3d: Site3d, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    site3d: Site3d,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     """``radiopose serve SITE`` with no ``--method`` (and no ``live_method`` in
     tracker.toml) hands the live pipeline no method, so the default follows the
