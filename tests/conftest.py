@@ -95,6 +95,7 @@ TIERS: dict[str, str] = {
     "test_filter_reverse": "e2e",
     "test_filter_smoother_jump": "e2e",
     "test_method_protocol": "e2e",
+    "test_method_plugins": "e2e",
     "test_method_registry": "e2e",
     "test_method_registry_filter": "e2e",
     "test_patterns_cli": "e2e",

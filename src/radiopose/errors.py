@@ -15,6 +15,13 @@ class RadioposeError(Exception):
     """Base class of all radiopose errors that are reported as one line."""
 
 
+class MethodError(RadioposeError):
+    """A tracking method outside the package (a plugin, ``docs/methods.md``)
+    failed or gave an estimate the contract does not allow (a non-finite
+    value, no orientation where it estimates one); the message names the
+    method, the transmitter and the packet."""
+
+
 class InputError(RadioposeError):
     """Bad user input (file contents, arguments, configuration).
 

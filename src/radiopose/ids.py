@@ -14,6 +14,10 @@ if TYPE_CHECKING:
 
 MAX_TRANSMITTER_ID_CHARS = 64
 
+MAX_METHOD_NAME_CHARS = 16
+"""The longest tracking method name (the live server's database stores it with
+each estimate in a column of this width)."""
+
 
 def transmitter_id_problem(value: str) -> str | None:
     """Why ``value`` is not a transmitter id, or ``None`` if it is one.

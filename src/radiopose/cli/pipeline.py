@@ -21,7 +21,10 @@ def locate(
     packets: Annotated[Path, typer.Argument(help="Synchronised packets.csv.")],
     out: Annotated[Path, typer.Option("-o", "--out", help="Estimates CSV to write.")],
     method: Annotated[
-        str, typer.Option(help="full, location, orientation, top, lms or filter.")
+        str,
+        typer.Option(
+            help="full, location, orientation, top, lms, filter or a plugin's (docs/methods.md)."
+        ),
     ] = "full",
     kernel: Annotated[
         str,

@@ -81,9 +81,9 @@ def serve(
     method: Annotated[
         str | None,
         typer.Option(
-            help="Tracker method: full, location, orientation, top, lms or filter "
-            "(default: SITE/tracker.toml's live_method, else full at a 2-D site "
-            "and filter at a 3-D one)."
+            help="Tracker method: full, location, orientation, top, lms, filter or a "
+            "plugin's (docs/methods.md) (default: SITE/tracker.toml's live_method, else "
+            "full at a 2-D site and filter at a 3-D one)."
         ),
     ] = None,
     live_lag_s: Annotated[

@@ -177,8 +177,10 @@ def run_demo_pipeline(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     scorer = build_scorer(sim, (config or TrackerConfig()).kernel)
-    runs = run_methods(sim, METHOD_NAMES, config, scorer, progress)
-    rows = [summarise([runs[m]], sim.config.noise_db) for m in METHOD_NAMES]
+    # every registered method: the built-in six, then any plugin's (docs/methods.md)
+    names = (*METHOD_NAMES, *(m for m in METHODS if m not in METHOD_NAMES))
+    runs = run_methods(sim, names, config, scorer, progress)
+    rows = [summarise([runs[m]], sim.config.noise_db) for m in names]
     say(format_table(rows))
     cal = calibration(runs["filter"])
     if cal is not None:

@@ -40,6 +40,21 @@ METHOD_STYLE = {
     "textbook": ("C6", "X"),  # issue 15's anchor (evaluation only)
 }
 
+_OTHER_STYLES = (("C4", "P"), ("C8", "*"), ("C9", "h"), ("k", "d"), ("C4", "x"), ("C8", "<"))
+"""Styles of methods :data:`METHOD_STYLE` does not know (a plugin's): colours and
+markers no built-in method uses, in turn."""
+
+
+def method_style(name: str, others: list[str]) -> tuple[str, str]:
+    """The colour and marker of method ``name``: its own, else the next of
+    :data:`_OTHER_STYLES` by its place among ``others`` (the unknown methods of
+    the figure, in order)."""
+    if name in METHOD_STYLE:
+        return METHOD_STYLE[name]
+    if name not in others:
+        others.append(name)
+    return _OTHER_STYLES[others.index(name) % len(_OTHER_STYLES)]
+
 
 def _label(name: str) -> str:
     return AXIS_LABELS.get(name, name)
@@ -118,6 +133,7 @@ def plot_spec(
     pos = {x: (float(x) if numeric else i) for i, x in enumerate(xs)}
     gaps = np.diff(sorted(pos.values()))
     spacing = float(gaps.min()) if gaps.size else 1.0
+    others: list[str] = []
     for j, h in enumerate(hues):
         t = table[table["hue"] == h]
         x = np.array([pos[v] for v in t["x"]], dtype=float)
@@ -127,7 +143,9 @@ def plot_spec(
         y = t["value"].to_numpy(float)
         err = np.vstack([y - t["low"].to_numpy(float), t["high"].to_numpy(float) - y])
         err = np.where(np.isfinite(err), err, 0.0)
-        colour, marker = METHOD_STYLE.get(str(h), (f"C{j % 10}", "o"))
+        colour, marker = (
+            method_style(str(h), others) if spec.hue == "method" else (f"C{j % 10}", "o")
+        )
         label = str(h) if spec.hue == "method" else f"{_label(spec.hue).split(' (')[0]} = {_fmt(h)}"
         ax.errorbar(
             x,

@@ -20,7 +20,14 @@ from radiopose.geometry import orientation_error_deg
 from radiopose.likelihood import MemoScorer, Scorer, candidate_space, make_scorer
 from radiopose.packets import group_packets
 from radiopose.simulate import Simulation
-from radiopose.tracker import METHOD_NAMES, METHODS, RunSummary, TrackerConfig, locate
+from radiopose.tracker import (
+    METHOD_NAMES,
+    METHODS,
+    RunSummary,
+    TrackerConfig,
+    get_method,
+    locate,
+)
 from radiopose.tracker.filter import reads_site_scorer
 from radiopose.units import FloatArray
 
@@ -78,7 +85,8 @@ def run_methods(
     sim
         The simulation (its site, packets and truth).
     methods
-        Names of :data:`radiopose.tracker.METHODS` to run (default: all).
+        Names of :data:`radiopose.tracker.METHODS` to run (default: the built-in
+        six, :data:`~radiopose.tracker.METHOD_NAMES`).
     config
         Pipeline parameters (paper defaults).
     scorer
@@ -90,7 +98,7 @@ def run_methods(
     cfg = config or TrackerConfig()
     tx = sim.site.devices[0].transmitter
     scorers = None
-    if any(reads_site_scorer(METHODS[m], sim.site) for m in methods):
+    if any(reads_site_scorer(get_method(m), sim.site) for m in methods):
         inner = scorer if scorer is not None else build_scorer(sim, cfg.kernel)
         scorers = {tx: MemoScorer(inner)}
     n_packets = len(group_packets(sim.packets))

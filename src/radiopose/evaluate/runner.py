@@ -50,7 +50,7 @@ from radiopose.parallel import connect_scheduler as connect_scheduler  # re-expo
 from radiopose.parallel import default_workers, run_on_dask
 from radiopose.simulate import ScenarioConfig
 from radiopose.tables import check_output_dir
-from radiopose.tracker import METHODS, TrackerConfig
+from radiopose.tracker import TrackerConfig, get_method
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -231,7 +231,7 @@ def _run_task(task: RunTask) -> list[dict[str, Any]]:
     scorer = None
     kernel_name = ""
     scoring_s = 0.0
-    scored = {m: reads_site_scorer(METHODS[m], sim.site) for m in task.methods}
+    scored = {m: reads_site_scorer(get_method(m), sim.site) for m in task.methods}
     if any(scored.values()):
         tx = sim.site.devices[0].transmitter
         inner = fastest_scorer(task.kernel, candidate_space(sim.site, tx))

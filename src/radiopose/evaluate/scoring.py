@@ -10,7 +10,7 @@ For each estimate, the truth row of the same transmitter and packet time
 
 Each is reported as mean, median and 95th percentile, with coverage beside
 them, per method. Position-only methods
-(:data:`radiopose.estimates.POSITION_ONLY_METHODS`) get no orientation error.
+(:func:`position_only`) get no orientation error.
 """
 
 from __future__ import annotations
@@ -25,6 +25,18 @@ from radiopose.estimates import POSITION_ONLY_METHODS, Estimates
 from radiopose.geometry import orientation_error_deg
 from radiopose.packets import Truth
 from radiopose.units import FloatArray, seconds_to_ns
+
+
+def position_only(method: str) -> bool:
+    """Whether ``method`` estimates position only (its orientation columns are
+    0 and get no orientation error): ``lms``
+    (:data:`radiopose.estimates.POSITION_ONLY_METHODS`) and any registered
+    method that says so (a plugin's ``estimates_orientation = False``)."""
+    if method in POSITION_ONLY_METHODS:
+        return True
+    from radiopose.tracker import METHODS  # the registry (heavy: only for other names)
+
+    return method in METHODS and not METHODS[method].estimates_orientation
 
 
 @dataclass(frozen=True)
@@ -173,7 +185,7 @@ def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tupl
             )
         pos_err = np.linalg.norm(estimates.position_m[sel] - truth.position_m[rows], axis=1)
         ori = None
-        if m not in POSITION_ONLY_METHODS:
+        if not position_only(m):
             ori = error_stats(
                 orientation_error_deg(estimates.orientation_deg[sel], truth.orientation_deg[rows])
                 if rows.size

@@ -56,7 +56,7 @@ from radiopose.likelihood import HeardRss
 from radiopose.tracker.filter import filter_seed
 from radiopose.tracker.protocol import Device, Evidence, Outcome, Step
 from radiopose.tracker.reasons import SKIP_NO_TRACK, SKIP_OUT_OF_ORDER, SKIP_TOO_FEW_RECEIVERS
-from radiopose.tracker.registry import METHODS, register_method
+from radiopose.tracker.registry import METHODS, RESERVED_NAMES
 from radiopose.units import FloatArray
 
 NAME = "textbook"
@@ -266,6 +266,9 @@ def _estimate(st: TextbookState) -> Outcome:
     )
 
 
+assert NAME in RESERVED_NAMES  # no other method may take the anchor's name
+
+
 @contextmanager
 def registered_textbook(sigma_db: float, **settings: object) -> Iterator[TextbookPF]:
     """The textbook filter told ``sigma_db`` (dB), registered under :data:`NAME`
@@ -280,7 +283,7 @@ def registered_textbook(sigma_db: float, **settings: object) -> Iterator[Textboo
     """
     method = TextbookPF(TextbookConfig(sigma_db=sigma_db, **settings))  # type: ignore[arg-type]
     previous = METHODS.get(NAME)
-    register_method(method, replace=True)
+    METHODS[NAME] = method  # (register_method refuses the reserved name to others)
     try:
         yield method
     finally:

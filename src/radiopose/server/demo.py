@@ -172,10 +172,8 @@ def run_live_demo(
         end = time.monotonic() + 60
         while True:
             if server.poll() is not None:
-                raise InputError(
-                    f"the server stopped (see {out / 'server.log'}); "
-                    f"is port {port} free? try --port"
-                )
+                log.flush()
+                raise InputError(_stopped(out / "server.log", port))
             try:
                 if (
                     httpx.get(
@@ -226,3 +224,19 @@ def run_live_demo(
         log.close()
     echo("stopped")
     return {"url": f"{base}/", **tokens}
+
+
+def _stopped(log_path: Path, port: int) -> str:
+    """Why the demo's server stopped, one line: the last line of its log that
+    says (the ``radiopose: …`` line of a refused start, e.g. an unknown method),
+    else the port guess."""
+    try:
+        lines = log_path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError:
+        lines = []
+    said = [ln.strip() for ln in lines if ln.startswith("radiopose: ")]
+    if said:
+        return f"the server stopped: {said[-1].removeprefix('radiopose: ')} (see {log_path})"
+    bound = any("address already in use" in ln.lower() for ln in lines)
+    hint = f"port {port} is taken; try --port" if bound else f"is port {port} free? try --port"
+    return f"the server stopped (see {log_path}); {hint}"

@@ -419,9 +419,29 @@ class LivePipeline:
         assert st.matcher is not None
         out += self._handle(st.matcher.flush(), wall_s)
         if self.tracker is not None:  # a lagged method's held-back estimates
-            for e in self.tracker.flush():
+            for e in self.tracker.flush(on_error=self._method_failed):
                 out += self._estimate_rows(e, wall_s)
         return out
+
+    def _method_failed(self, transmitter: str, exc: Exception) -> None:
+        """The method raised on one of ``transmitter``'s packets (or in its
+        flush): log it, count it; the tracker has dropped, or is told to drop,
+        the device's state (its next packet starts afresh), so that one device
+        cannot stall the partition by failing again at every retry."""
+        assert self.tracker is not None
+        self.tracker.drop(transmitter)
+        c = self.state.counts
+        c["method_failures"] = c.get("method_failures", 0) + 1
+        from radiopose.errors import RadioposeError
+
+        log.error(
+            "method %s failed on transmitter %s; its track starts afresh: %s",
+            self.tracker.method,
+            transmitter,
+            exc,
+            exc_info=None if isinstance(exc, RadioposeError) else exc,
+            extra={"transmitter": transmitter, "method": self.tracker.method},
+        )
 
     # ------------------------------------------------------------------ packets
     def _handle(self, packets: Packets, wall_s: float) -> list[dict[str, Any]]:
@@ -432,7 +452,7 @@ class LivePipeline:
         assert self.tracker is not None
         out: list[dict[str, Any]] = []
         tol_ns = round(self.config.tolerance_s * _NS)
-        from radiopose.tracker import PENDING
+        from radiopose.tracker import PENDING, SKIP_METHOD_FAILED
 
         for obs in group_packets(packets):
             pid = str(st.next_packet_id)
@@ -444,7 +464,11 @@ class LivePipeline:
             )
             if self.alarm_monitor is not None:  # its estimate may come after the lag
                 self._pending_obs[(obs.transmitter, pid)] = obs
-            est, reason = self.tracker.update(obs)
+            try:
+                est, reason = self.tracker.update(obs)
+            except Exception as exc:  # one device's failure must not stall the partition
+                self._method_failed(obs.transmitter, exc)
+                est, reason = None, SKIP_METHOD_FAILED
             t_ns = round(obs.timestamp_s * _NS)
             last_report = max(self._arrival(r, t_ns - tol_ns, wall_s) for r in obs.receiver_ids)
             c = st.counts
@@ -467,7 +491,7 @@ class LivePipeline:
                 out += self._estimate_rows(e, last_report)
         # ... and of devices silent for the lag while others send
         now_s = float(np.max(packets.timestamp_s))
-        for e in self.tracker.release(now_s):
+        for e in self.tracker.release(now_s, self._method_failed):
             out += self._estimate_rows(e, wall_s)
         return out
 
@@ -552,7 +576,7 @@ class LivePipeline:
             "transmitters": len(st.track_states),
         }
         self.db.commit_step(
-            self.config.partition_key, st.cursor, pickle.dumps(st), summary, packets, estimates
+            self.config.partition_key, st.cursor, self._checkpoint(), summary, packets, estimates
         )
         alarms = [
             {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "alarm"
@@ -561,6 +585,30 @@ class LivePipeline:
             self.db.add_alarms(alarms)
         self._last_commit_s = now
         self._committed_cursor = st.cursor
+
+    def _checkpoint(self) -> bytes:
+        """The pickled state. A device whose method state does not pickle (a
+        plugin's; docs/methods.md) is dropped as if its method had failed, so
+        that the partition can still commit."""
+        try:
+            return pickle.dumps(self.state)
+        except Exception:
+            if self.tracker is None:
+                raise
+        from radiopose.errors import MethodError
+
+        for key, state in list(self.state.track_states.items()):
+            try:
+                pickle.dumps(state)
+            except Exception as exc:
+                self._method_failed(
+                    key,
+                    MethodError(
+                        f"method {self.tracker.method!r}: the state of {key!r} cannot be "
+                        f"pickled for the checkpoint ({type(exc).__name__}: {exc})"
+                    ),
+                )
+        return pickle.dumps(self.state)
 
 
 def _finite_or_none(v: float) -> float | None:

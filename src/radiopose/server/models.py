@@ -27,6 +27,7 @@ from sqlalchemy.exc import OperationalError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from radiopose.estimates import ESTIMATE_COLUMNS
+from radiopose.ids import MAX_METHOD_NAME_CHARS
 
 # SQLite only auto-increments an INTEGER PRIMARY KEY.
 _BigId = BigInteger().with_variant(Integer, "sqlite")
@@ -128,7 +129,7 @@ class EstimateRow(Base):
     azimuth_deg: Mapped[float] = mapped_column(Float)
     pitch_deg: Mapped[float] = mapped_column(Float)
     roll_deg: Mapped[float] = mapped_column(Float)
-    method: Mapped[str] = mapped_column(String(16))
+    method: Mapped[str] = mapped_column(String(MAX_METHOD_NAME_CHARS))
     last_report_s: Mapped[float] = mapped_column(Float)
     estimated_s: Mapped[float] = mapped_column(Float)
     # optional uncertainty columns (added by migration to databases created before them)

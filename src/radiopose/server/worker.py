@@ -128,6 +128,28 @@ def _loop(
             wake.clear()
 
 
+def method_missing(config: LiveConfig) -> str | None:
+    """Why the pipeline process cannot run ``config.method``, or ``None``. The
+    process imported the registry afresh (spawn): a method the server found may
+    be missing here — a plugin registered only by the parent's own script, not
+    by an entry point or ``RADIOPOSE_METHODS`` (docs/methods.md) — or a
+    plugin may fail to load."""
+    if config.method is None:
+        return None
+    from radiopose.errors import RadioposeError
+
+    try:
+        from radiopose.tracker import get_method
+
+        get_method(config.method)
+    except RadioposeError as exc:
+        return (
+            f"{exc} (a plugin's method reaches this process only through an entry point "
+            "or RADIOPOSE_METHODS; docs/methods.md)"
+        )
+    return None
+
+
 def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
     import signal
 
@@ -144,6 +166,10 @@ def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
 
     signal.signal(signal.SIGTERM, on_term)
     configure_logging("info")
+    missing = method_missing(config)
+    if missing is not None:  # say so once and stop, rather than fail at every step
+        log.critical("live pipeline not started: %s", missing)
+        return
     db = Database(url, create=False)
     try:
         _loop(db, config, stop, wake, terminated=terminated)

@@ -60,6 +60,7 @@ from radiopose.tracker.reasons import (
     PENDING,
     SKIP_ACQUIRING,
     SKIP_DUPLICATE,
+    SKIP_METHOD_FAILED,
     SKIP_MOVEMENT_MODEL,
     SKIP_NO_CANDIDATES,
     SKIP_NO_ORIENTATION_CLUSTER,
@@ -76,8 +77,12 @@ from radiopose.tracker.registry import (
     METHOD_NAMES,
     METHODS,
     PAPER_METHODS,
+    PLUGIN_GROUP,
+    PLUGINS_ENV,
+    RESERVED_NAMES,
     default_live_method,
     get_method,
+    load_plugins,
     register_method,
 )
 from radiopose.tracker.stream import Tracker
@@ -90,8 +95,12 @@ __all__ = [
     "PAPER_METHODS",
     "PATTERN_STEPS",
     "PENDING",
+    "PLUGINS_ENV",
+    "PLUGIN_GROUP",
+    "RESERVED_NAMES",
     "SKIP_ACQUIRING",
     "SKIP_DUPLICATE",
+    "SKIP_METHOD_FAILED",
     "SKIP_MOVEMENT_MODEL",
     "SKIP_NEVER_EMITTED",
     "SKIP_NO_CANDIDATES",
@@ -125,6 +134,7 @@ __all__ = [
     "filter_config",
     "filter_seed",
     "get_method",
+    "load_plugins",
     "locate",
     "needs_scorer",
     "orientation_clusters",
@@ -135,3 +145,8 @@ __all__ = [
     "step_top",
     "track_step",
 ]
+
+# Methods of other packages and of the modules named in RADIOPOSE_METHODS
+# (docs/methods.md, "Methods from outside the package"): registered here, after
+# every name above is bound, so that a plugin may import radiopose.tracker.
+load_plugins()

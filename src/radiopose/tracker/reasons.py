@@ -13,5 +13,9 @@ SKIP_MOVEMENT_MODEL = "rejected by movement model"
 SKIP_ACQUIRING = "acquiring (pooling packets)"
 SKIP_NO_TRACK = "no track yet (acquiring: too few receivers or nothing scorable)"
 SKIP_DUPLICATE = "duplicate packet (given twice)"
+SKIP_METHOD_FAILED = "the method failed (the device starts afresh)"
+"""The live server: the method raised on this packet (or gave an estimate the
+contract does not allow); the error is logged, and the device's state and its
+estimates still held back are dropped, so that the other devices go on."""
 PENDING = "pending (smoothing lag)"
 """Not a skip: the method will emit this packet's estimate later (fixed-lag smoother)."""

@@ -11,11 +11,12 @@ every one still held back.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import replace
 from typing import Any
 
-from radiopose.errors import InputError
+from radiopose.errors import InputError, MethodError, RadioposeError
 from radiopose.estimates import PoseEstimate
 from radiopose.filtering.config import MAX_LAG_S, lag_in_range
 from radiopose.likelihood import CandidateSpace, HeardRss, Scorer, candidate_space, make_scorer
@@ -71,6 +72,8 @@ class Tracker:
             raise InputError(f"lag_s = {lag_s!r} must be in [0, {MAX_LAG_S:g}] s (or None)")
         self.site = site
         self.method = self.impl.name
+        # a method from outside the package (a plugin): its failures are named as its
+        self._plugin = not type(self.impl).__module__.startswith("radiopose.")
         self.config = config or TrackerConfig()
         self.lag_s = lag_s if self.impl.lagged else None
         self.states: dict[str, Any] = {}
@@ -181,19 +184,38 @@ class Tracker:
             if packet.packet_id in latest[1]:
                 return None, SKIP_DUPLICATE
             latest[1].add(packet.packet_id)
-        state = self.states.get(dev.key)
-        if not isinstance(state, self.impl.state_type):
-            state = self.impl.new_state(dev)
-        step = self.impl.step(dev, state, heard, t, packet.packet_id)
-        self.states[dev.key] = step.state
-        self._last_s[dev.key] = max(t, self._last_s.get(dev.key, t))
-        self._delayed += (
-            self._pose(dev, d.timestamp_s, d.packet_id, d.outcome) for d in step.earlier
-        )
-        out = step.outcome
-        if not out.ok:
-            return None, out.reason
-        return self._pose(dev, t, packet.packet_id, out), None
+        with self._named_failures(f"packet {packet.packet_id!r} of {dev.transmitter!r}", t):
+            state = self.states.get(dev.key)
+            if not isinstance(state, self.impl.state_type):
+                state = self.impl.new_state(dev)
+            step = self.impl.step(dev, state, heard, t, packet.packet_id)
+            self.states[dev.key] = step.state
+            self._last_s[dev.key] = max(t, self._last_s.get(dev.key, t))
+            self._delayed += (
+                self._pose(dev, d.timestamp_s, d.packet_id, d.outcome) for d in step.earlier
+            )
+            out = step.outcome
+            if not out.ok:
+                return None, out.reason
+            return self._pose(dev, t, packet.packet_id, out), None
+
+    @contextmanager
+    def _named_failures(self, where: str, t_s: float | None = None) -> Iterator[None]:
+        """A plugin method's exception in the block as a :class:`MethodError`
+        naming the method and ``where`` (the built-in methods' own bugs keep
+        their traceback: the command line reports them as internal errors)."""
+        try:
+            yield
+        except RadioposeError:
+            raise
+        except Exception as exc:
+            if not self._plugin:
+                raise
+            at = "" if t_s is None else f" (t = {t_s:.6f} s)"
+            why = (str(exc).strip().splitlines() or [""])[0][:200]
+            raise MethodError(
+                f"method {self.method!r} failed at {where}{at}: {type(exc).__name__}: {why}"
+            ) from exc
 
     def look_ahead(self, packets: Sequence[PacketObservation]) -> None:
         """Offline (batch :func:`~radiopose.tracker.locate`, before the first
@@ -224,45 +246,108 @@ class Tracker:
         out, self._delayed = self._delayed, []
         return out
 
-    def release(self, now_s: float) -> list[PoseEstimate]:
+    def release(
+        self, now_s: float, on_error: Callable[[str, Exception], None] | None = None
+    ) -> list[PoseEstimate]:
         """Flush the devices whose last packet is at least the lag before ``now_s``
         (seconds, the packets' clock), with the estimates not yet taken.
 
         A silent device's last estimates then wait no longer than the lag
         after the latest packet of any device; a device still sending is
-        untouched (its own packets release its estimates).
+        untouched (its own packets release its estimates). ``on_error``: as
+        in :meth:`flush`.
         """
         if self.lag_s is None:
             return self.take_delayed()
         quiet = [k for k, t in self._last_s.items() if t <= now_s - self.lag_s]
         for key in quiet:
             del self._last_s[key]
-        return self.flush(quiet)
+        return self.flush(quiet, on_error)
 
-    def flush(self, keys: list[str] | None = None) -> list[PoseEstimate]:
+    def flush(
+        self,
+        keys: list[str] | None = None,
+        on_error: Callable[[str, Exception], None] | None = None,
+    ) -> list[PoseEstimate]:
         """Emit every estimate still held back (end of data, idle) for the devices
-        ``keys`` (lower-case transmitters; ``None``: all), with those not yet taken."""
-        for key in self._devices if keys is None else keys:
+        ``keys`` (lower-case transmitters; ``None``: all), with those not yet taken.
+
+        ``on_error(transmitter, exc)``, if given, is told of a device whose
+        method failed in its flush; that device is dropped (:meth:`drop`) and
+        the others are flushed. Without it the exception propagates."""
+        for key in list(self._devices) if keys is None else keys:
             dev = self._devices[key]
             state = self.states.get(key)
-            if isinstance(state, self.impl.state_type):
-                self._delayed += (
-                    self._pose(dev, d.timestamp_s, d.packet_id, d.outcome)
-                    for d in self.impl.flush(dev, state)
-                )
+            if not isinstance(state, self.impl.state_type):
+                continue
+            try:
+                with self._named_failures(f"the flush of {dev.transmitter!r}"):
+                    self._delayed += (
+                        self._pose(dev, d.timestamp_s, d.packet_id, d.outcome)
+                        for d in self.impl.flush(dev, state)
+                    )
+            except Exception as exc:
+                if on_error is None:
+                    raise
+                self.drop(dev.transmitter)
+                on_error(dev.transmitter, exc)
         return self.take_delayed()
 
+    def drop(self, transmitter: str) -> None:
+        """Forget ``transmitter``'s state (its next packet starts a new track)
+        and its estimates still held back (the live server, after its method
+        failed on one of the device's packets)."""
+        key = transmitter.lower()
+        self.states.pop(key, None)
+        self._last_s.pop(key, None)
+        self._latest.pop(key, None)
+
     def _pose(self, dev: Device, t_s: float, packet_id: str, out: Outcome) -> PoseEstimate:
-        assert out.position_m is not None and out.orientation_deg is not None
+        """The estimate of an answered outcome, checked against the contract: a
+        finite position (x, y, z m) and orientation (azimuth, pitch, roll deg;
+        ``None`` from a method that does not estimate orientation reads (0, 0,
+        0), the contract's value), uncertainties ``None``/NaN or finite ≥ 0.
+
+        Raises
+        ------
+        MethodError
+            The method gave anything else (naming it and the packet).
+        """
+        where = f"packet {packet_id!r} of {dev.transmitter!r}"
+        ori = out.orientation_deg
+        if ori is None and not self.impl.estimates_orientation:
+            ori = (0.0, 0.0, 0.0)
+        try:
+            xyz = tuple(float(v) for v in out.position_m)  # type: ignore[union-attr]
+            abc = tuple(float(v) for v in ori)  # type: ignore[union-attr]
+            pos_std = math.nan if out.position_std_m is None else float(out.position_std_m)
+            az_std = math.nan if out.azimuth_std_deg is None else float(out.azimuth_std_deg)
+        except (TypeError, ValueError):
+            xyz = abc = ()
+            pos_std = az_std = math.nan
+        if len(xyz) != 3 or len(abc) != 3:
+            raise MethodError(
+                f"method {self.method!r} answered {where} without a position (x, y, z) and an "
+                f"orientation (azimuth, pitch, roll): {out.position_m!r}, {out.orientation_deg!r}"
+            )
+        if not all(math.isfinite(v) for v in (*xyz, *abc)):
+            raise MethodError(
+                f"method {self.method!r} gave {where} a non-finite pose {xyz + abc!r}"
+            )
+        if any(v < 0 or v == math.inf for v in (pos_std, az_std)):
+            raise MethodError(
+                f"method {self.method!r} gave {where} an uncertainty that is not >= 0 and "
+                f"finite: position_std_m {pos_std!r}, azimuth_std_deg {az_std!r}"
+            )
         return PoseEstimate(
             t_s,
             dev.transmitter,
             packet_id,
-            out.position_m,
-            out.orientation_deg,
+            xyz,
+            abc,
             self.method,
-            math.nan if out.position_std_m is None else out.position_std_m,
-            math.nan if out.azimuth_std_deg is None else out.azimuth_std_deg,
+            pos_std,
+            az_std,
         )
 
 
