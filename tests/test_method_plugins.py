@@ -248,6 +248,19 @@ def test_a_position_only_plugin_reads_zero_orientation_and_is_not_scored(tiny, r
 
 
 # ----------------------------------------------------------------------------- live
+def _run_live(tiny, tmp_path: Path, method: str) -> tuple[Database, LivePipeline]:  # type: ignore[no-untyped-def]
+    """The tiny trace's frames stored and stepped through a live pipeline of
+    ``method`` until every batch is processed (a stall fails)."""
+    db = Database(f"sqlite:///{tmp_path / 'live.db'}")
+    import_site_dir(db, tiny.site_dir)
+    n = store_frames(db, tiny, per_batch=20)
+    p = LivePipeline(db, fast_live(method=method, checkpoint_s=0.0, idle_flush_s=1e6))
+    for _ in range(n + 5):
+        p.step()
+    assert p.state.cursor == n
+    return db, p
+
+
 def test_live_a_failing_method_skips_the_packet_and_restarts_the_track(
     tiny, registered, tmp_path: Path
 ) -> None:
@@ -256,13 +269,7 @@ def test_live_a_failing_method_skips_the_packet_and_restarts_the_track(
     estimates; the pipeline does not stall (it once raised out of every step
     and retried the same batch forever)."""
     name = registered(Probe(answer=lambda k, p: RuntimeError("boom") if p == "5" else None))
-    db = Database(f"sqlite:///{tmp_path / 'a.db'}")
-    import_site_dir(db, tiny.site_dir)
-    n = store_frames(db, tiny, per_batch=20)
-    p = LivePipeline(db, fast_live(method=name, checkpoint_s=0.0, idle_flush_s=1e6))
-    for _ in range(n + 5):
-        p.step()
-    assert p.state.cursor == n
+    db, p = _run_live(tiny, tmp_path, name)
     reasons = [row["reason"] for row in db.packets()]
     assert reasons.count(SKIP_METHOD_FAILED) == 1
     first_fail = reasons.index(SKIP_METHOD_FAILED)
@@ -276,13 +283,8 @@ def test_live_a_state_that_does_not_pickle_is_dropped_not_a_stall(
     tiny, registered, tmp_path: Path
 ) -> None:
     name = registered(Probe(name="probe-lock", unpicklable=True))
-    db = Database(f"sqlite:///{tmp_path / 'b.db'}")
-    import_site_dir(db, tiny.site_dir)
-    n = store_frames(db, tiny, per_batch=20)
-    p = LivePipeline(db, fast_live(method=name, checkpoint_s=0.0, idle_flush_s=1e6))
-    for _ in range(n + 5):
-        p.step()
-    assert p.state.cursor == n and p.state.counts["method_failures"] >= 1
+    db, p = _run_live(tiny, tmp_path, name)
+    assert p.state.counts["method_failures"] >= 1
     assert len(db.estimates(limit=10**6)) > 100  # every step committed its estimates
     db.close()
 
