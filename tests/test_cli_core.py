@@ -20,6 +20,7 @@ COMMANDS = (
     "enrol",
     "sync",
     "locate",
+    "methods",
     "score",
     "serve",
     "receiver",

@@ -102,6 +102,10 @@ def test_a_plugin_named_in_the_variable_runs_from_the_command_line(tiny, tmp_pat
     rows = out.read_text().splitlines()
     assert len(rows) > 100 and all(row.endswith(",loudest-plug") for row in rows[1:])
     assert ",90," in rows[1]
+    r = _cli("rp_test_plugin:LOUDEST", tmp_path, "methods")
+    listed = {ln.split()[0]: ln for ln in r.stdout.splitlines()[1:]}
+    assert list(listed)[:6] == ["full", "location", "orientation", "top", "lms", "filter"]
+    assert "rp_test_plugin:LOUDEST" in listed["loudest-plug"] and "built-in" in listed["lms"]
     # without the variable the name is unknown (nothing is registered by accident)
     r = _cli("", tmp_path, "locate", str(tiny.site_dir), str(packets), "-o", str(out),
              "--method", "loudest-plug")  # fmt: skip

@@ -143,6 +143,24 @@ def _locate(
     print(f"wrote {out}", file=sys.stderr)
 
 
+@app.command(short_help="The tracking methods --method accepts, and where each is from.")
+def methods() -> None:
+    """Every registered tracking method: the paper's five, filter, and those of
+    plugins (entry points of radiopose.methods, RADIOPOSE_METHODS;
+    docs/methods.md), with what each estimates and where it comes from."""
+    from radiopose.tracker import METHOD_NAMES, METHODS
+    from radiopose.tracker.registry import plugin_sources
+
+    sources = plugin_sources()
+    print(f"{'method':<16} {'orientation':<11} {'lagged':<6}  {'from':<24} label")
+    for name, m in METHODS.items():
+        origin = "built-in" if name in METHOD_NAMES else sources.get(name, "register_method")
+        print(
+            f"{name:<16} {'yes' if m.estimates_orientation else 'no':<11} "
+            f"{'yes' if m.lagged else 'no':<6}  {origin:<24} {m.label}"
+        )
+
+
 @app.command(short_help="Errors and coverage of estimates vs. the truth.")
 def score(
     truth: Annotated[Path, typer.Argument(help="truth.csv of the packets.")],

@@ -171,6 +171,13 @@ def load_plugins() -> tuple[str, ...]:
     return tuple(n for names in _LOADED.values() for n in names)
 
 
+def plugin_sources() -> dict[str, str]:
+    """The methods plugins registered in this process → the spec that did
+    (``module`` or ``module:object``, from an entry point or
+    :data:`PLUGINS_ENV`)."""
+    return {name: spec for spec, names in _LOADED.items() for name in names}
+
+
 def _load_spec(where: str, spec: str) -> None:
     """Import ``module`` or ``module:object`` and register the object."""
     module, _, attr = spec.partition(":")
