@@ -118,6 +118,7 @@ TIERS: dict[str, str] = {
     "test_demo_dashboard": "live",
     "test_server_api": "live",
     "test_server_dashboard": "live",
+    "test_server_durability": "live",
     "test_server_live": "live",
     "test_server_live_lag": "live",
     "test_server_pose3d": "live",

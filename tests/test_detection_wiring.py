@@ -202,10 +202,19 @@ def test_live_filter_pipeline_stores_alarm_events(
     db.close()
 
 
-def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeypatch) -> None:  # noqa: F811
+@pytest.mark.parametrize("lag_s", [0.0, 0.25])
+def test_live_detectors_resume_from_the_checkpoint(
+    tiny,  # noqa: F811
+    tmp_path: Path,
+    monkeypatch,
+    lag_s: float,
+) -> None:
     """A pipeline restarted from its checkpoint half-way ends with the same detector
     state and the same alarm events as one that never stopped (hair-trigger
-    detector, so genuine traffic raises and clears alarms all along)."""
+    detector, so genuine traffic raises and clears alarms all along). With the
+    live lag the packets waiting for their estimates are in the checkpoint too
+    (they were not: the restarted detector skipped them and its events
+    differed)."""
     from radiopose.security.detection import DetectorConfig
     from radiopose.server import alarms
     from radiopose.server.app import import_site_dir
@@ -217,8 +226,9 @@ def test_live_detectors_resume_from_the_checkpoint(tiny, tmp_path: Path, monkeyp
         alarms, "DetectorConfig", lambda: DetectorConfig(threshold_nats=0.5, warmup_s=0.0)
     )
     cfg = fast_live(
-        method="filter", live_lag_s=0.0, batches_per_step=4, checkpoint_s=0.0, idle_flush_s=1e6
-    )
+        method="filter", live_lag_s=lag_s, batches_per_step=4, checkpoint_s=0.0, idle_flush_s=1e6,
+        lagged_commit_s=0.0, lagged_checkpoint_s=0.0,
+    )  # fmt: skip
 
     def run(name: str, restart: bool):  # type: ignore[no-untyped-def]
         db = Database(f"sqlite:///{tmp_path / name}")

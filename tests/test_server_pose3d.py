@@ -139,12 +139,17 @@ def _store(db: Database, s: Site3d) -> int:
     return n
 
 
-def test_a_restart_half_way_gives_the_same_estimates(site3d: Site3d, tmp_path: Path) -> None:
+@pytest.mark.parametrize("checkpoint_s", [0.0, 1e9])
+def test_a_restart_half_way_gives_the_same_estimates(
+    site3d: Site3d, tmp_path: Path, checkpoint_s: float
+) -> None:
     """Restarted from its checkpoint half-way (lagged commits, so output after the
-    checkpoint is re-derived), the pipeline stores the same 3-D estimates, each once."""
+    checkpoint is re-derived), the pipeline stores the same 3-D estimates, each
+    once: with a checkpoint at every commit, and with only the first one (the
+    output committed ahead of the checkpoint is re-derived and kept once)."""
     cfg = fast_live(
         method="filter", live_lag_s=LAG_S, batches_per_step=6, idle_flush_s=1e6,
-        lagged_commit_s=0.1,
+        lagged_commit_s=0.1, lagged_checkpoint_s=checkpoint_s,
     )  # fmt: skip
 
     def run(name: str, restart: bool) -> list[tuple[object, ...]]:
@@ -154,14 +159,18 @@ def test_a_restart_half_way_gives_the_same_estimates(site3d: Site3d, tmp_path: P
         p = LivePipeline(db, cfg)
         redone = 0
         while p.state.cursor < n:
-            if restart and p._committed_cursor >= n // 2:
+            # (with checkpoints only at the first commit the restart goes back to it)
+            if restart and (p._committed_cursor if checkpoint_s == 0 else p.state.cursor) >= n // 2:
                 p._last_commit_s = math.inf  # one more step whose output the crash loses
                 p.step()
                 redone = p.state.cursor - p._committed_cursor
                 p, restart = LivePipeline(db, cfg), False  # a restart: the checkpoint
-                assert 0 < p.state.cursor < n and p.state.track_states  # resumes, not afresh
+                assert 0 < p.state.cursor < n  # resumes, not afresh
+                assert p.state.track_states or checkpoint_s > 0
             p.step()
-        p.config = fast_live(method="filter", live_lag_s=LAG_S, idle_flush_s=0.0)
+        p.config = fast_live(
+            method="filter", live_lag_s=LAG_S, idle_flush_s=0.0, lagged_checkpoint_s=checkpoint_s
+        )
         end = time.monotonic() + 60
         while len(db.estimates(limit=10**6)) < site3d.n_packets and time.monotonic() < end:
             p.step()  # the idle flush emits the held-back estimates; then the commit
@@ -232,7 +241,7 @@ def test_a_site_change_from_3d_to_2d_turns_the_default_method_and_its_alarms(
     assert p.alarm_monitor is not None and len(p.alarm_monitor.site.receiver_ids) == 6
     import_site_dir(db, tmp_path / "s2" / "site")
     p._refresh_site()
-    assert p.tracker.method == "full" and p.alarm_monitor is None and not p._pending_obs
+    assert p.tracker.method == "full" and p.alarm_monitor is None and not p.state.pending_obs
 
 
 def test_serve_without_a_method_leaves_it_to_the_stored_site(

@@ -148,6 +148,7 @@ def serve(
 
     configure_logging(log_level)
     database = _database(db)
+    database.check_writable()  # a read-only file: one line now, not at the first report
     status = import_site_dir(database, site)
     scheme = "https" if ssl_certfile else "http"
     print(

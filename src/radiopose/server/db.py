@@ -12,9 +12,12 @@ machine"):
 * **raw reports** — ``batches`` and ``frames``, append-only: a batch is stored
   whole in one transaction together with its frames, keyed by
   ``(receiver_id, batch_id)`` so a resend stores nothing new;
-* **live output** — ``packets`` (synchronised packets), ``estimates`` and
-  ``checkpoints`` (the pickled pipeline state of each partition, written in
-  the same transaction as the outputs it produced: exactly-once after a crash).
+* **live output** — ``packets`` (synchronised packets), ``estimates``,
+  ``alarms`` and ``checkpoints`` (the pickled pipeline state of each
+  partition). Outputs are inserted idempotently (a packet, estimate or alarm
+  already stored is kept, not stored twice), so that a pipeline resumed from
+  an older checkpoint, or a new partitioning re-processing the stored frames,
+  re-derives them without error or duplicate: exactly-once after a crash.
 
 The tables (ORM models) and their migration are in :mod:`radiopose.server.models`;
 this module is the repository over them and the engine set-up.
@@ -44,7 +47,12 @@ from sqlalchemy import (
     text,
 )
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import ArgumentError, IntegrityError, NoSuchModuleError, OperationalError
+from sqlalchemy.exc import (
+    ArgumentError,
+    DatabaseError,
+    IntegrityError,
+    NoSuchModuleError,
+)
 from sqlalchemy.orm import Session
 
 from radiopose.errors import InputError
@@ -117,10 +125,25 @@ class Database:
             migrate(self.engine)
         except (ArgumentError, NoSuchModuleError) as exc:
             raise InputError(f"--db {url!r}: not a usable database URL ({exc})") from None
-        except OperationalError as exc:
+        except DatabaseError as exc:  # unreachable, not a database, corrupt, …
             reason = " ".join(str(exc.orig).split())[:200]
             raise InputError(f"--db {url!r}: cannot open the database: {reason}") from None
         self._write_lock = threading.Lock()
+
+    def check_writable(self) -> None:
+        """Raise :class:`InputError` (one line) unless this process can write
+        to the database: a read-only SQLite file (or a role without write
+        rights) would otherwise be found only at the first stored report."""
+        try:
+            with self.engine.connect() as c:
+                tx = c.begin()
+                try:
+                    c.execute(delete(SiteMetaRow).where(SiteMetaRow.key == "__write_probe__"))
+                finally:
+                    tx.rollback()
+        except DatabaseError as exc:
+            reason = " ".join(str(exc.orig).split())[:200]
+            raise InputError(f"--db {self.url!r}: cannot write to the database: {reason}") from None
 
     def close(self) -> None:
         """Release all connections."""
@@ -167,6 +190,25 @@ class Database:
         with self.read() as s:
             row = s.get(SiteMetaRow, key)
             return default if row is None else row.value
+
+    def note_pipeline_error(self, partition: str, message: str) -> None:
+        """Record that ``partition``'s live pipeline failed a step (``/health``
+        reports it until the partition commits again)."""
+        import json
+
+        value = json.dumps({"at_s": time.time(), "message": message[:500]})
+        with self.write() as s:
+            s.merge(SiteMetaRow(key=f"pipeline_error:{partition}", value=value))
+
+    def pipeline_errors(self) -> dict[str, dict[str, Any]]:
+        """The last recorded failure of each partition: ``{"at_s", "message"}``."""
+        import json
+
+        with self.read() as s:
+            rows = s.scalars(
+                select(SiteMetaRow).where(SiteMetaRow.key.startswith("pipeline_error:"))
+            ).all()
+            return {r.key.split(":", 1)[1]: json.loads(r.value) for r in rows}
 
     def site_version(self) -> int:
         return int(self.meta("site_version", "0") or 0)
@@ -326,27 +368,47 @@ class Database:
             return int(s.execute(select(func.count()).select_from(FrameRow)).scalar_one())
 
     def receiver_activity(self, window_s: float) -> dict[str, dict[str, float]]:
-        """Per receiver: last report time (server clock) and frames/s over the last window."""
+        """Per receiver that ever reported: last report time (server clock) and
+        frames/s over the last window.
+
+        Index lookups only (``batches (receiver_id, received_s)``): the window's
+        batches, then each receiver that ever reported and its latest batch —
+        not a scan of the whole table, which grows by every batch (1.85 s a call
+        after a day of 4 receivers at 10 batches/s; ``/health`` and every
+        dashboard call it)."""
         now = time.time()
         with self.read() as s:
-            last = dict(
-                s.execute(
-                    select(BatchRow.receiver_id, func.max(BatchRow.received_s)).group_by(
-                        BatchRow.receiver_id
-                    )
-                ).all()
-            )
-            recent = dict(
-                s.execute(
-                    select(BatchRow.receiver_id, func.sum(BatchRow.n_frames))
-                    .where(BatchRow.received_s >= now - window_s)
-                    .group_by(BatchRow.receiver_id)
-                ).all()
-            )
+            recent: dict[str, float] = {}
+            for rid, n in s.execute(
+                select(BatchRow.receiver_id, BatchRow.n_frames).where(
+                    BatchRow.received_s >= now - window_s
+                )
+            ):
+                recent[rid] = recent.get(rid, 0.0) + float(n)
+            last = {}
+            for rid in self._reporters(s):
+                t = s.execute(
+                    select(func.max(BatchRow.received_s)).where(BatchRow.receiver_id == rid)
+                ).scalar_one()
+                if t is not None:
+                    last[rid] = float(t)
         return {
-            rid: {"last_report_s": float(t), "frames_per_s": float(recent.get(rid) or 0) / window_s}
+            rid: {"last_report_s": t, "frames_per_s": recent.get(rid, 0.0) / window_s}
             for rid, t in last.items()
         }
+
+    def _reporters(self, s: Session) -> list[str]:
+        """Every receiver id that has stored a batch, by an index skip: the next id
+        after the last one found, one lookup per receiver."""
+        out: list[str] = []
+        while True:
+            q = select(func.min(BatchRow.receiver_id))
+            if out:
+                q = q.where(BatchRow.receiver_id > out[-1])
+            rid = s.execute(q).scalar_one()
+            if rid is None:
+                return out
+            out.append(str(rid))
 
     # ------------------------------------------------------------------ live output
     def load_checkpoint(self, partition: str) -> tuple[int, bytes] | None:
@@ -369,18 +431,28 @@ class Database:
         self,
         partition: str,
         cursor: int,
-        state: bytes,
+        state: bytes | None,
         summary: dict[str, Any],
         packets: Sequence[dict[str, Any]],
         estimates: Sequence[dict[str, Any]],
+        alarms: Sequence[dict[str, Any]] = (),
     ) -> None:
-        """Store one pipeline step's packets and estimates with its checkpoint, atomically."""
+        """Store pipeline output — packets, estimates and spoofing alarm events
+        (:class:`AlarmRow` fields but ``id``/``raised_s``) — with the partition's
+        summary and, unless ``state`` is ``None``, its checkpoint (``cursor``
+        and the pickled state), atomically. Outputs already stored (the same
+        transmitter and packet id; an alarm of the same packet and state) are
+        kept as they are: re-derived output is not stored twice."""
         with self.write() as s:
-            if packets:
-                s.execute(insert(PacketRow), list(packets))
-            if estimates:
-                s.execute(insert(EstimateRow), list(estimates))
+            self._insert_new(s, PacketRow, packets)
+            self._insert_new(s, EstimateRow, estimates)
+            self._insert_alarms(s, alarms)
             row = s.get(CheckpointRow, partition)
+            if state is None:
+                if row is not None:  # output ahead of the checkpoint: the summary only
+                    row.summary = summary
+                    row.updated_s = time.time()
+                return
             if row is None:
                 s.add(
                     CheckpointRow(
@@ -428,12 +500,52 @@ class Database:
             ]
 
     def add_alarms(self, events: Sequence[dict[str, Any]]) -> None:
-        """Store spoofing alarm events (:class:`AlarmRow` fields but ``id``/``raised_s``)."""
+        """Store spoofing alarm events (:class:`AlarmRow` fields but
+        ``id``/``raised_s``); one already stored (same transmitter, packet and
+        state) is not stored again."""
         if not events:
             return
-        now = time.time()
         with self.write() as s:
-            s.execute(insert(AlarmRow), [{**e, "raised_s": now} for e in events])
+            self._insert_alarms(s, events)
+
+    def _insert_new(self, s: Session, model: type[Any], rows: Sequence[dict[str, Any]]) -> None:
+        """Insert ``rows``, skipping those whose unique key is stored already."""
+        if not rows:
+            return
+        if self.dialect == "sqlite":
+            from sqlalchemy.dialects.sqlite import insert as sqlite_insert
+
+            s.execute(sqlite_insert(model).on_conflict_do_nothing(), list(rows))
+        elif self.dialect == "postgresql":
+            from sqlalchemy.dialects.postgresql import insert as pg_insert
+
+            s.execute(pg_insert(model).on_conflict_do_nothing(), list(rows))
+        else:  # another dialect: a plain insert (re-derived output would fail)
+            s.execute(insert(model), list(rows))
+
+    def _insert_alarms(self, s: Session, events: Sequence[dict[str, Any]]) -> None:
+        """Insert alarm events not stored yet (key: transmitter, packet, state)."""
+        if not events:
+            return
+        keys = {(e["transmitter"], e["packet_id"]) for e in events}
+        have = {
+            (r.transmitter, r.packet_id, r.state)
+            for r in s.execute(
+                select(AlarmRow.transmitter, AlarmRow.packet_id, AlarmRow.state).where(
+                    AlarmRow.transmitter.in_(sorted({k[0] for k in keys})),
+                    AlarmRow.packet_id.in_(sorted({k[1] for k in keys})),
+                )
+            )
+        }
+        now = time.time()
+        new, seen = [], set(have)
+        for e in events:
+            key = (e["transmitter"], e["packet_id"], e["state"])
+            if key not in seen:
+                seen.add(key)
+                new.append({**e, "raised_s": now})
+        if new:
+            s.execute(insert(AlarmRow), new)
 
     def alarms(
         self, transmitter: str | None = None, since_s: float | None = None, limit: int = 1_000

@@ -14,6 +14,7 @@ from sqlalchemy import (
     BigInteger,
     Float,
     ForeignKey,
+    Index,
     Integer,
     LargeBinary,
     String,
@@ -85,7 +86,11 @@ class PatternRow(Base):
 
 class BatchRow(Base):
     __tablename__ = "batches"
-    __table_args__ = (UniqueConstraint("receiver_id", "batch_id"),)
+    __table_args__ = (
+        UniqueConstraint("receiver_id", "batch_id"),
+        # each receiver's latest report and a window's batches, by index (/health)
+        Index("ix_batches_receiver_received", "receiver_id", "received_s"),
+    )
     id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
     receiver_id: Mapped[str] = mapped_column(String(64), index=True)
     batch_id: Mapped[str] = mapped_column(String(128))
@@ -179,13 +184,24 @@ widens them in an existing PostgreSQL database (SQLite does not enforce lengths)
 
 def migrate(engine: Engine) -> None:
     """Add the nullable columns of :data:`_ADDED_COLUMNS` that an existing table lacks,
-    and widen the text columns of :data:`_WIDENED_COLUMNS` (PostgreSQL).
+    the index of ``batches`` on ``(receiver_id, received_s)``, and widen the text
+    columns of :data:`_WIDENED_COLUMNS` (PostgreSQL).
 
     Idempotent and safe to race: another process adding the same column first
     is not an error.
     """
     insp = inspect(engine)
     tables = set(insp.get_table_names())
+    if "batches" in tables and "ix_batches_receiver_received" not in {
+        i["name"] for i in insp.get_indexes("batches")
+    }:  # added after the first release (/health's lookups)
+        with engine.begin() as c:
+            c.execute(
+                text(
+                    "CREATE INDEX IF NOT EXISTS ix_batches_receiver_received "
+                    "ON batches (receiver_id, received_s)"
+                )
+            )
     for table, column in _ADDED_COLUMNS:
         if table not in tables:
             continue

@@ -180,6 +180,7 @@ class Health(BaseModel):
 
     status: str
     site_version: int
+    pipeline_errors: dict[str, dict[str, object]] = {}
     batches_stored: int
     backlog_batches: int
     partitions: dict[str, dict[str, object]]

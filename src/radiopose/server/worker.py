@@ -30,7 +30,9 @@ class LiveWorker:
     parent dies (even by ``kill -9``). ``mode="thread"`` keeps it in this
     process (tests). ``wake()`` (called after a batch is stored) cuts the
     polling delay. Any error is logged and the pipeline restarts from its
-    last checkpoint.
+    last checkpoint, after a wait that doubles with each failure in a row (1 s
+    to 60 s); ``/health`` reports the failure until the partition commits
+    again.
     """
 
     def __init__(
@@ -109,6 +111,7 @@ def _loop(
 
     parent = os.getppid()
     pipeline: LivePipeline | None = None
+    failures = 0
     while not stop.is_set() and not (terminated and terminated[0]):
         if holder is None and os.getppid() != parent:  # the server died: so do we
             return
@@ -118,10 +121,22 @@ def _loop(
                 if holder is not None:
                     holder.pipeline = pipeline
             n = pipeline.step()
-        except Exception:
-            log.exception("live pipeline step failed; resuming from the last checkpoint")
+            failures = 0
+        except Exception as exc:
+            failures += 1
+            wait_s = min(60.0, 2.0 ** (failures - 1))
+            log.exception(
+                "live pipeline step failed (%d in a row); resuming from the last checkpoint "
+                "in %g s",
+                failures,
+                wait_s,
+            )
+            try:  # /health reports it until the partition commits again
+                db.note_pipeline_error(config.partition_key, f"{type(exc).__name__}: {exc}")
+            except Exception:  # the database itself may be what fails
+                log.exception("could not record the failure in the database")
             pipeline = None
-            stop.wait(1.0)
+            stop.wait(wait_s)
             continue
         if n == 0:
             wake.wait(config.poll_s)

@@ -26,24 +26,31 @@ log = logging.getLogger("radiopose.server")
 
 
 def add_routes(router: APIRouter) -> None:
-    """Add this module's routes to ``router`` (the app's own, so they stay flat)."""
+    """Add this module's routes to ``router`` (the app's own, so they stay flat).
+
+    Receiver and transmitter ids are path parameters that may hold ``/`` (an id
+    is any string without commas or whitespace: the contract), sent as is or
+    as ``%2F``."""
     router.add_api_route(
-        f"{API}/admin/receivers/{{receiver_id}}",
+        f"{API}/admin/receivers/{{receiver_id:path}}",
         put_receiver,
         methods=["PUT"],
         response_model=SiteOut,
     )
     router.add_api_route(
-        f"{API}/admin/receivers/{{receiver_id}}",
+        f"{API}/admin/receivers/{{receiver_id:path}}",
         delete_receiver,
         methods=["DELETE"],
         response_model=SiteOut,
     )
     router.add_api_route(
-        f"{API}/admin/devices/{{transmitter}}", put_device, methods=["PUT"], response_model=SiteOut
+        f"{API}/admin/devices/{{transmitter:path}}",
+        put_device,
+        methods=["PUT"],
+        response_model=SiteOut,
     )
     router.add_api_route(
-        f"{API}/admin/devices/{{transmitter}}",
+        f"{API}/admin/devices/{{transmitter:path}}",
         delete_device,
         methods=["DELETE"],
         response_model=SiteOut,

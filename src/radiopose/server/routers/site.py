@@ -84,11 +84,23 @@ def health_of(db: Database) -> Health:
             )
         )
     last = db.last_batch_id()
-    cursor = min((s["cursor_batch"] for s in summaries.values()), default=0)
+    # The partitions of the current partitioning (that of the partition updated
+    # last): a run's rows of an earlier "k/N" stay in the table but no longer run.
+    current = max(summaries.items(), key=lambda kv: kv[1].get("updated_s", 0.0), default=None)
+    n_parts = None if current is None else current[0].rpartition("/")[2]
+    live = {k: v for k, v in summaries.items() if k.rpartition("/")[2] == n_parts}
+    cursor = min((s["cursor_batch"] for s in live.values()), default=0)
     lat = db.recent_latencies_s(1_000)
     pct = lambda q: float(np.percentile(lat, q)) if lat else None  # noqa: E731
+    # a failure newer than the partition's last commit: the pipeline is stuck or retrying
+    failing = {
+        k: e
+        for k, e in db.pipeline_errors().items()
+        if e["at_s"] > summaries.get(k, {}).get("updated_s", 0.0)
+    }
     return Health(
-        status="ok",
+        status="degraded" if failing else "ok",
+        pipeline_errors=failing,
         site_version=db.site_version(),
         batches_stored=last,
         backlog_batches=max(0, last - cursor),

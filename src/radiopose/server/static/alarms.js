@@ -14,11 +14,11 @@ async function pollAlarms() {
     const last = new Map();
     for (const e of events) last.set(e.transmitter, e);
     const tb = document.querySelector("#alarm-table tbody");
-    tb.innerHTML = "";
+    tb.replaceChildren();
     for (const e of events.slice(-10).reverse()) {
-      const tr = document.createElement("tr");
+      // text cells (app.js's textRow): a transmitter id is never parsed as HTML
+      const tr = textRow([e.transmitter, e.state, `${e.timestamp_s.toFixed(2)} s`, `${e.x_m.toFixed(1)}, ${e.y_m.toFixed(1)}`]);
       if (e.state === "raised" && last.get(e.transmitter) === e) tr.className = "alarm-raised";
-      tr.innerHTML = `<td>${e.transmitter}</td><td>${e.state}</td><td>${e.timestamp_s.toFixed(2)} s</td><td>${e.x_m.toFixed(1)}, ${e.y_m.toFixed(1)}</td>`;
       tb.appendChild(tr);
     }
     const active = [...last.values()].filter((e) => e.state === "raised").length;

@@ -128,26 +128,33 @@ function uncertainty(ctx, v, e, color, drawn) {
 // ---------------------------------------------------------------- tables
 function fmtAge(s) { return s == null ? "never" : s < 1 ? "now" : s < 120 ? `${s.toFixed(0)} s ago` : `${(s / 60).toFixed(0)} min ago`; }
 
+// A table row of text cells (ids are text: an id such as "a<b" is shown as is, never parsed as HTML).
+function textRow(cells) {
+  const tr = document.createElement("tr");
+  for (const c of cells) { const td = document.createElement("td"); td.textContent = c; tr.appendChild(td); }
+  return tr;
+}
+
 function renderTables() {
-  const tb = document.querySelector("#tx-table tbody"); tb.innerHTML = "";
+  const tb = document.querySelector("#tx-table tbody"); tb.replaceChildren();
   for (const [tx, t] of state.tracks) {
-    const e = t.trail[t.trail.length - 1], tr = document.createElement("tr");
+    const e = t.trail[t.trail.length - 1];
     // the full pose: height, pitch and roll matter at a 3-D site (docs/pose3d.md)
-    tr.innerHTML = `<td>${tx}</td><td>${e.x_m.toFixed(2)}, ${e.y_m.toFixed(2)}, ${e.z_m.toFixed(2)}</td>` +
-      `<td>${e.azimuth_deg.toFixed(0)}°, ${e.pitch_deg.toFixed(0)}°, ${e.roll_deg.toFixed(0)}°</td><td>${fmtAge((Date.now() - t.seen) / 1000)}</td>`;
-    tb.appendChild(tr);
+    tb.appendChild(textRow([tx, `${e.x_m.toFixed(2)}, ${e.y_m.toFixed(2)}, ${e.z_m.toFixed(2)}`,
+      `${e.azimuth_deg.toFixed(0)}°, ${e.pitch_deg.toFixed(0)}°, ${e.roll_deg.toFixed(0)}°`, fmtAge((Date.now() - t.seen) / 1000)]));
   }
   const h = state.health; if (!h) return;
-  const rb = document.querySelector("#rx-table tbody"); rb.innerHTML = "";
+  const rb = document.querySelector("#rx-table tbody"); rb.replaceChildren();
   for (const r of h.receivers) {
-    const tr = document.createElement("tr");
+    const tr = textRow([r.receiver_id, fmtAge(r.seconds_since_report), r.frames_per_s.toFixed(1),
+      r.clock_offset_s == null ? "–" : (r.clock_offset_s * 1000).toFixed(2) + " ms",
+      r.clock_drift_ppm == null ? "–" : r.clock_drift_ppm.toFixed(2) + " ppm"]);
     if (r.seconds_since_report == null || r.seconds_since_report > 10) tr.className = "stale";
-    tr.innerHTML = `<td>${r.receiver_id}</td><td>${fmtAge(r.seconds_since_report)}</td><td>${r.frames_per_s.toFixed(1)}</td>` +
-      `<td>${r.clock_offset_s == null ? "–" : (r.clock_offset_s * 1000).toFixed(2) + " ms"}</td><td>${r.clock_drift_ppm == null ? "–" : r.clock_drift_ppm.toFixed(2) + " ppm"}</td>`;
     rb.appendChild(tr);
   }
   const lat = h.latency_s;
   document.getElementById("pipeline").textContent =
+    (h.status === "ok" ? "" : `pipeline ${h.status}: ${Object.values(h.pipeline_errors || {}).map((e) => e.message).join("; ")} · `) +
     `backlog ${h.backlog_batches} batches · latency p50 ${lat.p50 == null ? "–" : (lat.p50 * 1000).toFixed(0) + " ms"}, p95 ${lat.p95 == null ? "–" : (lat.p95 * 1000).toFixed(0) + " ms"}`;
 }
 

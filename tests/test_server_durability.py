@@ -1,0 +1,164 @@
+"""The live server over a long run (helper-58's soak and restart review):
+re-derived output kept once (repartitioning, lagged checkpoints), a failing
+pipeline visible in /health, the batches index behind /health, departed
+devices forgotten, unwritable or corrupt databases named in one line, and ids
+holding ``/`` editable."""
+
+from __future__ import annotations
+
+import sqlite3
+import time
+from pathlib import Path
+
+import pytest
+
+from radiopose.errors import InputError
+from radiopose.server.app import import_site_dir
+from radiopose.server.db import Database
+from radiopose.server.live import LivePipeline
+from radiopose.server.routers.site import health_of
+from server_support import Running, db_url, fast_live, pg_server, server, store_frames, tiny
+
+
+def _run_to_end(db: Database, cfg, n: int) -> LivePipeline:  # type: ignore[no-untyped-def]
+    p = LivePipeline(db, cfg)
+    for _ in range(n + 5):
+        p.step()
+    assert p.state.cursor == n
+    p.config = fast_live(method=cfg.method, idle_flush_s=0.0)
+    p.step()  # the idle flush closes the last packets; then the commit
+    p.step()
+    return p
+
+
+def test_a_new_partitioning_reprocesses_what_is_stored_without_error(tiny, tmp_path: Path) -> None:
+    """server.md: "a new N re-processes stored frames from the start". The packets
+    and estimates it re-derives are those stored by the old partitioning: they
+    are kept once, not an IntegrityError at every step (the pipeline once retried
+    the same batch forever). /health's backlog reads the current partitioning."""
+    db = Database(f"sqlite:///{tmp_path / 'a.db'}")
+    import_site_dir(db, tiny.site_dir)
+    n = store_frames(db, tiny, per_batch=20)
+    cfg = fast_live(method="full", checkpoint_s=0.0, idle_flush_s=1e6)
+    _run_to_end(db, cfg, n)
+    packets, estimates = db.packets(), db.estimates(limit=10**6)
+    assert len(packets) > 100 and len(estimates) > 10
+    for k in (0, 1):
+        _run_to_end(db, fast_live(method="full", partition=k, partitions=2, checkpoint_s=0.0), n)
+    assert db.packets() == packets
+    assert [e["packet_id"] for e in db.estimates(limit=10**6)] == [
+        e["packet_id"] for e in estimates
+    ]
+    health = health_of(db)
+    assert set(health.partitions) == {"0/1", "0/2", "1/2"} and health.backlog_batches == 0
+    db.close()
+
+
+def test_alarms_are_stored_once_when_output_is_re_derived(tmp_path: Path) -> None:
+    db = Database(f"sqlite:///{tmp_path / 'b.db'}")
+    ev = {
+        "transmitter": "phone",
+        "packet_id": "7",
+        "timestamp_s": 1.0,
+        "state": "raised",
+        "score_nats": 20.0,
+        "x_m": 1.0,
+        "y_m": 2.0,
+    }
+    cleared = {**ev, "packet_id": "9", "state": "cleared"}
+    db.commit_step("0/1", 1, b"", {}, [], [], [ev])
+    db.commit_step("0/1", 2, None, {}, [], [], [ev, cleared])  # a re-derived raise, a new clear
+    db.add_alarms([cleared])
+    assert [(a["packet_id"], a["state"]) for a in db.alarms()] == [
+        ("7", "raised"),
+        ("9", "cleared"),
+    ]
+    assert db.load_checkpoint("0/1") == (1, b"")  # the output-only commit kept the checkpoint
+    db.close()
+
+
+def test_health_reports_a_failing_pipeline_until_it_commits_again(tiny, tmp_path: Path) -> None:
+    db = Database(f"sqlite:///{tmp_path / 'c.db'}")
+    import_site_dir(db, tiny.site_dir)
+    assert health_of(db).status == "ok"
+    db.note_pipeline_error("0/1", "IntegrityError: UNIQUE constraint failed")
+    h = health_of(db)
+    assert h.status == "degraded" and "IntegrityError" in str(h.pipeline_errors["0/1"]["message"])
+    time.sleep(0.01)
+    db.commit_step("0/1", 0, b"", {}, [], [])
+    assert health_of(db).status == "ok"
+    db.close()
+
+
+def test_receiver_activity_by_index(tmp_path: Path) -> None:
+    """Each receiver's last report and its frames in the window, as the scan gave
+    them; the lookups use the (receiver_id, received_s) index, which an older
+    database gains when opened."""
+    path = tmp_path / "d.db"
+    db = Database(f"sqlite:///{path}")
+    now = time.time()
+    rows = [(1, "h", "tx", -50.0)] * 3
+    for rid, batch, ago in (("rx2", "a", 100.0), ("rx1", "b", 50.0), ("rx2", "c", 2.0)):
+        db.store_batch(rid, batch, rows)
+        with sqlite3.connect(path) as c:  # back-date the batch
+            c.execute("UPDATE batches SET received_s = ? WHERE batch_id = ?", (now - ago, batch))
+    act = db.receiver_activity(10.0)
+    assert set(act) == {"rx1", "rx2"}
+    assert act["rx1"]["last_report_s"] == pytest.approx(now - 50.0)
+    assert act["rx2"]["last_report_s"] == pytest.approx(now - 2.0)
+    assert act["rx1"]["frames_per_s"] == 0.0 and act["rx2"]["frames_per_s"] == 0.3
+    db.close()
+    with sqlite3.connect(path) as c:  # a database from before the index
+        c.execute("DROP INDEX ix_batches_receiver_received")
+    Database(f"sqlite:///{path}").close()
+    with sqlite3.connect(path) as c:
+        plan = c.execute(
+            "EXPLAIN QUERY PLAN SELECT max(received_s) FROM batches WHERE receiver_id = 'rx1'"
+        ).fetchall()
+    assert "ix_batches_receiver_received" in str(plan)
+
+
+def test_a_departed_device_is_forgotten_at_the_site_change(tiny, tmp_path: Path) -> None:
+    db = Database(f"sqlite:///{tmp_path / 'e.db'}")
+    import_site_dir(db, tiny.site_dir)
+    p = LivePipeline(db, fast_live(method="full"))
+    p.step()
+    p.state.track_states["02:aa:00:00:00:99"] = object()  # a device since removed
+    p.state.alarm_detectors["02:aa:00:00:00:99"] = object()
+    p.state.pending_obs[("02:aa:00:00:00:99", "3")] = object()  # type: ignore[assignment]
+    db.replace_site(db.site_rows())  # an admin edit: a new site version
+    p.step()
+    st = p.state
+    assert not st.track_states and not st.alarm_detectors and not st.pending_obs
+    db.close()
+
+
+def test_an_unwritable_or_corrupt_database_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "ro.db"
+    Database(f"sqlite:///{path}").close()
+    ro = Database(f"sqlite:///file:{path}?mode=ro&uri=true", create=False)
+    with pytest.raises(InputError, match="cannot write to the database") as err:
+        ro.check_writable()
+    assert "\n" not in str(err.value)
+    ro.close()
+    Database(f"sqlite:///{path}").check_writable()  # a writable one passes
+    bad = tmp_path / "bad.db"
+    bad.write_bytes(b"this is not a database file at all" * 200)
+    with pytest.raises(InputError, match="cannot open the database: file is not a database"):
+        Database(f"sqlite:///{bad}")
+
+
+def test_ids_holding_a_slash_can_be_edited(server: Running) -> None:
+    """A transmitter id is any string without commas or whitespace: ``a/b`` is
+    enrolled, edited and removed through the admin API (a 404 before), sent as
+    is or as %2F."""
+    admin = server.client(server.tokens["admin"])
+    body = {"pattern": "device", "tx_power_dbm": 1}
+    for path in ("/api/v1/admin/devices/a/b", "/api/v1/admin/devices/c%2Fd"):
+        r = admin.put(path, json=body)
+        assert r.status_code == 200, r.text
+    devices = {d["transmitter"] for d in admin.get("/api/v1/site").json()["devices"]}
+    assert {"a/b", "c/d"} <= devices
+    assert admin.delete("/api/v1/admin/devices/a%2Fb").status_code == 200
+    devices = {d["transmitter"] for d in admin.get("/api/v1/site").json()["devices"]}
+    assert "a/b" not in devices and "c/d" in devices
