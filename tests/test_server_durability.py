@@ -162,3 +162,22 @@ def test_ids_holding_a_slash_can_be_edited(server: Running) -> None:
     assert admin.delete("/api/v1/admin/devices/a%2Fb").status_code == 200
     devices = {d["transmitter"] for d in admin.get("/api/v1/site").json()["devices"]}
     assert "a/b" not in devices and "c/d" in devices
+
+
+def test_estimates_released_by_the_idle_flush_count_their_wait(tiny, tmp_path: Path) -> None:
+    """A lagged method's last estimates come out at the idle flush; their latency
+    counts from the last report's arrival (it read about 0 from the flush)."""
+    db = Database(f"sqlite:///{tmp_path / 'f.db'}")
+    import_site_dir(db, tiny.site_dir)
+    n = store_frames(db, tiny, per_batch=20)
+    p = LivePipeline(db, fast_live(method="filter", idle_flush_s=0.6, lagged_checkpoint_s=0.0))
+    while p.state.cursor < n:
+        p.step()
+    before = db.last_estimate_id()
+    time.sleep(0.7)
+    p.step()  # the idle flush, and the commit of what it released
+    p.step()
+    flushed = [e for e in db.estimates(limit=10**6) if e["id"] > before]
+    assert flushed
+    assert min(e["estimated_s"] - e["last_report_s"] for e in flushed) >= 0.6
+    db.close()

@@ -449,8 +449,11 @@ class LivePipeline:
         assert st.matcher is not None
         out += self._handle(st.matcher.flush(), wall_s)
         if self.tracker is not None:  # a lagged method's held-back estimates
+            # their latency counts from the last report's arrival, not from the flush
+            # (they waited for it: counted from the flush they read as about 0)
+            last = max((dq[-1][1] for dq in st.arrivals.values() if dq), default=wall_s)
             for e in self.tracker.flush(on_error=self._method_failed):
-                out += self._estimate_rows(e, wall_s)
+                out += self._estimate_rows(e, min(last, wall_s))
         return out
 
     def _method_failed(self, transmitter: str, exc: Exception) -> None:
