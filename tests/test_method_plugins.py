@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from radiopose.errors import MethodError
+from radiopose.errors import InputError, MethodError
 from radiopose.evaluate.figures import METHOD_STYLE, method_style
 from radiopose.evaluate.scoring import position_only
 from radiopose.server.app import import_site_dir
@@ -130,6 +130,44 @@ def test_a_bad_plugin_is_one_line_naming_the_variable(
     (line,) = r.stderr.strip().splitlines()
     assert line.startswith(f"radiopose: {PLUGINS_ENV} entry {spec!r}: ") and words in line
     assert "Traceback" not in r.stderr
+
+
+def test_a_plugin_imported_before_the_registry_is_registered_when_asked_for(
+    tmp_path: Path,
+) -> None:
+    """A plugin module imported first (its own tests, a notebook) imports
+    radiopose.tracker, whose import loads the plugins while the module is still
+    importing: it is deferred (it failed with "partially initialized module")
+    and registered by the first lookup."""
+    (tmp_path / "rp_test_plugin.py").write_text(PLUGIN, encoding="utf-8")
+    code = (
+        "import rp_test_plugin\n"
+        "from radiopose.tracker import get_method, METHODS\n"
+        "print(get_method('loudest-plug') is rp_test_plugin.LOUDEST, 'loudest-plug' in METHODS)\n"
+    )
+    import os
+
+    env = {**os.environ, PLUGINS_ENV: "rp_test_plugin:LOUDEST", "PYTHONPATH": str(tmp_path)}
+    r = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env
+    )
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split() == ["True", "True"]
+
+
+def test_a_plugin_failing_after_registering_leaves_nothing(tmp_path: Path, monkeypatch) -> None:
+    (tmp_path / "rp_test_plugin_bad.py").write_text(
+        PLUGIN.replace("loudest-plug", "loudest-bad")
+        + "\nfrom radiopose.tracker import register_method\nregister_method(LOUDEST)\n"
+        + "raise RuntimeError('broken after registering')\n",
+        encoding="utf-8",
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv(PLUGINS_ENV, "rp_test_plugin_bad")
+    for _ in range(2):  # the second attempt reports the same error, not "already registered"
+        with pytest.raises(InputError, match="RuntimeError: broken after registering"):
+            load_plugins()
+        assert "loudest-bad" not in METHODS
 
 
 def test_load_plugins_registers_once_per_spec(tmp_path: Path, monkeypatch) -> None:

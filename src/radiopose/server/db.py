@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
@@ -45,6 +45,7 @@ from sqlalchemy import (
     insert,
     select,
     text,
+    tuple_,
 )
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import (
@@ -498,6 +499,24 @@ class Database:
                 }
                 for r in rows
             ]
+
+    def drop_output_from(self, first_packet_id: int, owns: Callable[[str], bool]) -> int:
+        """Delete the packets, estimates and alarm events of the transmitters
+        ``owns`` accepts (one partition's) whose live packet id (a decimal
+        number) is ``first_packet_id`` or later; return how many packets."""
+        with self.write() as s:
+            keys = [
+                (tx, pid)
+                for tx, pid in s.execute(select(PacketRow.transmitter, PacketRow.packet_id))
+                if pid.isdigit() and int(pid) >= first_packet_id and owns(tx)
+            ]
+            for model in (PacketRow, EstimateRow, AlarmRow):
+                for i in range(0, len(keys), 500):
+                    chunk = keys[i : i + 500]
+                    s.execute(
+                        delete(model).where(tuple_(model.transmitter, model.packet_id).in_(chunk))
+                    )
+            return len(keys)
 
     def add_alarms(self, events: Sequence[dict[str, Any]]) -> None:
         """Store spoofing alarm events (:class:`AlarmRow` fields but

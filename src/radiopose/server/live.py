@@ -197,6 +197,8 @@ class PipelineState:
         The packets whose estimate the detector still waits for (a lagged
         method's), by ``(transmitter, packet_id)``, so that a restart feeds
         the detector the same packets as a run that never stopped.
+    site_version
+        The site version this state was derived under (-1: not recorded).
     """
 
     cursor: int = 0
@@ -212,6 +214,7 @@ class PipelineState:
     flushed: bool = True
     alarm_detectors: dict[str, Any] = field(default_factory=dict)
     pending_obs: dict[tuple[str, str], PacketObservation] = field(default_factory=dict)
+    site_version: int = -1
 
 
 def _frames(rows: list[tuple[str, int, str, str, float]]) -> FrameRecords:
@@ -256,8 +259,23 @@ class LivePipeline:
         """(Re)load the last checkpoint; a fresh state if there is none."""
         ck = self.db.load_checkpoint(self.config.partition_key)
         self.state = pickle.loads(ck[1]) if ck is not None else PipelineState()
-        # (a checkpoint written before the field was added has none)
+        # (a checkpoint written before the fields were added has none)
         self.state.__dict__.setdefault("pending_obs", {})
+        self.state.__dict__.setdefault("site_version", -1)
+        derived_under = self.state.site_version
+        if ck is not None and derived_under not in (-1, self.db.site_version()):
+            # The site changed after this checkpoint and before the pipeline saw it
+            # (a crash in between): output committed ahead of the checkpoint was
+            # derived under the old site, and re-deriving under the new one may
+            # number the packets differently. It is dropped and re-derived, as if
+            # it had not been committed (the edit takes effect at the checkpoint).
+            dropped = self.db.drop_output_from(self.state.next_packet_id, self.config.owns)
+            if dropped:
+                log.warning(
+                    "the site changed after the last checkpoint: %d packets of output "
+                    "derived under the old site are re-derived",
+                    dropped,
+                )
         self.site_version = -1
         self.tracker = None
         self._unsaved = []  # output not committed is re-derived from the checkpoint
@@ -272,8 +290,14 @@ class LivePipeline:
             return []
         from radiopose.tracker import Tracker
 
+        if self.site is not None and (
+            self._unsaved or self.state.cursor != self._committed_cursor
+        ):  # a site edit: output ahead of the checkpoint is checkpointed under the old site
+            self._commit(self._unsaved, force_state=True)
+            self._unsaved = []
         self.site = build_site(self.db.site_rows())
         self.site_version = version
+        self.state.site_version = version
         method = self.config.method_for(self.site)
         self.tracker = Tracker(
             self.site, method, self.config.tracker, lag_s=self.config.live_lag_s or None
@@ -579,7 +603,7 @@ class LivePipeline:
                 return arrived_s
         return default
 
-    def _commit(self, emitted: list[dict[str, Any]]) -> None:
+    def _commit(self, emitted: list[dict[str, Any]], force_state: bool = False) -> None:
         now = time.time()
         packets = [
             {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "packet"
@@ -606,6 +630,7 @@ class LivePipeline:
             },
             "counts": dict(st.counts),
             "transmitters": len(st.track_states),
+            "cursor": st.cursor,  # processed (the checkpoint's own cursor may trail it)
         }
         alarms = [
             {k: v for k, v in e.items() if k != "kind"} for e in emitted if e["kind"] == "alarm"
@@ -614,7 +639,11 @@ class LivePipeline:
         # only every lagged_checkpoint_s; the output in between is stored ahead of
         # it, re-derived after a crash and then kept once (idempotent inserts).
         lagged = self.tracker is not None and self.tracker.lag_s is not None
-        with_state = not lagged or now - self._last_checkpoint_s >= self.config.lagged_checkpoint_s
+        with_state = (
+            force_state
+            or not lagged
+            or now - self._last_checkpoint_s >= self.config.lagged_checkpoint_s
+        )
         self.db.commit_step(
             self.config.partition_key,
             st.cursor,

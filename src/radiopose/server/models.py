@@ -24,7 +24,7 @@ from sqlalchemy import (
     text,
 )
 from sqlalchemy.engine import Engine
-from sqlalchemy.exc import OperationalError
+from sqlalchemy.exc import DBAPIError, OperationalError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column
 
 from radiopose.estimates import ESTIMATE_COLUMNS
@@ -182,6 +182,13 @@ characters, a MAC address, before transmitter ids of up to 64): :func:`migrate`
 widens them in an existing PostgreSQL database (SQLite does not enforce lengths)."""
 
 
+_BATCH_INDEX = "ix_batches_receiver_received"
+
+
+def _has_index(engine: Engine, table: str, name: str) -> bool:
+    return name in {i["name"] for i in inspect(engine).get_indexes(table)}
+
+
 def migrate(engine: Engine) -> None:
     """Add the nullable columns of :data:`_ADDED_COLUMNS` that an existing table lacks,
     the index of ``batches`` on ``(receiver_id, received_s)``, and widen the text
@@ -192,16 +199,21 @@ def migrate(engine: Engine) -> None:
     """
     insp = inspect(engine)
     tables = set(insp.get_table_names())
-    if "batches" in tables and "ix_batches_receiver_received" not in {
-        i["name"] for i in insp.get_indexes("batches")
-    }:  # added after the first release (/health's lookups)
-        with engine.begin() as c:
-            c.execute(
-                text(
-                    "CREATE INDEX IF NOT EXISTS ix_batches_receiver_received "
-                    "ON batches (receiver_id, received_s)"
+    if "batches" in tables and not _has_index(engine, "batches", _BATCH_INDEX):
+        # added after the first release (/health's lookups). Two processes opening an
+        # older database at once may both create it: PostgreSQL's IF NOT EXISTS is
+        # not safe under that race, so a failure with the index now there is fine.
+        try:
+            with engine.begin() as c:
+                c.execute(
+                    text(
+                        f"CREATE INDEX IF NOT EXISTS {_BATCH_INDEX} "
+                        "ON batches (receiver_id, received_s)"
+                    )
                 )
-            )
+        except DBAPIError:
+            if not _has_index(engine, "batches", _BATCH_INDEX):
+                raise
     for table, column in _ADDED_COLUMNS:
         if table not in tables:
             continue

@@ -181,11 +181,15 @@ def _process_main(url: str, config: LiveConfig, stop: Any, wake: Any) -> None:
 
     signal.signal(signal.SIGTERM, on_term)
     configure_logging("info")
-    missing = method_missing(config)
-    if missing is not None:  # say so once and stop, rather than fail at every step
-        log.critical("live pipeline not started: %s", missing)
-        return
     db = Database(url, create=False)
+    missing = method_missing(config)
+    if missing is not None:  # say so once (log and /health) and stop, not fail every step
+        log.critical("live pipeline not started: %s", missing)
+        try:
+            db.note_pipeline_error(config.partition_key, f"not started: {missing}")
+        finally:
+            db.close()
+        return
     try:
         _loop(db, config, stop, wake, terminated=terminated)
     except KeyboardInterrupt:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import sys
 from importlib.metadata import entry_points
 from types import ModuleType
 from typing import TYPE_CHECKING
@@ -70,6 +71,10 @@ def get_method(name: str) -> Method:
     InputError
         No such method (the message lists the known ones).
     """
+    if name not in METHODS:
+        # a plugin deferred because its module was still importing when the registry
+        # was (the plugin imported first; docs/methods.md) is registered now
+        load_plugins()
     try:
         return METHODS[name]
     except KeyError:
@@ -163,10 +168,15 @@ def load_plugins() -> tuple[str, ...]:
         before = set(METHODS)
         _LOADED[spec] = ()  # (a plugin importing radiopose.tracker again does not recurse)
         try:
-            _load_spec(where, spec)
+            loaded = _load_spec(where, spec)
         except BaseException:
-            del _LOADED[spec]  # not loaded: a later call tries again
+            del _LOADED[spec]  # not loaded: a later call tries again, from scratch
+            for name in [n for n in METHODS if n not in before]:
+                del METHODS[name]  # (what the failed plugin registered before failing)
             raise
+        if not loaded:  # its module is still importing: a later call loads it
+            del _LOADED[spec]
+            continue
         _LOADED[spec] = tuple(n for n in METHODS if n not in before)
     return tuple(n for names in _LOADED.values() for n in names)
 
@@ -178,21 +188,28 @@ def plugin_sources() -> dict[str, str]:
     return {name: spec for spec, names in _LOADED.items() for name in names}
 
 
-def _load_spec(where: str, spec: str) -> None:
-    """Import ``module`` or ``module:object`` and register the object."""
+def _load_spec(where: str, spec: str) -> bool:
+    """Import ``module`` or ``module:object`` and register the object; ``False``
+    (nothing done) while that module is itself still being imported — it
+    imported :mod:`radiopose.tracker` first, whose import is loading the
+    plugins now: :func:`get_method` loads it once it is complete."""
     module, _, attr = spec.partition(":")
+    partial = sys.modules.get(module.strip())
+    if partial is not None and getattr(getattr(partial, "__spec__", None), "_initializing", False):
+        return False
     try:
         obj: object = importlib.import_module(module.strip())
         for part in attr.strip().split(".") if attr.strip() else ():
             obj = getattr(obj, part)
         if isinstance(obj, ModuleType):
-            return  # the module registered its methods on import
+            return True  # the module registered its methods on import
         if isinstance(obj, type):
             raise ValueError(f"{obj.__name__} is a class, not a method object (an instance)")
         if not isinstance(obj, Method):
             raise ValueError(f"{obj!r} does not follow the Method protocol")
         if METHODS.get(obj.name) is not obj:
             register_method(obj)
+        return True
     except InputError:
         raise
     except Exception as exc:  # a plugin's own failure, reported as one line

@@ -89,14 +89,17 @@ def health_of(db: Database) -> Health:
     current = max(summaries.items(), key=lambda kv: kv[1].get("updated_s", 0.0), default=None)
     n_parts = None if current is None else current[0].rpartition("/")[2]
     live = {k: v for k, v in summaries.items() if k.rpartition("/")[2] == n_parts}
-    cursor = min((s["cursor_batch"] for s in live.values()), default=0)
+    # (a lagged method commits output ahead of its checkpoint: the summary's cursor)
+    cursor = min((s.get("cursor", s["cursor_batch"]) for s in live.values()), default=0)
     lat = db.recent_latencies_s(1_000)
     pct = lambda q: float(np.percentile(lat, q)) if lat else None  # noqa: E731
     # a failure newer than the partition's last commit: the pipeline is stuck or retrying
+    # (of the current partitioning: an earlier one's partitions no longer run)
     failing = {
         k: e
         for k, e in db.pipeline_errors().items()
         if e["at_s"] > summaries.get(k, {}).get("updated_s", 0.0)
+        and (n_parts is None or k.rpartition("/")[2] == n_parts)
     }
     return Health(
         status="degraded" if failing else "ok",
