@@ -275,3 +275,32 @@ def test_a_site_edit_then_a_crash_before_the_next_checkpoint_loses_nothing(
     crashed = run("crashed.db", True)
     if steps_after_edit:  # the edit was seen and checkpointed: as if nothing happened
         assert crashed == straight
+
+
+def test_a_method_taking_over_emits_the_lagged_estimates_held_back(tiny, tmp_path: Path) -> None:
+    """A restart with another --method over a lagged method's checkpoint: the
+    estimates filter still held back are emitted by it (about the lag's worth
+    of packets per device stayed as "its estimate follows" with none)."""
+    db = Database(f"sqlite:///{tmp_path / 'g.db'}")
+    import_site_dir(db, tiny.site_dir)
+    n = store_frames(db, tiny, per_batch=10)
+    cfg = fast_live(method="filter", batches_per_step=2, idle_flush_s=1e6, lagged_commit_s=0.0)
+    p = LivePipeline(db, cfg)
+    while p.state.cursor < n // 2:
+        p.step()
+    p._commit(p._unsaved, force_state=True)  # the checkpoint the restart reads
+    p = LivePipeline(db, fast_live(method="full", idle_flush_s=1e6))
+    assert p.state.method == "filter" and p.state.track_states
+    while p.state.cursor < n:
+        p.step()
+    p.config = fast_live(method="full", idle_flush_s=0.0)
+    p.step()
+    p.step()
+    estimates = db.estimates(limit=10**6)
+    by_method = {m: sum(e["method"] == m for e in estimates) for m in ("filter", "full")}
+    assert by_method["filter"] > 0 and by_method["full"] > 0
+    estimated = {e["packet_id"] for e in estimates}
+    waiting = [r["packet_id"] for r in db.packets() if r["reason"] is None]
+    assert waiting and set(waiting) <= estimated  # none left without its estimate
+    assert p.state.method == "full"
+    db.close()

@@ -199,6 +199,10 @@ class PipelineState:
         the detector the same packets as a run that never stopped.
     site_version
         The site version this state was derived under (-1: not recorded).
+    method
+        The method whose states :attr:`track_states` holds (``None``: not
+        recorded), so that a lagged method's held-back estimates are emitted
+        when another method takes over.
     """
 
     cursor: int = 0
@@ -215,6 +219,7 @@ class PipelineState:
     alarm_detectors: dict[str, Any] = field(default_factory=dict)
     pending_obs: dict[tuple[str, str], PacketObservation] = field(default_factory=dict)
     site_version: int = -1
+    method: str | None = None
 
 
 def _frames(rows: list[tuple[str, int, str, str, float]]) -> FrameRecords:
@@ -262,6 +267,7 @@ class LivePipeline:
         # (a checkpoint written before the fields were added has none)
         self.state.__dict__.setdefault("pending_obs", {})
         self.state.__dict__.setdefault("site_version", -1)
+        self.state.__dict__.setdefault("method", None)
         derived_under = self.state.site_version
         if ck is not None and derived_under not in (-1, self.db.site_version()):
             # The site changed after this checkpoint and before the pipeline saw it
@@ -295,10 +301,12 @@ class LivePipeline:
         ):  # a site edit: output ahead of the checkpoint is checkpointed under the old site
             self._commit(self._unsaved, force_state=True)
             self._unsaved = []
+        old_site = self.site
         self.site = build_site(self.db.site_rows())
         self.site_version = version
         self.state.site_version = version
         method = self.config.method_for(self.site)
+        out: list[dict[str, Any]] = self._hand_over(old_site or self.site, method)
         self.tracker = Tracker(
             self.site, method, self.config.tracker, lag_s=self.config.live_lag_s or None
         )
@@ -318,18 +326,50 @@ class LivePipeline:
             # they were added has none: they start afresh)
             detectors = self.state.__dict__.setdefault("alarm_detectors", {})
             self.alarm_monitor = AlarmMonitor(self.site, detectors=detectors)
-        out: list[dict[str, Any]] = []
         receivers = self.site.receiver_ids
         st = self.state
         if receivers != st.receivers:
             if st.matcher is not None:  # close what is open against the old receivers
-                out = self._handle(st.matcher.flush(), time.time())
+                out += self._handle(st.matcher.flush(), time.time())
             st.receivers = receivers
             st.matcher = None
             st.calibration = []
             st.clocks = {}
             log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
         return out
+
+    def _hand_over(self, site: Site, method: str) -> list[dict[str, Any]]:
+        """When ``method`` takes over from another (a restart with another
+        ``--method``, a site change that turns the default), the estimates a
+        lagged previous method still holds back are emitted by it on ``site``
+        (the site its states were derived under), so that none of its packets
+        stays without one; its states then go. Returns their rows."""
+        from radiopose.tracker import METHODS, Tracker
+
+        st = self.state
+        previous, st.method = st.method, method
+        if previous is None or previous == method or not st.track_states:
+            return []
+        impl = METHODS.get(previous)
+        rows: list[dict[str, Any]] = []
+        if impl is not None and impl.lagged:
+            old = Tracker(site, previous, self.config.tracker, lag_s=self.config.live_lag_s or None)
+            old.states = st.track_states
+            keys = [k for k in st.track_states if old.is_enrolled(k)]
+            for key in keys:
+                old.device(key)
+            wall_s = time.time()
+            for e in old.flush(keys, on_error=lambda tx, exc: log.error(
+                "method %s could not hand over %s: %s", previous, tx, exc)):  # fmt: skip
+                rows.append(self._estimate_row(e, wall_s))
+            log.info(
+                "method %s takes over from %s: %d held-back estimates emitted",
+                method,
+                previous,
+                len(rows),
+            )
+        st.track_states.clear()
+        return rows
 
     def _forget_unenrolled(self) -> None:
         """Drop the state, detector and pending packets of every device the site
