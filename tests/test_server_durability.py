@@ -290,7 +290,7 @@ def test_a_method_taking_over_emits_the_lagged_estimates_held_back(tiny, tmp_pat
         p.step()
     p._commit(p._unsaved, force_state=True)  # the checkpoint the restart reads
     p = LivePipeline(db, fast_live(method="full", idle_flush_s=1e6))
-    assert p.state.method == "filter" and p.state.track_states
+    assert p.state.method == ("filter", False) and p.state.track_states
     while p.state.cursor < n:
         p.step()
     p.config = fast_live(method="full", idle_flush_s=0.0)
@@ -302,5 +302,5 @@ def test_a_method_taking_over_emits_the_lagged_estimates_held_back(tiny, tmp_pat
     estimated = {e["packet_id"] for e in estimates}
     waiting = [r["packet_id"] for r in db.packets() if r["reason"] is None]
     assert waiting and set(waiting) <= estimated  # none left without its estimate
-    assert p.state.method == "full"
+    assert p.state.method == ("full", False)
     db.close()

@@ -277,3 +277,67 @@ def test_serve_without_a_method_leaves_it_to_the_stored_site(
     out = capsys.readouterr().out
     assert "live method filter (the default at this site) (lag 0.25 s)" in out
     assert "live method full\n" in out
+
+
+@pytest.mark.parametrize(
+    ("method", "crash"),
+    [(None, "none"), (None, "in the step applying the edit"), (None, "before the pipeline saw it"),
+     ("filter", "none")],
+)  # fmt: skip
+def test_an_edit_that_makes_the_site_2d_answers_every_packet(
+    tmp_path: Path, method: str | None, crash: str
+) -> None:
+    """The 3-D filter holds estimates back (its lag). An admin edit that makes the
+    site 2-D hands over to another engine — `full` by default, the 2-D filter
+    with --method filter — and every packet still ends with an estimate or a
+    skip reason (helper-61: 13 packets per device had neither, with the method
+    fixed, or after a crash in the step applying the edit)."""
+    import re
+    import shutil
+
+    from radiopose.server.sitestore import read_site_parts
+
+    root = tmp_path / "scene"
+    sim = simulate_handheld(replace(SCENE, duration_s=6.0), seed=18119)
+    sim.write(root)
+    pc = write_receiver_pcaps(
+        sim.packets, root / "pcaps", rng=np.random.default_rng(18119),
+        clock_offset_s={"rx2": 0.2, "rx5": -0.2}, jitter_s=2e-6, epoch_s=1000.0,
+    )  # fmt: skip
+    frames = {r: read_pcap(q, r).frames for r, q in pc.paths.items()}
+    site3d = Site3d(root, root / "site", frames, tuple(sim.site.receiver_ids),
+                    str(sim.packets.transmitter[0]), len(set(sim.packets.packet_id)))  # fmt: skip
+    two = tmp_path / "site2d"
+    shutil.copytree(site3d.site_dir, two)
+    toml = (two / "site.toml").read_text()
+    toml = re.sub(r"z_min_m.*\nz_max_m.*\nz_step_m.*\n", "z_m = 1.2\n", toml)
+    (two / "site.toml").write_text(re.sub(r"(pitch|roll)_deg = .*\n", "", toml))
+    parts2d, _ = read_site_parts(two)
+    db = Database(f"sqlite:///{tmp_path / 'db.sqlite'}")
+    import_site_dir(db, site3d.site_dir)
+    n = _store(db, site3d)
+    cfg = fast_live(method=method, batches_per_step=6, idle_flush_s=1e6, lagged_checkpoint_s=5.0)
+    p = LivePipeline(db, cfg)
+    while p.state.cursor < n // 2:
+        p.step()
+    db.replace_site(parts2d)
+    if crash == "before the pipeline saw it":
+        p = LivePipeline(db, cfg)
+    elif crash == "in the step applying the edit":
+        p._refresh_site()  # the forced checkpoint and the hand-over; then the process dies
+        p = LivePipeline(db, cfg)
+    while p.state.cursor < n:
+        p.step()
+    p.config = fast_live(method=method, idle_flush_s=0.0, lagged_commit_s=0.0)
+    p.step()
+    p.step()
+    assert p.tracker is not None and p.tracker.method == (method or "full")
+    estimated = {e["packet_id"]: e["timestamp_s"] for e in db.estimates(limit=10**6)}
+    rows = db.packets()
+    db.close()
+    at = {r["packet_id"]: r["timestamp_s"] for r in rows}
+    assert all(at[k] == t for k, t in estimated.items())
+    unanswered = [
+        r["packet_id"] for r in rows if r["reason"] is None and r["packet_id"] not in estimated
+    ]
+    assert unanswered == []

@@ -46,6 +46,7 @@ from sqlalchemy import (
     select,
     text,
     tuple_,
+    update,
 )
 from sqlalchemy.engine import Engine
 from sqlalchemy.exc import (
@@ -517,6 +518,39 @@ class Database:
                         delete(model).where(tuple_(model.transmitter, model.packet_id).in_(chunk))
                     )
             return len(keys)
+
+    def mark_unestimated(self, transmitters: Sequence[str], before_id: int, reason: str) -> int:
+        """Give the stored packets of ``transmitters`` (case-insensitive) with a
+        live packet id below ``before_id``, no skip reason and no estimate the
+        reason ``reason``; return how many."""
+        wanted = {t.lower() for t in transmitters}
+        if not wanted:
+            return 0
+        with self.write() as s:
+            estimated = {
+                (tx.lower(), pid)
+                for tx, pid in s.execute(select(EstimateRow.transmitter, EstimateRow.packet_id))
+                if tx.lower() in wanted
+            }
+            ids = [
+                row_id
+                for row_id, tx, pid in s.execute(
+                    select(PacketRow.id, PacketRow.transmitter, PacketRow.packet_id).where(
+                        PacketRow.reason.is_(None)
+                    )
+                )
+                if tx.lower() in wanted
+                and pid.isdigit()
+                and int(pid) < before_id
+                and (tx.lower(), pid) not in estimated
+            ]
+            for i in range(0, len(ids), 500):
+                s.execute(
+                    update(PacketRow)
+                    .where(PacketRow.id.in_(ids[i : i + 500]))
+                    .values(reason=reason)
+                )
+            return len(ids)
 
     def add_alarms(self, events: Sequence[dict[str, Any]]) -> None:
         """Store spoofing alarm events (:class:`AlarmRow` fields but

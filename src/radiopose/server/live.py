@@ -200,9 +200,9 @@ class PipelineState:
     site_version
         The site version this state was derived under (-1: not recorded).
     method
-        The method whose states :attr:`track_states` holds (``None``: not
-        recorded), so that a lagged method's held-back estimates are emitted
-        when another method takes over.
+        The engine whose states :attr:`track_states` holds: the method's name
+        and whether the site was 3-D (``None``: not recorded), so that a lagged
+        engine's held-back estimates are emitted when another takes over.
     """
 
     cursor: int = 0
@@ -219,7 +219,7 @@ class PipelineState:
     alarm_detectors: dict[str, Any] = field(default_factory=dict)
     pending_obs: dict[tuple[str, str], PacketObservation] = field(default_factory=dict)
     site_version: int = -1
-    method: str | None = None
+    method: tuple[str, bool] | None = None
 
 
 def _frames(rows: list[tuple[str, int, str, str, float]]) -> FrameRecords:
@@ -267,7 +267,8 @@ class LivePipeline:
         # (a checkpoint written before the fields were added has none)
         self.state.__dict__.setdefault("pending_obs", {})
         self.state.__dict__.setdefault("site_version", -1)
-        self.state.__dict__.setdefault("method", None)
+        if not isinstance(self.state.__dict__.setdefault("method", None), tuple | None):
+            self.state.method = None  # (a name alone: not the engine; unknown)
         derived_under = self.state.site_version
         if ck is not None and derived_under not in (-1, self.db.site_version()):
             # The site changed after this checkpoint and before the pipeline saw it
@@ -294,19 +295,37 @@ class LivePipeline:
         version = self.db.site_version()
         if version == self.site_version and self.site is not None:
             return []
+        from radiopose.site import site_is_3d
         from radiopose.tracker import Tracker
 
+        st = self.state
+        new_site = build_site(self.db.site_rows())
+        method = self.config.method_for(new_site)
+        engine = (method, site_is_3d(new_site))  # the 2-D and 3-D filter are two engines
+        out: list[dict[str, Any]] = []
+        if st.method is not None and tuple(st.method) != engine and st.track_states:
+            # Another engine takes over: the old one's held-back estimates are emitted
+            # by it on the site its states were derived under, when that is at hand
+            # (a live edit; a restart with another --method on the same site);
+            # otherwise (a restart whose checkpoint predates the edit) their packets
+            # get a skip reason.
+            if self.site is not None and self.site_version == st.site_version:
+                out = self._hand_over(self.site)
+            elif st.site_version == version:
+                out = self._hand_over(new_site)
+            else:
+                self._mark_unestimated()
+            st.track_states.clear()
+        st.method = engine
         if self.site is not None and (
-            self._unsaved or self.state.cursor != self._committed_cursor
-        ):  # a site edit: output ahead of the checkpoint is checkpointed under the old site
-            self._commit(self._unsaved, force_state=True)
-            self._unsaved = []
-        old_site = self.site
-        self.site = build_site(self.db.site_rows())
+            out or self._unsaved or st.cursor != self._committed_cursor
+        ):  # a live edit: what the old site derived is checkpointed, the new applies from here
+            st.site_version = version
+            self._commit(self._unsaved + out, force_state=True)
+            self._unsaved, out = [], []
+        st.site_version = version
+        self.site = new_site
         self.site_version = version
-        self.state.site_version = version
-        method = self.config.method_for(self.site)
-        out: list[dict[str, Any]] = self._hand_over(old_site or self.site, method)
         self.tracker = Tracker(
             self.site, method, self.config.tracker, lag_s=self.config.live_lag_s or None
         )
@@ -338,18 +357,16 @@ class LivePipeline:
             log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
         return out
 
-    def _hand_over(self, site: Site, method: str) -> list[dict[str, Any]]:
-        """When ``method`` takes over from another (a restart with another
-        ``--method``, a site change that turns the default), the estimates a
-        lagged previous method still holds back are emitted by it on ``site``
-        (the site its states were derived under), so that none of its packets
-        stays without one; its states then go. Returns their rows."""
+    def _hand_over(self, site: Site) -> list[dict[str, Any]]:
+        """The estimates the previous engine (``state.method``: a method name
+        and whether its site was 3-D) still holds back, emitted by it on
+        ``site`` (the site its states were derived under), so that none of its
+        packets stays without one. Returns their rows."""
         from radiopose.tracker import METHODS, Tracker
 
         st = self.state
-        previous, st.method = st.method, method
-        if previous is None or previous == method or not st.track_states:
-            return []
+        assert st.method is not None
+        previous = st.method[0]
         impl = METHODS.get(previous)
         rows: list[dict[str, Any]] = []
         if impl is not None and impl.lagged:
@@ -363,13 +380,27 @@ class LivePipeline:
                 "method %s could not hand over %s: %s", previous, tx, exc)):  # fmt: skip
                 rows.append(self._estimate_row(e, wall_s))
             log.info(
-                "method %s takes over from %s: %d held-back estimates emitted",
-                method,
+                "another engine takes over from %s: %d held-back estimates emitted",
                 previous,
                 len(rows),
             )
-        st.track_states.clear()
         return rows
+
+    def _mark_unestimated(self) -> None:
+        """The previous engine's devices' packets that wait for an estimate it
+        holds back, when the site it derived them under is gone (a restart
+        whose checkpoint predates a site edit that changed the engine): they
+        get the skip reason :data:`~radiopose.tracker.SKIP_SITE_CHANGED`."""
+        from radiopose.tracker import SKIP_SITE_CHANGED
+
+        st = self.state
+        n = self.db.mark_unestimated(list(st.track_states), st.next_packet_id, SKIP_SITE_CHANGED)
+        if n:
+            log.warning(
+                "%d packets waiting for a held-back estimate get the reason %r",
+                n,
+                SKIP_SITE_CHANGED,
+            )
 
     def _forget_unenrolled(self) -> None:
         """Drop the state, detector and pending packets of every device the site

@@ -13,6 +13,9 @@ SKIP_MOVEMENT_MODEL = "rejected by movement model"
 SKIP_ACQUIRING = "acquiring (pooling packets)"
 SKIP_NO_TRACK = "no track yet (acquiring: too few receivers or nothing scorable)"
 SKIP_DUPLICATE = "duplicate packet (given twice)"
+SKIP_SITE_CHANGED = "site changed before its estimate"
+"""The live server: the packet's estimate was held back (a lag) by an engine
+that a site edit replaced, and a crash lost the site it was derived under."""
 SKIP_METHOD_FAILED = "the method failed (the device starts afresh)"
 """The live server: the method raised on this packet (or gave an estimate the
 contract does not allow); the error is logged, and the device's state and its
