@@ -255,6 +255,7 @@ class LivePipeline:
         self.latencies_s: deque[float] = deque(maxlen=5_000)
         self._last_commit_s = 0.0
         self._last_checkpoint_s = 0.0
+        self._resumed = False
         self._unsaved: list[dict[str, Any]] = []  # output of steps not yet committed
         self._committed_cursor = -1
         self._load()
@@ -269,20 +270,7 @@ class LivePipeline:
         self.state.__dict__.setdefault("site_version", -1)
         if not isinstance(self.state.__dict__.setdefault("method", None), tuple | None):
             self.state.method = None  # (a name alone: not the engine; unknown)
-        derived_under = self.state.site_version
-        if ck is not None and derived_under not in (-1, self.db.site_version()):
-            # The site changed after this checkpoint and before the pipeline saw it
-            # (a crash in between): output committed ahead of the checkpoint was
-            # derived under the old site, and re-deriving under the new one may
-            # number the packets differently. It is dropped and re-derived, as if
-            # it had not been committed (the edit takes effect at the checkpoint).
-            dropped = self.db.drop_output_from(self.state.next_packet_id, self.config.owns)
-            if dropped:
-                log.warning(
-                    "the site changed after the last checkpoint: %d packets of output "
-                    "derived under the old site are re-derived",
-                    dropped,
-                )
+        self._resumed = ck is not None  # the first _refresh_site checks the site version
         self.site_version = -1
         self.tracker = None
         self._unsaved = []  # output not committed is re-derived from the checkpoint
@@ -299,6 +287,9 @@ class LivePipeline:
         from radiopose.tracker import Tracker
 
         st = self.state
+        if self.site is None and getattr(self, "_resumed", False) and st.site_version != version:
+            self._drop_ahead()
+        self._resumed = False
         new_site = build_site(self.db.site_rows())
         method = self.config.method_for(new_site)
         engine = (method, site_is_3d(new_site))  # the 2-D and 3-D filter are two engines
@@ -356,6 +347,24 @@ class LivePipeline:
             st.clocks = {}
             log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
         return out
+
+    def _drop_ahead(self) -> None:
+        """On resuming from a checkpoint derived under another site version (or
+        an unrecorded one: a checkpoint from before versions were recorded):
+        a site edit came after it and before the pipeline saw it (a crash in
+        between). Output committed ahead of the checkpoint was derived under
+        the old site, and re-deriving under the new one may number the packets
+        differently: it is dropped and re-derived, as if it had not been
+        committed (the edit takes effect at the checkpoint). The version is
+        read in the same refresh that applies the site, so an edit between the
+        restart and the first step is caught too."""
+        dropped = self.db.drop_output_from(self.state.next_packet_id, self.config.owns)
+        if dropped:
+            log.warning(
+                "the site changed after the last checkpoint: %d packets of output derived "
+                "under the old site are re-derived",
+                dropped,
+            )
 
     def _hand_over(self, site: Site) -> list[dict[str, Any]]:
         """The estimates the previous engine (``state.method``: a method name
