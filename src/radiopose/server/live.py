@@ -294,6 +294,22 @@ class LivePipeline:
         method = self.config.method_for(new_site)
         engine = (method, site_is_3d(new_site))  # the 2-D and 3-D filter are two engines
         out: list[dict[str, Any]] = []
+        if self.site is not None and self.tracker is not None:
+            # A live edit: what the old site still holds is finished by the old tracker
+            # first — the packets open against the old receivers, and the held-back
+            # estimates of devices the edit removes — and committed below with the
+            # edit's checkpoint.
+            if new_site.receiver_ids != st.receivers and st.matcher is not None:
+                out += self._handle(st.matcher.flush(), time.time())
+                self._reset_matcher(new_site.receiver_ids)
+            enrolled = {d.transmitter.lower() for d in new_site.devices}
+            gone = [k for k in st.track_states if k.lower() not in enrolled]
+            if gone:
+                now = time.time()
+                for e in self.tracker.flush(
+                    [k for k in gone if self.tracker.has_device(k)], on_error=self._method_failed
+                ):
+                    out.append(self._estimate_row(e, now))
         if st.method is not None and tuple(st.method) != engine and st.track_states:
             # Another engine takes over: the old one's held-back estimates are emitted
             # by it on the site its states were derived under, when that is at hand
@@ -301,9 +317,9 @@ class LivePipeline:
             # otherwise (a restart whose checkpoint predates the edit) their packets
             # get a skip reason.
             if self.site is not None and self.site_version == st.site_version:
-                out = self._hand_over(self.site)
+                out += self._hand_over(self.site)
             elif st.site_version == version:
-                out = self._hand_over(new_site)
+                out += self._hand_over(new_site)
             else:
                 self._mark_unestimated()
             st.track_states.clear()
@@ -337,16 +353,20 @@ class LivePipeline:
             detectors = self.state.__dict__.setdefault("alarm_detectors", {})
             self.alarm_monitor = AlarmMonitor(self.site, detectors=detectors)
         receivers = self.site.receiver_ids
-        st = self.state
-        if receivers != st.receivers:
+        if receivers != st.receivers:  # (a restart: closed by the new tracker)
             if st.matcher is not None:  # close what is open against the old receivers
                 out += self._handle(st.matcher.flush(), time.time())
-            st.receivers = receivers
-            st.matcher = None
-            st.calibration = []
-            st.clocks = {}
-            log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
+            self._reset_matcher(receivers)
         return out
+
+    def _reset_matcher(self, receivers: tuple[str, ...]) -> None:
+        """New receivers: recalibrate their clocks from the next frames."""
+        st = self.state
+        st.receivers = receivers
+        st.matcher = None
+        st.calibration = []
+        st.clocks = {}
+        log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
 
     def _drop_ahead(self) -> None:
         """On resuming from a checkpoint derived under another site version (or

@@ -149,6 +149,11 @@ class Tracker:
         scorer.space = space
         return space, scorer
 
+    def has_device(self, transmitter: str) -> bool:
+        """Whether ``transmitter``'s device is prepared (it has sent a packet to
+        this tracker, or :meth:`device` was called)."""
+        return transmitter.lower() in self._devices
+
     def is_enrolled(self, transmitter: str) -> bool:
         key = transmitter.lower()
         return any(d.transmitter.lower() == key for d in self.site.devices)
