@@ -280,17 +280,24 @@ def test_a_site_edit_then_a_crash_before_the_next_checkpoint_loses_nothing(
         assert crashed == straight
 
 
-def test_a_method_taking_over_emits_the_lagged_estimates_held_back(tiny, tmp_path: Path) -> None:
-    """A restart with another --method over a lagged method's checkpoint: the
-    estimates filter still held back are emitted by it (about the lag's worth
-    of packets per device stayed as "its estimate follows" with none)."""
-    db = Database(f"sqlite:///{tmp_path / 'g.db'}")
+def _filter_half_way(tiny, tmp_path: Path) -> tuple[Database, LivePipeline, int]:  # type: ignore[no-untyped-def]
+    """The tiny trace stored, and a lagged filter pipeline stepped through its
+    first half; the database, the pipeline and the number of batches."""
+    db = Database(f"sqlite:///{tmp_path / 'half.db'}")
     import_site_dir(db, tiny.site_dir)
     n = store_frames(db, tiny, per_batch=10)
     cfg = fast_live(method="filter", batches_per_step=2, idle_flush_s=1e6, lagged_commit_s=0.0)
     p = LivePipeline(db, cfg)
     while p.state.cursor < n // 2:
         p.step()
+    return db, p, n
+
+
+def test_a_method_taking_over_emits_the_lagged_estimates_held_back(tiny, tmp_path: Path) -> None:
+    """A restart with another --method over a lagged method's checkpoint: the
+    estimates filter still held back are emitted by it (about the lag's worth
+    of packets per device stayed as "its estimate follows" with none)."""
+    db, p, n = _filter_half_way(tiny, tmp_path)
     p._commit(p._unsaved, force_state=True)  # the checkpoint the restart reads
     p = LivePipeline(db, fast_live(method="full", idle_flush_s=1e6))
     assert p.state.method == ("filter", False) and p.state.track_states
@@ -316,13 +323,7 @@ def test_a_live_edit_leaves_no_packet_unanswered(tiny, tmp_path: Path, edit: str
     finished by the old tracker on the old site (helper-62: 13 packets had
     neither an estimate nor a reason; a removed receiver's open packets made the
     new tracker fail and drop the device's lag buffer)."""
-    db = Database(f"sqlite:///{tmp_path / 'h.db'}")
-    import_site_dir(db, tiny.site_dir)
-    n = store_frames(db, tiny, per_batch=10)
-    cfg = fast_live(method="filter", batches_per_step=2, idle_flush_s=1e6, lagged_commit_s=0.0)
-    p = LivePipeline(db, cfg)
-    while p.state.cursor < n // 2:
-        p.step()
+    db, p, n = _filter_half_way(tiny, tmp_path)
     parts = db.site_rows()
     if edit == "the device removed":
         db.replace_site({**parts, "devices": parts["devices"][1:]})
