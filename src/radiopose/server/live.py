@@ -44,6 +44,7 @@ import math
 import pickle
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -287,7 +288,7 @@ class LivePipeline:
         from radiopose.tracker import Tracker
 
         st = self.state
-        if self.site is None and getattr(self, "_resumed", False) and st.site_version != version:
+        if self.site is None and self._resumed and st.site_version != version:
             self._drop_ahead()
         self._resumed = False
         new_site = build_site(self.db.site_rows())
@@ -302,14 +303,8 @@ class LivePipeline:
             if new_site.receiver_ids != st.receivers and st.matcher is not None:
                 out += self._handle(st.matcher.flush(), time.time())
                 self._reset_matcher(new_site.receiver_ids)
-            enrolled = {d.transmitter.lower() for d in new_site.devices}
-            gone = [k for k in st.track_states if k.lower() not in enrolled]
-            if gone:
-                now = time.time()
-                for e in self.tracker.flush(
-                    [k for k in gone if self.tracker.has_device(k)], on_error=self._method_failed
-                ):
-                    out.append(self._estimate_row(e, now))
+            gone = [k for k in self._unenrolled(new_site) if self.tracker.has_device(k)]
+            out += self._held_back_rows(self.tracker, gone, self._method_failed)
         if st.method is not None and tuple(st.method) != engine and st.track_states:
             # Another engine takes over: the old one's held-back estimates are emitted
             # by it on the site its states were derived under, when that is at hand
@@ -404,16 +399,29 @@ class LivePipeline:
             keys = [k for k in st.track_states if old.is_enrolled(k)]
             for key in keys:
                 old.device(key)
-            wall_s = time.time()
-            for e in old.flush(keys, on_error=lambda tx, exc: log.error(
-                "method %s could not hand over %s: %s", previous, tx, exc)):  # fmt: skip
-                rows.append(self._estimate_row(e, wall_s))
+            rows = self._held_back_rows(old, keys, lambda tx, exc: log.error(
+                "method %s could not hand over %s: %s", previous, tx, exc))  # fmt: skip
             log.info(
                 "another engine takes over from %s: %d held-back estimates emitted",
                 previous,
                 len(rows),
             )
         return rows
+
+    def _held_back_rows(
+        self, tracker: Tracker, keys: list[str], on_error: Callable[[str, Exception], None]
+    ) -> list[dict[str, Any]]:
+        """The estimate rows of what ``tracker`` still holds back for the devices
+        ``keys`` (prepared in it), emitted now (:meth:`Tracker.flush`)."""
+        if not keys:
+            return []
+        now = time.time()
+        return [self._estimate_row(e, now) for e in tracker.flush(keys, on_error=on_error)]
+
+    def _unenrolled(self, site: Site) -> list[str]:
+        """The devices with a tracking state that ``site`` does not enrol."""
+        enrolled = {d.transmitter.lower() for d in site.devices}
+        return [k for k in self.state.track_states if k.lower() not in enrolled]
 
     def _mark_unestimated(self) -> None:
         """The previous engine's devices' packets that wait for an estimate it
@@ -438,9 +446,10 @@ class LivePipeline:
         assert self.site is not None
         enrolled = {d.transmitter.lower() for d in self.site.devices}
         st = self.state
-        for table in (st.track_states, st.alarm_detectors):
-            for key in [k for k in table if k.lower() not in enrolled]:
-                del table[key]
+        for key in self._unenrolled(self.site):
+            del st.track_states[key]
+        for key in [k for k in st.alarm_detectors if k.lower() not in enrolled]:
+            del st.alarm_detectors[key]
         for gone in [k for k in st.pending_obs if k[0].lower() not in enrolled]:
             del st.pending_obs[gone]
 

@@ -84,11 +84,15 @@ def health_of(db: Database) -> Health:
             )
         )
     last = db.last_batch_id()
+
     # The partitions of the current partitioning (that of the partition updated
     # last): a run's rows of an earlier "k/N" stay in the table but no longer run.
+    def partitioning(key: str) -> str:  # "k/N" -> "N"
+        return key.rpartition("/")[2]
+
     current = max(summaries.items(), key=lambda kv: kv[1].get("updated_s", 0.0), default=None)
-    n_parts = None if current is None else current[0].rpartition("/")[2]
-    live = {k: v for k, v in summaries.items() if k.rpartition("/")[2] == n_parts}
+    n_parts = None if current is None else partitioning(current[0])
+    live = {k: v for k, v in summaries.items() if partitioning(k) == n_parts}
     # (a lagged method commits output ahead of its checkpoint: the summary's cursor)
     cursor = min((s.get("cursor", s["cursor_batch"]) for s in live.values()), default=0)
     lat = db.recent_latencies_s(1_000)
@@ -99,7 +103,7 @@ def health_of(db: Database) -> Health:
         k: e
         for k, e in db.pipeline_errors().items()
         if e["at_s"] > summaries.get(k, {}).get("updated_s", 0.0)
-        and (n_parts is None or k.rpartition("/")[2] == n_parts)
+        and (n_parts is None or partitioning(k) == n_parts)
     }
     return Health(
         status="degraded" if failing else "ok",
