@@ -11,11 +11,11 @@ scheduler; :func:`default_workers` is the local cluster's default size.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Callable, Sequence
 from contextlib import ExitStack
 from typing import TYPE_CHECKING, TypeVar
 
+from radiopose.cores import available_cores
 from radiopose.errors import InputError, RadioposeError
 
 if TYPE_CHECKING:
@@ -37,10 +37,7 @@ WORKER_ENV: dict[str, str] = {
 
 def default_workers() -> int:
     """Worker processes by default: the cores available to this process."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
+    return available_cores()
 
 
 def connect_scheduler(stack: ExitStack, scheduler: str) -> Client:

@@ -20,12 +20,12 @@ ran serially. Where ``fork`` is not available every call runs here.
 from __future__ import annotations
 
 import multiprocessing
-import os
 import sys
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Generic, TypeVar
 
+from radiopose.cores import available_cores
 from radiopose.errors import InputError
 
 R = TypeVar("R")
@@ -75,14 +75,6 @@ def try_fork(fn: Callable[[], R]) -> ForkedCall[R] | None:
         return ForkedCall(fn)
     except (OSError, AssertionError, ValueError):
         return None
-
-
-def available_cores() -> int:
-    """The cores this process may run on."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # pragma: no cover - not Linux
-        return max(1, os.cpu_count() or 1)
 
 
 def effective_workers(setting: int) -> int:

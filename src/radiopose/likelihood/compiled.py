@@ -82,6 +82,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from radiopose.cores import available_cores
 from radiopose.geometry import direction_to_pattern_angles_deg
 from radiopose.likelihood.candidates import CandidateSpace, HeardRss, exact_mse_db2
 from radiopose.likelihood.capabilities import ScorerBase
@@ -905,10 +906,7 @@ def free_cores() -> float:
     stands in: cores minus the load plus one (the load counts this process's
     own running thread)."""
     sample, last = cpu_sample(), _STAT_SAMPLE[0]
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = os.cpu_count() or 1
+    cores = available_cores()
     if sample is not None and last is not None and sample[0] - last[0] >= 0.2:
         _STAT_SAMPLE[0] = sample
         others = ((sample[1] - last[1]) - (sample[2] - last[2])) / (sample[0] - last[0])
