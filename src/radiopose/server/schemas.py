@@ -176,7 +176,12 @@ class ReceiverHealth(BaseModel):
 
 
 class Health(BaseModel):
-    """``GET /health``."""
+    """``GET /health``.
+
+    ``batches_stored`` is the newest batch's id (ids count from 1: the number of
+    batches stored on SQLite, an upper bound of it where a PostgreSQL sequence
+    skipped ids); ``backlog_batches`` is that id minus the slowest partition's
+    cursor (the same bound)."""
 
     status: str
     site_version: int
