@@ -25,10 +25,25 @@ track's first 1.5 s: the default), ``filter`` without the re-solve
 (``live_resolve_times_s = ()``) and ``filter`` drawing full-grid hypotheses
 every 0.5 s of a track instead of 0.1 s (``reentry_interval_s = 0.5``).
 
+``--paced`` runs the same scene in real time instead: each batch is stored
+when its 0.1 s of trace has passed on the wall clock and the pipeline steps
+with the server's :class:`~radiopose.server.live.LiveConfig` defaults (but the
+method), as under ``radiopose serve``. Measured from ``--warm-s`` (default half
+the trace, at most 10 s) to the trace's end, per method and ``N``:
+
+* **bytes written per second** by the process (``wchar`` of ``/proc/self/io``:
+  frames stored, output committed and checkpoints, SQLite's WAL included),
+  per device, and the ratio to ``full``'s in the same run;
+* **commits** and **checkpoint writes** per second, and the **CPU share** the
+  process used (1.0 = one core busy);
+* at the end: **latency** p50/p95 of the last 1,000 estimates (report
+  arrival to estimate commit, as ``/health`` gives it) and the **backlog**
+  (batches stored but not yet read: 0 keeps up).
+
 Usage::
 
     python -m benchmarks devices [--devices 10 50] [--interval-ms 100]
-        [--duration-s 20] [--seed 424242] [--markdown FILE]
+        [--duration-s 20] [--seed 424242] [--paced [--warm-s S]] [--markdown FILE]
 """
 
 from __future__ import annotations
@@ -40,6 +55,7 @@ import resource
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -118,15 +134,23 @@ def scene(n_devices: int, interval_ms: float, duration_s: float, seed: int):  # 
 
 def batches(frames: dict[str, list[tuple[int, str, str, float]]]) -> list[tuple[str, str, list]]:
     """``(receiver, batch id, frames)`` of 0.1 s of trace each, in time order."""
+    return [(r, bid, rows) for _end_s, r, bid, rows in timed_batches(frames)]
+
+
+def timed_batches(
+    frames: dict[str, list[tuple[int, str, str, float]]],
+) -> list[tuple[float, str, str, list]]:
+    """``(trace time at the batch's end s, receiver, batch id, frames)``, 0.1 s of
+    trace each, in time order: an agent sends a batch when its 0.1 s is over."""
     out = []
     for r, rows in frames.items():
         rows = sorted(rows)
         k = np.array([(ns - EPOCH_NS) // round(BATCH_S * 1e9) for ns, *_ in rows])
         for i in np.unique(k):
             sel = np.flatnonzero(k == i)
-            out.append((int(i), r, f"{r}-{i}", [rows[j] for j in sel]))
+            out.append(((int(i) + 1) * BATCH_S, r, f"{r}-{i}", [rows[j] for j in sel]))
     out.sort(key=lambda b: (b[0], b[1]))
-    return [(r, bid, rows) for _i, r, bid, rows in out]
+    return out
 
 
 def _status_mb(field: str) -> float:
@@ -137,19 +161,84 @@ def _status_mb(field: str) -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run_apart(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -> dict:
-    """:func:`run` in a forked child of its own, so that each variant's memory
-    is measured from the same start (in one process a variant reuses what an
-    earlier one freed). In process where this one may not fork (no fork here,
-    or numba's OpenMP layer already launched, as in a test session)."""
+def run_apart(fn: Callable[..., dict[str, Any]], *args: Any) -> dict[str, Any]:
+    """``fn(*args)`` (:func:`run` or :func:`run_paced`) in a forked child of its
+    own, so that each variant's memory and written bytes are measured from the
+    same start (in one process a variant reuses what an earlier one freed). In
+    process where this one may not fork (no fork here, or numba's OpenMP layer
+    already launched, as in a test session)."""
     import multiprocessing
 
     from radiopose.filtering.forked import fork_available
 
     if not fork_available():
-        return run(site_dir, db_path, bs, n_packets, variant)
+        return fn(*args)
     with multiprocessing.get_context("fork").Pool(1) as pool:
-        return pool.apply(run, (site_dir, db_path, bs, n_packets, variant))
+        return pool.apply(fn, args)
+
+
+def _written_bytes() -> int:
+    """Bytes this process has handed to ``write``/``pwrite`` so far (``wchar`` of
+    ``/proc/self/io``): its database's writes, whether or not the page cache has
+    flushed them to the disk yet."""
+    for line in Path("/proc/self/io").read_text().splitlines():
+        if line.startswith("wchar:"):
+            return int(line.split()[1])
+    raise RuntimeError("/proc/self/io has no wchar line (Linux only)")
+
+
+def run_paced(
+    site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str, warm_s: float
+) -> dict[str, Any]:
+    """Store each batch when its 0.1 s of trace is over on the wall clock (as
+    the agents send them) and step the pipeline with the server's defaults
+    (:class:`LiveConfig` but the method), as ``radiopose serve`` does. Measured
+    after ``warm_s`` s to the trace's end: bytes written per second, commits
+    and checkpoint writes per second, the pipeline's CPU share; at the end:
+    latency p50/p95 of the last 1,000 estimates and the batches not yet read."""
+    method, tracker = VARIANTS[variant]
+    db = Database(f"sqlite:///{db_path}")
+    import_site_dir(db, site_dir)
+    p = LivePipeline(db, LiveConfig(method=method, tracker=tracker))
+    counts = {"commits": 0, "checkpoints": 0}
+    commit = db.commit_step
+
+    def counted(*args: Any, **kw: Any) -> None:  # state is the third argument
+        counts["commits"] += 1
+        counts["checkpoints"] += (args[2] if len(args) > 2 else kw.get("state")) is not None
+        commit(*args, **kw)
+
+    db.commit_step = counted  # type: ignore[method-assign]
+    end_s, i, mark = bs[-1][0], 0, None
+    t0 = time.perf_counter()
+    while (now := time.perf_counter() - t0) < end_s:
+        while i < len(bs) and bs[i][0] <= now:
+            _end, r, bid, rows = bs[i]
+            db.store_batch(r, bid, rows)
+            i += 1
+        if mark is None and now >= warm_s:
+            mark = (now, time.process_time(), _written_bytes(), dict(counts))
+        if p.step() == 0:
+            time.sleep(0.01)
+    if mark is None:
+        raise RuntimeError(f"the trace ({end_s:g} s) is not longer than the warm-up ({warm_s:g} s)")
+    span = time.perf_counter() - t0 - mark[0]
+    lat = np.asarray(db.recent_latencies_s(1_000))
+    ck = db.load_checkpoint(p.config.partition_key)
+    out = {
+        "method": variant,
+        "packets": n_packets,
+        "written_mb_per_s": (_written_bytes() - mark[2]) / span / 1e6,
+        "commits_per_s": (counts["commits"] - mark[3]["commits"]) / span,
+        "checkpoints_per_s": (counts["checkpoints"] - mark[3]["checkpoints"]) / span,
+        "cpu_share": (time.process_time() - mark[1]) / span,
+        "latency_p50_s": float(np.percentile(lat, 50)) if lat.size else float("nan"),
+        "latency_p95_s": float(np.percentile(lat, 95)) if lat.size else float("nan"),
+        "backlog_batches": db.last_batch_id() - p.state.cursor,
+        "checkpoint_mb": (len(ck[1]) if ck is not None else 0) / 1e6,
+    }
+    db.close()
+    return out
 
 
 def run(site_dir: Path, db_path: Path, bs: list, n_packets: int, variant: str) -> dict[str, Any]:
@@ -216,19 +305,47 @@ def main(argv: list[str] | None = None) -> int:
         help="rows to run (full first: the ratio's baseline)",
     )  # fmt: skip
     ap.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    ap.add_argument(
+        "--paced", action="store_true",
+        help="real time: batches stored as their trace time passes, the server's "
+        "LiveConfig; disk writes, commits, latency and backlog instead of throughput",
+    )  # fmt: skip
+    ap.add_argument(
+        "--warm-s", type=positive_float, default=None,
+        help="--paced: seconds before the measurement starts (default: half the trace, "
+        "at most 10)",
+    )  # fmt: skip
     a = ap.parse_args(argv)
     if a.markdown is not None:
         check_output(ap, "--markdown", files=[a.markdown])
-    cols = ["devices", "method", "offered_per_s", "packets", "coverage", "packets_per_s",
-            "ratio_vs_full", "packets_per_cpu_s", "memory_growth_mb", "checkpoint_mb"]  # fmt: skip
-    fmt = {"offered_per_s": ".0f", "packets_per_s": ".0f", "ratio_vs_full": ".2f",
-           "packets_per_cpu_s": ".0f", "memory_growth_mb": ".1f",
-           "checkpoint_mb": ".2f"}  # fmt: skip
+    if a.warm_s is not None and not a.paced:
+        ap.error("--warm-s applies to --paced runs only")
+    warm_s = min(10.0, a.duration_s / 2) if a.warm_s is None else a.warm_s
+    if a.paced and warm_s >= a.duration_s:
+        ap.error(f"--warm-s {warm_s:g} leaves nothing of a {a.duration_s:g} s trace to measure")
+    if a.paced:
+        cols = ["devices", "method", "offered_per_s", "written_mb_per_s",
+                "written_kb_per_device_s", "written_vs_full", "commits_per_s",
+                "checkpoints_per_s", "cpu_share", "latency_p50_s", "latency_p95_s",
+                "backlog_batches", "checkpoint_mb"]  # fmt: skip
+        fmt = {"offered_per_s": ".0f", "written_mb_per_s": ".2f", "written_kb_per_device_s": ".0f",
+               "written_vs_full": ".2f", "commits_per_s": ".1f", "checkpoints_per_s": ".2f",
+               "cpu_share": ".2f", "latency_p50_s": ".2f", "latency_p95_s": ".2f",
+               "checkpoint_mb": ".2f"}  # fmt: skip
+        what = f"real time, measured from {warm_s:g} s to the trace's end"
+    else:
+        cols = ["devices", "method", "offered_per_s", "packets", "coverage",
+                "packets_per_s", "ratio_vs_full", "packets_per_cpu_s", "memory_growth_mb",
+                "checkpoint_mb"]  # fmt: skip
+        fmt = {"offered_per_s": ".0f", "packets_per_s": ".0f", "ratio_vs_full": ".2f",
+               "packets_per_cpu_s": ".0f", "memory_growth_mb": ".1f",
+               "checkpoint_mb": ".2f"}  # fmt: skip
+        what = "all batches stored first, then stepped to the end"
     lines = [
         f"Machine: `{machine()}`",
         "",
         f"Live pipeline, {a.interval_ms:g} ms between one device's packets, "
-        f"{a.duration_s:g} s of trace, seed {a.seed} (`python -m benchmarks devices "
+        f"{a.duration_s:g} s of trace, seed {a.seed}, {what} (`python -m benchmarks devices "
         + " ".join(sys.argv[1:] if argv is None else argv)
         + "`):",
         "",
@@ -240,17 +357,27 @@ def main(argv: list[str] | None = None) -> int:
             site, frames, n_packets = scene(n, a.interval_ms, a.duration_s, a.seed)
             site_dir = tmp / f"site-{n}"
             write_site(site, site_dir)
-            bs = batches(frames)
             rows = []
             for v in a.variants:
-                row = run_apart(site_dir, tmp / f"{n}-{v.replace(' ', '_')}.db", bs, n_packets, v)
+                db_path = tmp / f"{n}-{v.replace(' ', '_').replace(',', '')}.db"
+                if a.paced:
+                    args = (site_dir, db_path, timed_batches(frames), n_packets, v, warm_s)
+                    row = run_apart(run_paced, *args)
+                else:
+                    row = run_apart(run, site_dir, db_path, batches(frames), n_packets, v)
                 row.update(devices=n, offered_per_s=n * 1000.0 / a.interval_ms)
                 rows.append(row)
                 print(f"{n} devices: {row}", file=sys.stderr, flush=True)
-            base = next((r["packets_per_s"] for r in rows if r["method"] == "full"), None)
+            key = "written_mb_per_s" if a.paced else "packets_per_s"
+            base = next((r[key] for r in rows if r["method"] == "full"), None)
             for r in rows:
-                r["ratio_vs_full"] = r["packets_per_s"] / base if base else float("nan")
-                r["coverage"] = f"{100 * r['coverage']:.1f} %"
+                ratio = r[key] / base if base else float("nan")
+                if a.paced:
+                    r["written_vs_full"] = ratio
+                    r["written_kb_per_device_s"] = r["written_mb_per_s"] * 1e3 / n
+                else:
+                    r["ratio_vs_full"] = ratio
+                    r["coverage"] = f"{100 * r['coverage']:.1f} %"
                 table_rows.append({c: r[c] for c in cols})
     return emit(lines + table(table_rows, fmt), None if a.markdown is None else str(a.markdown))
 

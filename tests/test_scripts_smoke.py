@@ -267,6 +267,21 @@ def test_benchmark_devices(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
     assert out.read_text(encoding="utf-8").strip() == printed.strip()
 
 
+def test_benchmark_devices_paced(capsys: pytest.CaptureFixture[str]) -> None:
+    """The real-time mode: batches stored as the trace's time passes, the server's
+    defaults; its row counts what the process wrote (the frames' batches at least)
+    and the pipeline's commits, and the ratio's baseline is full itself."""
+    argv = ["--devices", "2", "--duration-s", "1.5", "--warm-s", "0.5", "--variants", "full",
+            "--paced"]  # fmt: skip
+    printed = _run(BENCHMARKS / "bench_devices.py", argv, capsys)
+    rows = _table_rows(printed)
+    head = [c.strip() for c in rows[0].split("|")[1:-1]]
+    row = dict(zip(head, (c.strip() for c in rows[2].split("|")[1:-1]), strict=True))
+    assert len(rows) == 3 and row["method"] == "full" and row["offered_per_s"] == "20"
+    assert float(row["written_mb_per_s"]) > 0 and float(row["commits_per_s"]) > 0
+    assert row["written_vs_full"] == "1.00"
+
+
 @pytest.mark.slow
 def test_benchmark_sharing(capsys: pytest.CaptureFixture[str]) -> None:
     """Per-device cost in one tracker and the methods at the 3-D site (5 fresh

@@ -352,3 +352,44 @@ def test_a_live_edit_leaves_no_packet_unanswered(tiny, tmp_path: Path, edit: str
         r["packet_id"] for r in rows if r["reason"] is None and r["packet_id"] not in estimated
     ] == []
     assert "method_failures" not in p.state.counts
+
+
+class _RaisingMonitor:
+    """An alarm monitor that raises on every estimate it is shown (wiring only)."""
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[str, str]] = []
+
+    def observe(self, obs, position_m, orientation_deg):  # type: ignore[no-untyped-def]
+        self.seen.append((obs.transmitter, obs.packet_id))
+        return {
+            "transmitter": obs.transmitter, "packet_id": obs.packet_id,
+            "timestamp_s": obs.timestamp_s, "state": "raised", "score_nats": 99.0,
+            "x_m": float(position_m[0]), "y_m": float(position_m[1]),
+        }  # fmt: skip
+
+
+def test_estimates_flushed_by_a_live_edit_pass_the_alarm_monitor(tiny, tmp_path: Path) -> None:
+    """The held-back estimates a live edit flushes (of the device it removes) are
+    shown to the spoofing alarm monitor of the site they were derived under,
+    like every other filter estimate, and their alarms are stored with them (they
+    bypassed it: an attack in a device's last lag before its removal raised none)."""
+    db, p, _n = _filter_half_way(tiny, tmp_path)
+    monitor = _RaisingMonitor()
+    p.alarm_monitor = monitor
+    p.step()  # (the monitor sees the estimates of a step)
+    parts = db.site_rows()
+    removed = parts["devices"][0]["transmitter"].lower()
+    seen_before = len(monitor.seen)
+    waiting = {
+        r["packet_id"] for r in db.packets() if r["reason"] is None
+    } | {r["packet_id"] for r in p._unsaved if r["kind"] == "packet" and r["reason"] is None}
+    db.replace_site({**parts, "devices": parts["devices"][1:]})
+    p.step()  # the edit: the removed device's held-back estimates are flushed
+    flushed = monitor.seen[seen_before:]
+    assert flushed and all(tx == removed for tx, _ in flushed)
+    assert {pid for _, pid in flushed} <= waiting
+    alarmed = {(a["transmitter"], a["packet_id"]) for a in db.alarms()}
+    assert set(flushed) <= alarmed
+    assert p.alarm_monitor is not monitor  # the new site's monitor from here
+    db.close()

@@ -412,11 +412,14 @@ class LivePipeline:
         self, tracker: Tracker, keys: list[str], on_error: Callable[[str, Exception], None]
     ) -> list[dict[str, Any]]:
         """The estimate rows of what ``tracker`` still holds back for the devices
-        ``keys`` (prepared in it), emitted now (:meth:`Tracker.flush`)."""
+        ``keys`` (prepared in it), emitted now (:meth:`Tracker.flush`), with the
+        spoofing alarms they raise: the alarm monitor in place is still the one of
+        the site they were derived under (a live edit replaces it after this)."""
         if not keys:
             return []
         now = time.time()
-        return [self._estimate_row(e, now) for e in tracker.flush(keys, on_error=on_error)]
+        flushed = tracker.flush(keys, on_error=on_error)
+        return [row for e in flushed for row in self._estimate_rows(e, now)]
 
     def _unenrolled(self, site: Site) -> list[str]:
         """The devices with a tracking state that ``site`` does not enrol."""
