@@ -381,9 +381,9 @@ def test_estimates_flushed_by_a_live_edit_pass_the_alarm_monitor(tiny, tmp_path:
     parts = db.site_rows()
     removed = parts["devices"][0]["transmitter"].lower()
     seen_before = len(monitor.seen)
-    waiting = {
-        r["packet_id"] for r in db.packets() if r["reason"] is None
-    } | {r["packet_id"] for r in p._unsaved if r["kind"] == "packet" and r["reason"] is None}
+    waiting = {r["packet_id"] for r in db.packets() if r["reason"] is None} | {
+        r["packet_id"] for r in p._unsaved if r["kind"] == "packet" and r["reason"] is None
+    }
     db.replace_site({**parts, "devices": parts["devices"][1:]})
     p.step()  # the edit: the removed device's held-back estimates are flushed
     flushed = monitor.seen[seen_before:]
