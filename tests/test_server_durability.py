@@ -393,3 +393,37 @@ def test_estimates_flushed_by_a_live_edit_pass_the_alarm_monitor(tiny, tmp_path:
     assert set(flushed) <= alarmed
     assert p.alarm_monitor is not monitor  # the new site's monitor from here
     db.close()
+
+
+def test_an_unrecorded_engine_taken_over_leaves_no_packet_unanswered(tiny, tmp_path: Path) -> None:
+    """A checkpoint written before engines were recorded (no ``method``, no
+    ``site_version``: an older version), restarted with another --method: what
+    filter held back cannot be handed over, so those packets get the skip
+    reason SKIP_ENGINE_UNRECORDED (about the lag's worth per device had
+    neither an estimate nor a reason)."""
+    import pickle
+
+    from radiopose.tracker import SKIP_ENGINE_UNRECORDED
+
+    db, p, n = _filter_half_way(tiny, tmp_path)
+    p._commit(p._unsaved, force_state=True)
+    key = p.config.partition_key
+    cursor, blob = db.load_checkpoint(key)  # type: ignore[misc]
+    old = pickle.loads(blob)
+    for name in ("method", "site_version", "pending_obs"):  # fields an older version lacked
+        del old.__dict__[name]
+    db.commit_step(key, cursor, pickle.dumps(old), db.summaries()[key], [], [])
+    p = LivePipeline(db, fast_live(method="full", idle_flush_s=1e6))
+    assert p.state.method is None and p.state.track_states
+    while p.state.cursor < n:
+        p.step()
+    p.config = fast_live(method="full", idle_flush_s=0.0)
+    p.step()
+    p.step()
+    estimated = {e["packet_id"] for e in db.estimates(limit=10**6)}
+    rows = db.packets()
+    db.close()
+    assert [
+        r["packet_id"] for r in rows if r["reason"] is None and r["packet_id"] not in estimated
+    ] == []
+    assert any(r["reason"] == SKIP_ENGINE_UNRECORDED for r in rows)

@@ -285,7 +285,7 @@ class LivePipeline:
         if version == self.site_version and self.site is not None:
             return []
         from radiopose.site import site_is_3d
-        from radiopose.tracker import Tracker
+        from radiopose.tracker import SKIP_ENGINE_UNRECORDED, SKIP_SITE_CHANGED, Tracker
 
         st = self.state
         if self.site is None and self._resumed and st.site_version != version:
@@ -305,6 +305,12 @@ class LivePipeline:
                 self._reset_matcher(new_site.receiver_ids)
             gone = [k for k in self._unenrolled(new_site) if self.tracker.has_device(k)]
             out += self._held_back_rows(self.tracker, gone, self._method_failed)
+        if st.method is None and st.track_states and not self._states_fit(method):
+            # a checkpoint from before engines were recorded, of another method: what
+            # its engine holds back cannot be handed over (which engine and site it
+            # was is not known); those packets get a skip reason instead of none
+            self._mark_unestimated(SKIP_ENGINE_UNRECORDED)
+            st.track_states.clear()
         if st.method is not None and tuple(st.method) != engine and st.track_states:
             # Another engine takes over: the old one's held-back estimates are emitted
             # by it on the site its states were derived under, when that is at hand
@@ -316,7 +322,7 @@ class LivePipeline:
             elif st.site_version == version:
                 out += self._hand_over(new_site)
             else:
-                self._mark_unestimated()
+                self._mark_unestimated(SKIP_SITE_CHANGED)
             st.track_states.clear()
         st.method = engine
         if self.site is not None and (
@@ -426,21 +432,27 @@ class LivePipeline:
         enrolled = {d.transmitter.lower() for d in site.devices}
         return [k for k in self.state.track_states if k.lower() not in enrolled]
 
-    def _mark_unestimated(self) -> None:
-        """The previous engine's devices' packets that wait for an estimate it
-        holds back, when the site it derived them under is gone (a restart
-        whose checkpoint predates a site edit that changed the engine): they
-        get the skip reason :data:`~radiopose.tracker.SKIP_SITE_CHANGED`."""
-        from radiopose.tracker import SKIP_SITE_CHANGED
+    def _states_fit(self, method: str) -> bool:
+        """Whether every stored tracking state is of ``method``'s state type (a
+        checkpoint that did not record its engine: of this method, or not)."""
+        from radiopose.tracker import METHODS
 
+        impl = METHODS.get(method)
+        return impl is not None and all(
+            isinstance(s, impl.state_type) for s in self.state.track_states.values()
+        )
+
+    def _mark_unestimated(self, reason: str) -> None:
+        """The previous engine's devices' packets that wait for an estimate it
+        holds back, when it cannot emit them: the site it derived them under is
+        gone (a restart whose checkpoint predates a site edit that changed the
+        engine: :data:`~radiopose.tracker.SKIP_SITE_CHANGED`), or the checkpoint
+        did not record which engine it was
+        (:data:`~radiopose.tracker.SKIP_ENGINE_UNRECORDED`). They get ``reason``."""
         st = self.state
-        n = self.db.mark_unestimated(list(st.track_states), st.next_packet_id, SKIP_SITE_CHANGED)
+        n = self.db.mark_unestimated(list(st.track_states), st.next_packet_id, reason)
         if n:
-            log.warning(
-                "%d packets waiting for a held-back estimate get the reason %r",
-                n,
-                SKIP_SITE_CHANGED,
-            )
+            log.warning("%d packets waiting for a held-back estimate get the reason %r", n, reason)
 
     def _forget_unenrolled(self) -> None:
         """Drop the state, detector and pending packets of every device the site

@@ -16,6 +16,10 @@ SKIP_DUPLICATE = "duplicate packet (given twice)"
 SKIP_SITE_CHANGED = "site changed before its estimate"
 """The live server: the packet's estimate was held back (a lag) by an engine
 that a site edit replaced, and a crash lost the site it was derived under."""
+SKIP_ENGINE_UNRECORDED = "held back by an engine the checkpoint did not record"
+"""The live server: the packet's estimate was held back (a lag) by the engine of a
+checkpoint written before engines were recorded (``PipelineState.method``, an
+older version), and a restart with another method cannot hand it over."""
 SKIP_METHOD_FAILED = "the method failed (the device starts afresh)"
 """The live server: the method raised on this packet (or gave an estimate the
 contract does not allow); the error is logged, and the device's state and its
