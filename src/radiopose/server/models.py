@@ -33,6 +33,13 @@ from radiopose.ids import MAX_METHOD_NAME_CHARS
 # SQLite only auto-increments an INTEGER PRIMARY KEY.
 _BigId = BigInteger().with_variant(Integer, "sqlite")
 
+# Output tables that clients follow by id (``after_id``): on SQLite, AUTOINCREMENT,
+# so that an id is never used twice. Without it SQLite reuses the ids of deleted
+# rows at the table's end, and output re-derived after a restart
+# (:meth:`radiopose.server.db.Database.drop_output_from`) took ids a client had
+# already read past. (PostgreSQL's sequences never reuse ids.)
+_NEVER_REUSED: dict[str, Any] = {"sqlite_autoincrement": True}
+
 
 class Base(DeclarativeBase):
     """Declarative base of all tables."""
@@ -111,7 +118,7 @@ class FrameRow(Base):
 
 class PacketRow(Base):
     __tablename__ = "packets"
-    __table_args__ = (UniqueConstraint("transmitter", "packet_id"),)
+    __table_args__ = (UniqueConstraint("transmitter", "packet_id"), _NEVER_REUSED)
     id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
     packet_id: Mapped[str] = mapped_column(String(32))
     transmitter: Mapped[str] = mapped_column(String(64), index=True)
@@ -123,7 +130,7 @@ class PacketRow(Base):
 
 class EstimateRow(Base):
     __tablename__ = "estimates"
-    __table_args__ = (UniqueConstraint("transmitter", "packet_id"),)
+    __table_args__ = (UniqueConstraint("transmitter", "packet_id"), _NEVER_REUSED)
     id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
     timestamp_s: Mapped[float] = mapped_column(Float, index=True)
     transmitter: Mapped[str] = mapped_column(String(64), index=True)
@@ -146,6 +153,7 @@ class AlarmRow(Base):
     """A spoofing alarm event (:mod:`radiopose.server.alarms`): raised or cleared."""
 
     __tablename__ = "alarms"
+    __table_args__ = (_NEVER_REUSED,)
     id: Mapped[int] = mapped_column(_BigId, primary_key=True, autoincrement=True)
     transmitter: Mapped[str] = mapped_column(String(64), index=True)
     packet_id: Mapped[str] = mapped_column(String(32))
