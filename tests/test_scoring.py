@@ -8,6 +8,7 @@ import pytest
 from radiopose.errors import InputError
 from radiopose.estimates import Estimates, read_estimates_csv, write_estimates_csv
 from radiopose.evaluate import error_stats, score
+from radiopose.evaluate.scoring import unambiguous_tolerance_s
 from radiopose.packets import Truth
 
 TX = "02:00:00:00:00:01"
@@ -107,8 +108,10 @@ def test_score_cli_names_the_estimates_file_and_line(tmp_path, capsys):
 
 def test_score_cli_tolerance_for_synced_times(tmp_path, capsys):
     """Packets that went through pcap and ``sync`` come back within 0.1 ms of
-    their simulated times: ``score --tolerance-ms 0.1`` matches them (the
-    default, 1 µs, refuses them and says so); a bad tolerance is one line."""
+    their simulated times: the default window (just under half the truth's
+    5 ms spacing) matches them, as ``--tolerance-ms 0.1`` does; 1 µs refuses
+    them and names the option; an estimate 2.5 ms off (as near to the next row
+    as to its own) is refused by the default; a bad tolerance is one line."""
     from radiopose.cli import main
     from radiopose.estimates import write_estimates_csv
     from radiopose.packets import write_truth_csv
@@ -125,13 +128,41 @@ def test_score_cli_tolerance_for_synced_times(tmp_path, capsys):
     write_truth_csv(tr, tmp_path / "truth.csv")
     write_estimates_csv(e, tmp_path / "est.csv")
     args = ["score", str(tmp_path / "truth.csv"), str(tmp_path / "est.csv"), "--json"]
-    assert main(args) == 2
-    assert "score --tolerance-ms 0.1" in capsys.readouterr().err
+    assert main(args) == 0
+    assert '"n_estimates": 3' in capsys.readouterr().out
+    assert main([*args, "--tolerance-ms", "0.001"]) == 2
+    err = capsys.readouterr().err
+    assert "within 0.001 ms (score --tolerance-ms sets the window)" in err
+    assert err.count("\n") == 1
     assert main([*args, "--tolerance-ms", "0.1"]) == 0
     assert '"n_estimates": 3' in capsys.readouterr().out
+    halfway = Estimates(e.timestamp_s - 40e-6 + 2.5e-3, *(getattr(e, f) for f in (
+        "transmitter", "packet_id", "position_m", "orientation_deg", "method")))  # fmt: skip
+    write_estimates_csv(halfway, tmp_path / "est.csv")
+    assert main(args) == 2
+    assert "no truth row" in capsys.readouterr().err
+    write_estimates_csv(e, tmp_path / "est.csv")
     assert main([*args, "--tolerance-ms", "-1"]) == 2
     err = capsys.readouterr().err
     assert "--tolerance-ms must be in [0, 1000] ms" in err and err.count("\n") == 1
+
+
+def test_unambiguous_tolerance():
+    """Just under half the smallest spacing of one transmitter's rows (another
+    transmitter's rows at the same times do not narrow it); 1 µs with two rows
+    at one time; 1 s for a transmitter with one row."""
+    tr = _truth()
+    assert unambiguous_tolerance_s(tr) == pytest.approx(2.5e-3 - 1e-9, abs=1e-9)
+    two = Truth(
+        np.concatenate([tr.timestamp_s, tr.timestamp_s]),
+        np.array([TX] * 10 + ["other"] * 10, object),
+        np.concatenate([tr.position_m, tr.position_m]),
+        np.concatenate([tr.orientation_deg, tr.orientation_deg]),
+    )
+    assert unambiguous_tolerance_s(two) == unambiguous_tolerance_s(tr)
+    same = Truth(np.zeros(2), np.array([TX, TX], object), tr.position_m[:2], tr.orientation_deg[:2])
+    assert unambiguous_tolerance_s(same) == 1e-6
+    assert unambiguous_tolerance_s(_truth(1)) == 1.0
 
 
 def test_error_stats():

@@ -167,13 +167,16 @@ def score(
     estimates: Annotated[Path, typer.Argument(help="estimates.csv to score.")],
     as_json: Annotated[bool, typer.Option("--json", help="Print JSON instead of a table.")] = False,
     tolerance_ms: Annotated[
-        float,
+        float | None,
         typer.Option(
             "--tolerance-ms",
-            help="How far an estimate's time may be from its truth row's, ms (default 0.001: "
-            "the simulation's own files; 0.1 for packets that went through pcap and sync).",
+            help="How far an estimate's time may be from its truth row's, ms (default: just "
+            "under half the smallest spacing of one transmitter's truth rows, so each "
+            "estimate has one row; 2.5 ms at the simulator's 5 ms, which covers packets "
+            "that went through pcap and sync).",
+            show_default=False,
         ),
-    ] = 0.001,
+    ] = None,
 ) -> None:
     """Position error (m), orientation error (°) and coverage: mean, median, p95 per method."""
     from radiopose.errors import InputError
@@ -183,9 +186,9 @@ def score(
 
     t = read_truth_csv(truth)
     e = read_estimates_csv(estimates)
-    if not (math.isfinite(tolerance_ms) and 0 <= tolerance_ms <= 1000):
+    if tolerance_ms is not None and not (math.isfinite(tolerance_ms) and 0 <= tolerance_ms <= 1000):
         raise InputError(f"--tolerance-ms must be in [0, 1000] ms, got {tolerance_ms:g}")
-    scores = run_score(t, e, tolerance_ms / 1e3)
+    scores = run_score(t, e, None if tolerance_ms is None else tolerance_ms / 1e3)
     if as_json:
         print(json.dumps([s.to_dict() for s in scores], indent=1))
         return

@@ -90,6 +90,26 @@ class MethodScore:
         return asdict(self)
 
 
+def unambiguous_tolerance_s(truth: Truth) -> float:
+    """The widest time tolerance (s) that still gives each estimate one truth row:
+    just under half the smallest gap between two truth times of one transmitter
+    (an estimate that close to a row is closer to it than to any other row),
+    at least 1 µs (two rows at one time: the files' own precision) and at most
+    1 s. Packets that went through pcap and ``sync`` carry their receivers'
+    clock estimate (within 0.1 ms); the simulator sends at most one packet of a
+    transmitter per 0.1 ms, so at the default 5 ms spacing this is 2.5 ms."""
+    t_ns = seconds_to_ns(truth.timestamp_s)
+    tx = np.array([str(s).lower() for s in truth.transmitter], dtype=object)
+    gaps = [
+        int(np.diff(np.sort(t_ns[tx == key])).min())
+        for key in set(tx.tolist())
+        if int((tx == key).sum()) > 1
+    ]
+    if not gaps:
+        return 1.0
+    return float(min(max((min(gaps) - 1) // 2 * 1e-9, 1e-6), 1.0))
+
+
 def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> NDArray:
     """Index ``(n_est,)`` of the truth row of each estimate (same transmitter, same time).
 
@@ -130,8 +150,7 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
             raise InputError(
                 f"estimate {i + 1} (packet {estimates.packet_id[i]!r}, "
                 f"{estimates.timestamp_s[i]:.9g} s): no truth row of {estimates.transmitter[i]} "
-                f"within {tolerance_s:g} s (packets that went through pcap and sync: "
-                "score --tolerance-ms 0.1)",
+                f"within {tolerance_s * 1e3:g} ms (score --tolerance-ms sets the window)",
                 column="timestamp_s",
                 **estimates.where(i),
             )
@@ -139,8 +158,14 @@ def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -
     return out
 
 
-def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tuple[MethodScore, ...]:
+def score(
+    truth: Truth, estimates: Estimates, tolerance_s: float | None = 1e-6
+) -> tuple[MethodScore, ...]:
     """Score estimates against truth, one :class:`MethodScore` per method (file order).
+
+    ``tolerance_s``: how far an estimate's time may be from its truth row's;
+    ``None``: :func:`unambiguous_tolerance_s` of the truth (``radiopose score``'s
+    default).
 
     With no estimates at all, one row with method ``"none"`` and coverage 0.
 
@@ -152,6 +177,8 @@ def score(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> tupl
         row (:func:`match_truth`); two estimates of one method matched to one
         truth row (a packet estimated twice would count twice in coverage).
     """
+    if tolerance_s is None:
+        tolerance_s = unambiguous_tolerance_s(truth)
     if not (isinstance(tolerance_s, int | float) and np.isfinite(tolerance_s) and tolerance_s >= 0):
         raise InputError(f"tolerance_s = {tolerance_s!r} must be a finite number >= 0")
     for what, table in (("truth row", truth), ("estimate", estimates)):
