@@ -676,6 +676,11 @@ def test_mitll_mac_selection(tmp_path):
         ("2020,Bluetooth,aa:bb:cc:dd:ee:ff,-50,12,1.5e9,40\n", 12, "BLE channel", "37/38/39"),
         ("2020,Bluetooth,aa:bb:cc:dd:ee:ff,-50\n", 12, None, "fields"),
         ("2020,Angle,400\n", 12, "Angle", "out of range"),
+        # rows that were skipped silently (helper-63): each would change the pattern
+        ("hello\n", 12, None, "one field 'hello'"),
+        ("2020-05-07 14:07:07.68", 12, None, "a line cut short"),
+        ("2020,bluetooth,aa:bb:cc:dd:ee:ff,-40,12,1.5e9,37\n", 12, None, "kind 'bluetooth'"),
+        ("2020,Wifi,aa:bb:cc:dd:ee:ff,-40\n", 12, None, "unknown row kind 'Wifi'"),
     ],
 )
 def test_mitll_bad_rows(tmp_path, extra, line, column, match):

@@ -35,6 +35,10 @@ from radiopose.units import (
 MITLL_CHANNELS = (37, 38, 39)
 """BLE advertising channels in the MIT LL captures."""
 
+MITLL_HEADER_KINDS = ("Angle", "Device", "Environment", "GPS", "Range", "TxPower")
+"""The header rows' kinds (second field); packet rows are ``Bluetooth``. Any
+other row is an error: a row skipped silently would change the pattern."""
+
 
 def _mitll_files(path: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]) -> list[Path]:
     if isinstance(path, (str, os.PathLike)):
@@ -67,9 +71,23 @@ def _read_mitll_file(path: Path) -> tuple[float, int, dict[str, dict[int, list[f
         except csv.Error as exc:
             raise InputError(f"not a CSV row: {exc}", path=path, line=reader.line_num) from None
         line = reader.line_num
+        if not any(field.strip() for field in row):
+            continue  # a blank line
         if len(row) < 2:
-            continue
+            raise InputError(
+                f"not a capture row: one field {row[0].strip()[:40]!r} (a row is "
+                "'timestamp,kind,…'; a line cut short?)",
+                path=path,
+                line=line,
+            )
         kind = row[1].strip()
+        if kind != "Bluetooth" and kind not in MITLL_HEADER_KINDS:
+            raise InputError(
+                f"unknown row kind {kind[:40]!r} (expected Bluetooth or one of "
+                f"{', '.join(MITLL_HEADER_KINDS)})",
+                path=path,
+                line=line,
+            )
         if kind == "Angle":
             if len(row) < 3:
                 raise InputError("Angle row without a value", path=path, line=line, column="Angle")
