@@ -90,6 +90,23 @@ def test_msi_real_file(shared_data):
     assert n.range_dbi[1] == pytest.approx(18.89, abs=0.01)  # near the stated gain
 
 
+def test_msi_tabs_between_keyword_and_value(shared_data, tmp_path):
+    """Tab-separated MSI files (common) read as the spaced original: the keyword
+    lines split on any whitespace, as the data lines did (helper-63: a tab after
+    HORIZONTAL made the file "data line outside a section")."""
+    path = shared_data / "antenna-files" / MSI_NAME
+    text = path.read_text(encoding="utf-8")
+    for name, tabbed in (
+        ("kw.msi", text.replace("HORIZONTAL ", "HORIZONTAL\t").replace("VERTICAL ", "VERTICAL\t")),
+        ("all.msi", text.replace(" ", "\t")),
+    ):
+        assert tabbed != text
+        (tmp_path / name).write_text(tabbed, encoding="utf-8")
+        for mode in ("horizontal", "sphere"):
+            a, b = read_msi(path, mode=mode), read_msi(tmp_path / name, mode=mode)
+            np.testing.assert_array_equal(a.directivity_dbi, b.directivity_dbi)
+
+
 @pytest.mark.parametrize(
     ("mutate", "line", "column", "match"),
     [

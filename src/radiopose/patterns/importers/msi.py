@@ -102,7 +102,8 @@ def _parse_msi(
         i += 1
         if not raw:
             continue
-        key, _, rest = raw.partition(" ")
+        key, *more = raw.split(None, 1)  # the keyword, then any whitespace (spaces or tabs)
+        rest = more[0] if more else ""
         key_u = key.upper()
         if key_u in ("HORIZONTAL", "VERTICAL"):
             if key_u in cuts:
