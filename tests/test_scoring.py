@@ -277,6 +277,30 @@ def test_times_beyond_int64_ns_are_line_errors(tmp_path, which):
         read(path)
 
 
+@pytest.mark.parametrize("which", ["truth", "estimates"])
+@pytest.mark.parametrize("column", ["x_m", "z_m"])
+def test_coordinates_beyond_the_site_limit_are_line_errors(tmp_path, capsys, which, column):
+    """A position of 1e300 m (a corrupt file) is refused like any site coordinate
+    beyond 1e6 m: it made score print the JSON non-value Infinity and numpy's
+    two-line overflow warning (helper-63)."""
+    from radiopose.cli import main
+    from radiopose.estimates import write_estimates_csv
+    from radiopose.packets import write_truth_csv
+
+    tr = _truth()
+    write_truth_csv(tr, tmp_path / "truth.csv")
+    write_estimates_csv(_est(tr, [0, 1]), tmp_path / "estimates.csv")
+    path = tmp_path / f"{which}.csv"
+    lines = path.read_text().splitlines()
+    row = lines[2].split(",")
+    row[lines[0].split(",").index(column)] = "1e300"
+    path.write_text("\n".join([*lines[:2], ",".join(row), *lines[3:]]) + "\n")
+    assert main(["score", str(tmp_path / "truth.csv"), str(tmp_path / "estimates.csv")]) == 2
+    err = capsys.readouterr().err
+    assert f"{which}.csv:3, column '{column}': value 1e300 out of range" in err
+    assert err.count("\n") == 1
+
+
 def test_a_packet_transmitter_that_is_not_an_id_is_a_line_error(tmp_path):
     """The contract's transmitter id (no commas or whitespace): a packets.csv row
     breaking it is an error at its line, not an unknown transmitter skipped."""

@@ -21,7 +21,7 @@ import numpy as np
 from radiopose.errors import InputError
 from radiopose.ids import check_transmitter_ids, transmitter_id_problem
 from radiopose.tables import Column, Table, read_table, reject_repeated_rows, write_table
-from radiopose.units import MAX_ABS_TIME_S, FloatArray
+from radiopose.units import COORD_LIMIT_M, MAX_ABS_TIME_S, FloatArray
 
 RSS_MIN_DBM, RSS_MAX_DBM = -200.0, 50.0
 """The range of an RSS reading, dBm (``packets.csv``; :func:`check_observation`)."""
@@ -33,9 +33,9 @@ PACKET_COLUMNS = (
     Column("rss_dbm", low=RSS_MIN_DBM, high=RSS_MAX_DBM),
 )
 POSE_COLUMNS = (
-    Column("x_m"),
-    Column("y_m"),
-    Column("z_m"),
+    Column("x_m", low=-COORD_LIMIT_M, high=COORD_LIMIT_M),
+    Column("y_m", low=-COORD_LIMIT_M, high=COORD_LIMIT_M),
+    Column("z_m", low=-COORD_LIMIT_M, high=COORD_LIMIT_M),
     Column("azimuth_deg", low=-360.0, high=360.0),
     Column("pitch_deg", low=-90.0, high=90.0),
     Column("roll_deg", low=-360.0, high=360.0),

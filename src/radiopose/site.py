@@ -55,10 +55,8 @@ from radiopose.survey import (
     average_by_point,
 )
 from radiopose.tables import Column
-from radiopose.units import FloatArray
+from radiopose.units import COORD_LIMIT_M, FloatArray
 
-COORD_LIMIT_M = 1e6
-"""Bound on every coordinate (site.toml area, receivers.csv, survey.csv), metres."""
 MAX_GRID_POINTS = 25_000_000
 """Most candidate positions (``nx · ny``)."""
 MAX_ORIENTATIONS = 100_000

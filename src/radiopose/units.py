@@ -69,6 +69,11 @@ def linear_to_db(ratio: ArrayLike) -> FloatArray:
 # Largest |time| int64 nanoseconds hold: 2**63 ns = 9,223,372,036.85 s (years 1677-2262).
 MAX_ABS_TIME_S = 9_223_372_036.0
 
+COORD_LIMIT_M = 1e6
+"""Bound on every coordinate, metres: site.toml's area, receivers.csv, survey.csv,
+and the positions of truth.csv and estimates.csv (a distance beyond it overflows
+nothing, but no site holds it: a typo or a corrupt file)."""
+
 
 def seconds_to_ns(t_s: ArrayLike) -> NDArray[np.int64]:
     """Seconds -> integer nanoseconds (rounded to nearest).
