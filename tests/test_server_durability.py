@@ -445,3 +445,40 @@ def test_an_unrecorded_engine_taken_over_leaves_no_packet_unanswered(tiny, tmp_p
         r["packet_id"] for r in rows if r["reason"] is None and r["packet_id"] not in estimated
     ] == []
     assert any(r["reason"] == SKIP_ENGINE_UNRECORDED for r in rows)
+
+
+def test_tls_files_are_checked_before_serving(tiny, tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """A missing or malformed certificate/key is one line naming the option and
+    the file, before the database or the site is touched (it was "No such file
+    or directory" or "[SSL] PEM lib (_ssl.c:3905)", naming neither; helper-63);
+    a real self-signed pair passes the check."""
+    import shutil
+    import subprocess
+
+    from radiopose.cli import main
+    from radiopose.cli.server import _check_tls
+
+    db = tmp_path / "s.db"
+    serve = ["serve", str(tiny.site_dir), "--db", str(db), "--port", "18999"]
+    assert main([*serve, "--ssl-certfile", str(tmp_path / "no.pem"),
+                 "--ssl-keyfile", str(tmp_path / "no.key")]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert f"--ssl-certfile {tmp_path / 'no.pem'}: No such file or directory" in err
+    assert err.count("\n") == 1 and not db.exists()
+    junk = tmp_path / "junk.pem"
+    junk.write_bytes(b"\x00\xff not a certificate\n")
+    assert main([*serve, "--ssl-certfile", str(junk), "--ssl-keyfile", str(junk)]) == 2
+    err = capsys.readouterr().err
+    assert "not a PEM certificate and its private key" in err and str(junk) in err
+    assert err.count("\n") == 1 and not db.exists()
+    if shutil.which("openssl") is None:
+        pytest.skip("no openssl command to make a self-signed pair")
+    cert, key = tmp_path / "c.pem", tmp_path / "k.pem"
+    subprocess.run(
+        ["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", str(key),
+         "-out", str(cert), "-days", "1", "-subj", "/CN=localhost"],
+        check=True, capture_output=True,
+    )  # fmt: skip
+    _check_tls(cert, key)
+    with pytest.raises(InputError, match="not a PEM certificate"):
+        _check_tls(key, cert)  # swapped

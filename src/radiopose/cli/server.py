@@ -140,6 +140,8 @@ def serve(
     k, n = _partition(partition)
     if (ssl_certfile is None) != (ssl_keyfile is None):
         raise InputError("--ssl-certfile and --ssl-keyfile go together")
+    if ssl_certfile is not None and ssl_keyfile is not None:
+        _check_tls(ssl_certfile, ssl_keyfile)
     if not (calibration_s > 0 and idle_flush_s > 0):
         raise InputError("--calibration-s and --idle-flush-s must be > 0")
     if not 0 < port < 65536:
@@ -187,6 +189,29 @@ def serve(
         )
     finally:
         database.close()
+
+
+def _check_tls(certfile: Path, keyfile: Path) -> None:
+    """Load the certificate and key as uvicorn will, before anything starts: a
+    missing, unreadable or malformed file is one line naming the option and the
+    file (ssl's own messages name neither: "[SSL] PEM lib (_ssl.c:3905)")."""
+    import ssl
+
+    from radiopose.errors import InputError
+
+    for option, path in (("--ssl-certfile", certfile), ("--ssl-keyfile", keyfile)):
+        try:
+            with open(path, "rb"):
+                pass
+        except OSError as exc:
+            raise InputError(f"{option} {path}: {exc.strerror or exc}") from None
+    try:
+        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(str(certfile), str(keyfile))
+    except ssl.SSLError as exc:
+        raise InputError(
+            f"--ssl-certfile {certfile} / --ssl-keyfile {keyfile}: not a PEM certificate "
+            f"and its private key ({exc.reason or exc})"
+        ) from None
 
 
 @token_app.command("create")
