@@ -432,6 +432,48 @@ def _run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str,
     return code, cap.out, cap.err
 
 
+def test_one_receiver_id_rule_at_every_entry(
+    simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A receiver id follows the transmitter ids' rule wherever it enters: a
+    comma or a space is one line naming where (helper-63: `sync --receiver`
+    refused a comma that a CSV capture let through quoted, and a space passed
+    everywhere)."""
+    _, sim = simulated
+    hexd = "a" * 64
+    for bad in ("r,x", "r x"):
+        cap = tmp_path / "cap.csv"
+        with open(cap, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["receiver_id", "timestamp_s", "frame_sha256", "transmitter", "rss_dbm"])
+            w.writerow(["rx1", "1.0", hexd, "phone", "-50"])
+            w.writerow([bad, "1.0", hexd, "phone", "-50"])
+        code, _, err = _run(["sync", str(cap), "-o", str(tmp_path / "o.csv")], capsys)
+        assert code == 2 and err.count("\n") == 1
+        assert "cap.csv:3, column 'receiver_id': not a receiver id" in err
+        code, _, err = _run(
+            ["sync", str(sim.paths["rx1"]), "-o", str(tmp_path / "o.csv"),
+             "--receiver", f"{bad}={sim.paths['rx1']}"], capsys,
+        )  # fmt: skip
+        assert code == 2 and "not a receiver id" in err and err.count("\n") == 1
+        packets = tmp_path / "packets.csv"
+        packets.write_text(
+            f'packet_id,timestamp_s,transmitter,receiver_id,rss_dbm\n0,1.0,phone,"{bad}",-50\n'
+        )
+        from radiopose.errors import InputError
+        from radiopose.packets import read_packets_csv
+
+        with pytest.raises(InputError, match=r"packets\.csv:2, column 'receiver_id'"):
+            read_packets_csv(packets)
+        code, _, err = _run(["receiver", "--server", "http://127.0.0.1:1", "--token", "t",
+                             "--id", bad, "--replay", str(cap)], capsys)  # fmt: skip
+        assert code == 2 and "--id: not a receiver id" in err
+        code, _, err = _run(["token", "create", "--db", str(tmp_path / "t.db"), "--role",
+                             "receiver", "--receiver", bad], capsys)  # fmt: skip
+        assert code == 2 and "--receiver: not a receiver id" in err
+    assert not (tmp_path / "o.csv").exists()
+
+
 def test_cli_sync_simulated(simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out_dir, sim = simulated
     target = tmp_path / "packets.csv"

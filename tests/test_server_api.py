@@ -188,6 +188,8 @@ def test_report_is_stored_once(server: Running, tiny) -> None:
         (lambda b: b.update(batch_id="x" * 129), 422, "batch_id"),
         (lambda b: b.update(frames=b["frames"] * (MAX_FRAMES_PER_BATCH // 5 + 1)), 422, "frames"),
         (lambda b: b.update(receiver_id="rx2"), 403, "rx1"),
+        # the receiver-id rule every reader applies (ids.receiver_id_problem): no space
+        (lambda b: b.update(receiver_id="rx 1"), 422, "not a receiver id"),
     ],
 )
 def test_bad_reports_are_rejected_whole(server: Running, tiny, mutate, status, words) -> None:

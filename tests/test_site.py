@@ -93,6 +93,7 @@ def test_irregular_survey_and_outside_policy():
 CASES = [
     ("receivers.csv", ",rx1", ",rx1bogus", 2, "pattern", "unknown pattern 'rx1bogus'"),
     ("receivers.csv", "rx2,", "rx1,", 3, "receiver_id", "duplicate receiver id 'rx1'"),
+    ("receivers.csv", "rx2,", "rx 2,", 3, "receiver_id", "not a receiver id"),
     ("receivers.csv", "receiver_id,", "rid,", 1, "receiver_id", "missing required column"),
     ("devices.csv", ",device,", ",nodevice,", 2, "pattern", "unknown pattern 'nodevice'"),
     ("devices.csv", ",15\n", ",abc\n", 2, "tx_power_dbm", "not a number"),

@@ -19,7 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from radiopose.errors import InputError
-from radiopose.ids import check_transmitter_ids, transmitter_id_problem
+from radiopose.ids import (
+    check_receiver_ids,
+    check_transmitter_ids,
+    receiver_id_problem,
+    transmitter_id_problem,
+)
 from radiopose.tables import Column, Table, read_table, reject_repeated_rows, write_table
 from radiopose.units import COORD_LIMIT_M, MAX_ABS_TIME_S, FloatArray
 
@@ -137,6 +142,7 @@ def read_packets_csv(path: str | os.PathLike[str]) -> Packets:
     """Read and validate ``packets.csv``."""
     t = read_table(path, PACKET_COLUMNS)
     check_transmitter_ids(t)
+    check_receiver_ids(t)
     return Packets(
         t["packet_id"],
         t["timestamp_s"],
@@ -318,6 +324,11 @@ def check_observation(
     n = len(packet.receiver_ids)
     if not all(isinstance(r, str) for r in packet.receiver_ids):
         raise InputError(f"{what}: receiver ids must be text", path=path, column="receiver_id")
+    for r in packet.receiver_ids:
+        if (problem := receiver_id_problem(r)) is not None:
+            raise InputError(
+                f"{what}: {problem}", path=path, line=packet.line, column="receiver_id"
+            )
     try:
         rss = np.asarray(packet.rss_dbm, dtype=np.float64)
     except (TypeError, ValueError):

@@ -35,7 +35,12 @@ import numpy as np
 
 from radiopose.config import Section, load_toml
 from radiopose.errors import InputError
-from radiopose.ids import check_transmitter_ids, transmitter_id_problem
+from radiopose.ids import (
+    check_receiver_ids,
+    check_transmitter_ids,
+    receiver_id_problem,
+    transmitter_id_problem,
+)
 from radiopose.patterns.pattern import Pattern, read_pattern_csv, write_pattern_csv
 from radiopose.site import (
     COORD_LIMIT_M,
@@ -561,6 +566,9 @@ def _check_site(where: _Where, parts: _SiteParts, settings_checked: bool = False
     _check_fields(where, "receivers", receivers, RECEIVER_COLUMNS)
     ids: dict[str, int] = {}
     for i, r in enumerate(receivers):
+        problem = receiver_id_problem(r.receiver_id)
+        if problem is not None:
+            raise where.row("receivers", i, "receiver_id", problem)
         if r.receiver_id in ids:
             raise where.row(
                 "receivers", i, "receiver_id", f"duplicate receiver id {r.receiver_id!r}"
@@ -752,6 +760,7 @@ def load_site(directory: str | os.PathLike[str]) -> Site:
     toml = _read_site_toml(root / "site.toml")
 
     rt = read_table(root / "receivers.csv", RECEIVER_COLUMNS)
+    check_receiver_ids(rt)
     receivers = tuple(
         Receiver(  # type: ignore[misc]  # mypy cannot count a generator's star-args
             str(rt["receiver_id"][i]),

@@ -20,6 +20,7 @@ from radiopose.capture.frames import (
     canonical_transmitter,
     transmitter_id_problem,
 )
+from radiopose.ids import check_receiver_ids
 from radiopose.tables import Column, read_table
 from radiopose.units import MAX_ABS_TIME_S, seconds_to_ns
 
@@ -55,6 +56,7 @@ def read_capture_csv(path: str | os.PathLike[str]) -> Capture:
         Any table error (file, line, column), a bad hash or transmitter id.
     """
     t = read_table(path, CSV_CAPTURE_COLUMNS)
+    check_receiver_ids(t)
     n = len(t)
     hashes = t["frame_sha256"]
     macs = t["transmitter"]

@@ -22,6 +22,7 @@ def _advance(bar: Any, task: Any, done: int) -> None:
 
 def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
     from radiopose.errors import InputError
+    from radiopose.ids import receiver_id_problem
 
     by_path = {p.resolve(): p for p in captures}
     out: dict[Path, str] = {}
@@ -30,8 +31,8 @@ def _receiver_map(pairs: list[str], captures: list[Path]) -> dict[Path, str]:
         rid = rid.strip()
         if not sep or not rid or not file:
             raise InputError(f"--receiver expects ID=FILE, got {item!r}")
-        if any(c in rid for c in ',\n\r"') or rid != rid.strip():
-            raise InputError(f"--receiver {item!r}: receiver id must not contain commas or quotes")
+        if (problem := receiver_id_problem(rid)) is not None:
+            raise InputError(f"--receiver {item!r}: {problem}")
         key = Path(file).resolve()
         if key not in by_path:
             raise InputError(f"--receiver {item!r}: unknown capture {file} (not among CAPTURE...)")

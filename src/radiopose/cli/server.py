@@ -271,6 +271,10 @@ def receiver(
         raise InputError("give exactly one of --replay CAPTURE or --interface IFACE")
     if not server.startswith(("http://", "https://")):
         raise InputError(f"--server must be an http:// or https:// URL, got {server!r}")
+    from radiopose.ids import receiver_id_problem
+
+    if (problem := receiver_id_problem(id)) is not None:
+        raise InputError(f"--id: {problem}")
     if not 1.0 <= batch_ms <= 10_000.0:
         raise InputError(f"--batch-ms must be 1-10000, got {batch_ms}")
     if replay is not None and not speed > 0:

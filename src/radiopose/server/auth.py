@@ -21,6 +21,7 @@ import secrets
 from dataclasses import dataclass
 
 from radiopose.errors import InputError
+from radiopose.ids import receiver_id_problem
 
 ROLES = ("admin", "receiver", "viewer")
 READ_ROLES = frozenset({"viewer", "admin"})
@@ -59,8 +60,8 @@ def check_role(role: str, receiver_id: str | None) -> None:
         raise InputError("--role receiver needs --receiver ID (the receiver it may post as)")
     if role != "receiver" and receiver_id:
         raise InputError(f"--receiver applies to --role receiver only, not {role!r}")
-    if receiver_id is not None and not (0 < len(receiver_id) <= 64):
-        raise InputError("--receiver must be 1 to 64 characters")
+    if receiver_id is not None and (problem := receiver_id_problem(receiver_id)) is not None:
+        raise InputError(f"--receiver: {problem}")
 
 
 def create_token(db: object, role: str, receiver_id: str | None = None) -> str:

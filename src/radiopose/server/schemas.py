@@ -27,7 +27,7 @@ from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
 
-from radiopose.ids import transmitter_id_problem
+from radiopose.ids import receiver_id_problem, transmitter_id_problem
 
 MAX_FRAMES_PER_BATCH = 5_000
 MAX_BODY_BYTES = 2_000_000
@@ -47,7 +47,18 @@ TransmitterId = Annotated[str, AfterValidator(_transmitter_id)]
 """A transmitter id as every reader checks it (:func:`radiopose.ids.transmitter_id_problem`:
 1–64 printable characters, no comma or whitespace); a 422 naming the rule."""
 
-_Id = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[^\x00-\x1f\x7f,]+$")]
+
+def _receiver_id(value: str) -> str:
+    problem = receiver_id_problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
+
+ReceiverId = Annotated[str, AfterValidator(_receiver_id)]
+"""A receiver id as every reader checks it (:func:`radiopose.ids.receiver_id_problem`:
+the transmitter ids' rule); a 422 naming the rule."""
+
 _Name = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[^\x00-\x1f\x7f]+$")]
 _Angle = Annotated[float, Field(strict=True, ge=-360.0, le=360.0, allow_inf_nan=False)]
 _Metres = Annotated[float, Field(strict=True, ge=-1e6, le=1e6, allow_inf_nan=False)]
@@ -71,7 +82,7 @@ class ReportBatch(BaseModel):
 
     model_config = ConfigDict(frozen=True)
 
-    receiver_id: _Id
+    receiver_id: ReceiverId
     batch_id: _Name
     frames: Annotated[list[FrameReport], Field(max_length=MAX_FRAMES_PER_BATCH)]
 

@@ -16,6 +16,7 @@ from typing import Any
 from fastapi import APIRouter, HTTPException
 
 from radiopose.capture.records import canonical_transmitter, transmitter_id_problem
+from radiopose.ids import receiver_id_problem
 from radiopose.server import sitestore
 from radiopose.server.db import Database
 from radiopose.server.deps import API, DB, Admin
@@ -75,7 +76,8 @@ def _apply(db: Database, change: Callable[[dict[str, Any]], dict[str, Any]]) -> 
 
 def put_receiver(receiver_id: str, body: ReceiverIn, who: Admin, db: DB) -> SiteOut:
     """Add or replace a receiver (its survey rows must exist)."""
-    _check_id(receiver_id)
+    if (problem := receiver_id_problem(receiver_id)) is not None:
+        raise HTTPException(422, problem)
 
     def change(p: dict[str, Any]) -> dict[str, Any]:
         rx = [r for r in p["receivers"] if r["receiver_id"] != receiver_id]
@@ -135,7 +137,7 @@ def delete_device(transmitter: str, who: Admin, db: DB) -> SiteOut:
 def put_pattern(name: str, body: CsvIn, who: Admin, db: DB) -> SiteOut:
     """Add or replace a pattern (CSV text of ``patterns/<name>.csv``), validated
     as a pattern file even while nothing uses it."""
-    _check_id(name)
+    _check_pattern_name(name)
     sitestore.check_pattern_csv(name, body.csv)
 
     def change(p: dict[str, Any]) -> dict[str, Any]:
@@ -164,10 +166,12 @@ def put_survey(body: CsvIn, who: Admin, db: DB) -> SiteOut:
     return _apply(db, change)
 
 
-def _check_id(value: str) -> None:
+def _check_pattern_name(value: str) -> None:
     if not (0 < len(value) <= 64) or any(c in value for c in ",/\\") or not value.isprintable():
         raise HTTPException(
-            422, f"{value[:70]!r} is not a valid id (1-64 printable characters, no comma or slash)"
+            422,
+            f"{value[:70]!r} is not a valid pattern name (1-64 printable characters, no "
+            "comma or slash: it names a file)",
         )
 
 
