@@ -36,6 +36,8 @@ def test_reads_and_ignores_extra_columns(tmp_path):
     ("text", "needle"),
     [
         ("name,azimuth_deg\na,1\n", "t.csv:1, column 'x_m': missing required column"),
+        # a binary header is shown escaped, on one line (helper-63: raw NULs reached the terminal)
+        ("\x00\x00\x1b[2J\r\x00,b\na,1\n", r"(header has: \x00\x00\x1b[2J"),
         ("x_m,name,azimuth_deg\nabc,a,1\n", "t.csv:2, column 'x_m': not a number"),
         ("x_m,name,azimuth_deg\n1_000,a,1\n", "t.csv:2, column 'x_m': not a number: '1_000'"),
         ("x_m,name,azimuth_deg\n\u0661,a,1\n", "t.csv:2, column 'x_m': not a number"),

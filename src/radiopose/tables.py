@@ -138,6 +138,14 @@ def _parse_number(text: str, col: Column, path: Path, line: int) -> float | int:
     return value
 
 
+def _shown(header: list[str]) -> str:
+    """A header for a one-line message: comma-joined, at most 200 characters, and
+    any non-printable character escaped (a binary file's NULs and newlines would
+    otherwise reach the terminal raw, or split the line)."""
+    text = ", ".join(header)
+    return (text if text.isprintable() else repr(text)[1:-1])[:200]
+
+
 def read_table(
     path: str | os.PathLike[str], columns: Sequence[Column], optional: Sequence[Column] = ()
 ) -> Table:
@@ -177,7 +185,7 @@ def read_table(
             for col in columns:
                 if col.name not in header:
                     raise InputError(
-                        f"missing required column (header has: {', '.join(header)[:200]})",
+                        f"missing required column (header has: {_shown(header)})",
                         path=p,
                         line=1,
                         column=col.name,
