@@ -767,3 +767,16 @@ def test_cli_simulate_pcap_bad_settings(
     code, _, err = _run(["simulate", "-o", str(tmp_path / "s"), "--pcap", *extra], capsys)
     assert code == 2 and message in err and err.count("\n") == 1
     assert not (tmp_path / "s").exists()
+
+
+def test_sync_of_captures_without_frames_names_them(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """CSV captures with a header only name no receiver: the one-line error names
+    the files (it named none; helper-63), and nothing is written."""
+    cap = tmp_path / "empty.csv"
+    cap.write_text("receiver_id,timestamp_s,frame_sha256,transmitter,rss_dbm\n")
+    code, _, err = _run(["sync", str(cap), "-o", str(tmp_path / "o.csv")], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert f"no frames of any receiver in {cap}" in err
+    assert not (tmp_path / "o.csv").exists()

@@ -139,6 +139,11 @@ def sync(
     else:
         caps = [read_capture(p, names.get(p)) for p in captures]
 
+    if not any(c.stats for c in caps):  # (only CSV captures name no receiver without rows)
+        from radiopose.errors import InputError
+
+        shown = ", ".join(str(p) for p in captures[:3]) + (" …" if len(captures) > 3 else "")
+        raise InputError(f"no frames of any receiver in {shown} (CSV captures with a header only?)")
     cfg = SyncConfig(
         tolerance_s=tolerance_ms / 1e3, reference=reference, max_drift_ppm=max_drift_ppm
     )
