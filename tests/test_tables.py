@@ -142,6 +142,22 @@ def test_staged_echo_names_the_target_not_the_stage(tmp_path):
     assert (out / "a.txt").read_text() == "x"
 
 
+def test_a_staged_directory_that_cannot_be_made_names_the_target():
+    """Where the staging directory cannot be made (/proc takes no new entry,
+    even from root), the error names the output directory, not the staging one
+    (helper-63: "/proc/.xx.lt32p8h4.staging: No such file or directory")."""
+    from pathlib import Path
+
+    from radiopose.tables import staged_directory
+
+    if not Path("/proc/self").is_dir():
+        pytest.skip("no /proc here (not Linux)")
+    with pytest.raises(InputError) as err, staged_directory("/proc/radiopose-out"):
+        pass
+    assert str(err.value).startswith("cannot write the output directory /proc/radiopose-out: ")
+    assert ".staging" not in str(err.value)
+
+
 def test_atomic_writer_writes_through_links_and_special_files(tmp_path):
     """A symbolic link's file is replaced (the link stays); a FIFO or a device is
     written, never replaced by a regular file (``-o /dev/null`` once did that)."""

@@ -516,8 +516,15 @@ def staged_directory(target: str | os.PathLike[str]) -> Iterator[Path]:
     """
     target = Path(target)
     check_output_paths(dirs=[target])
-    target.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".staging", dir=target.parent))
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(
+            tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".staging", dir=target.parent)
+        )
+    except OSError as exc:  # (named by the output, not by the staging directory's name)
+        raise InputError(
+            f"cannot write the output directory {target}: {exc.strerror or exc}"
+        ) from None
     try:
         yield stage
         entries = sorted(stage.iterdir())
