@@ -273,6 +273,27 @@ def test_pattern_import_bad_file_one_line(tmp_path, capsys):
     assert not (tmp_path / "p.png").exists()
 
 
+@pytest.mark.parametrize(
+    ("fmt", "options", "stray"),
+    [
+        ("mitll", ["--msi-mode", "sphere"], "--msi-mode"),
+        ("mitll", ["--keep-gain"], "--normalise/--keep-gain"),
+        ("msi", ["--mac", "aa:bb:cc:dd:ee:ff", "--step-deg", "2"], "--step-deg, --mac"),
+        ("basta", ["--msi-mode", "horizontal"], "--msi-mode"),
+    ],
+)
+def test_pattern_import_refuses_options_of_another_format(tmp_path, capsys, fmt, options, stray):
+    """An option the chosen format does not read is refused before any work,
+    not ignored (helper-63: --msi-mode with --format mitll did nothing)."""
+    out = tmp_path / "x.csv"
+    code, _, err = _run(
+        ["pattern", "import", str(tmp_path / "absent"), "-o", str(out), "--format", fmt, *options],
+        capsys,
+    )
+    _assert_one_line_failure(code, err, stray, f"does not apply to --format {fmt}")
+    assert not out.exists()
+
+
 def test_console_script_exit_status(tmp_path):
     src = tmp_path / "m.csv"
     src.write_text("motor_azimuth_deg,motor_elevation_deg\n0,90\n")

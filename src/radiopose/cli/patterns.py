@@ -261,22 +261,31 @@ def import_command(
         ImportFormat, typer.Option("--format", help="Input format.", show_default=False)
     ],
     msi_mode: Annotated[
-        MsiMode,
-        typer.Option("--msi-mode", help="msi: horizontal cut as a slice, or a full sphere."),
-    ] = MsiMode.horizontal,
+        MsiMode | None,
+        typer.Option(
+            "--msi-mode",
+            help="msi: horizontal cut as a slice, or a full sphere.",
+            show_default="horizontal",
+        ),
+    ] = None,
     normalise: Annotated[
-        bool,
+        bool | None,
         typer.Option(
             "--normalise/--keep-gain",
             help="msi/basta: rescale to mean intensity 0 dBi instead of the file's gain (dBi).",
+            show_default="--keep-gain",
         ),
-    ] = False,
+    ] = None,
     smooth_deg: Annotated[
-        float, typer.Option("--smooth-deg", help="mitll: smoothing half-width, degrees.")
-    ] = 5.0,
+        float | None,
+        typer.Option(
+            "--smooth-deg", help="mitll: smoothing half-width, degrees.", show_default="5"
+        ),
+    ] = None,
     step_deg: Annotated[
-        float, typer.Option("--step-deg", help="mitll: output azimuth step, degrees.")
-    ] = 1.0,
+        float | None,
+        typer.Option("--step-deg", help="mitll: output azimuth step, degrees.", show_default="1"),
+    ] = None,
     mac: Annotated[
         str | None,
         typer.Option(
@@ -289,15 +298,34 @@ def import_command(
     name: _NameOption = None,
 ) -> None:
     """Import a pattern from an industry file or real measurements into the contract CSV."""
+    given = {
+        "--msi-mode": msi_mode is not None,
+        "--normalise/--keep-gain": normalise is not None,
+        "--smooth-deg": smooth_deg is not None,
+        "--step-deg": step_deg is not None,
+        "--mac": mac is not None,
+    }
+    applies = {
+        ImportFormat.msi: ("--msi-mode", "--normalise/--keep-gain"),
+        ImportFormat.basta: ("--normalise/--keep-gain",),
+        ImportFormat.mitll: ("--smooth-deg", "--step-deg", "--mac"),
+    }[fmt]
+    stray = [option for option, on in given.items() if on and option not in applies]
+    if stray:  # an option the format does not read would be ignored without a word
+        raise InputError(f"{', '.join(stray)} does not apply to --format {fmt.value}")
     check_outputs_not_inputs([output, plot], [source])
     _check_plot(plot)
     pname = name or output.stem
     if fmt is ImportFormat.msi:
-        pattern = read_msi(source, mode=msi_mode.value, normalise=normalise, name=pname)
+        mode = (msi_mode or MsiMode.horizontal).value
+        pattern = read_msi(source, mode=mode, normalise=bool(normalise), name=pname)
     elif fmt is ImportFormat.basta:
-        pattern = read_basta_json(source, normalise=normalise, name=pname)
+        pattern = read_basta_json(source, normalise=bool(normalise), name=pname)
     else:
-        config = _enrol_config(smooth_deg=smooth_deg, azimuth_step_deg=step_deg)
+        config = _enrol_config(
+            smooth_deg=5.0 if smooth_deg is None else smooth_deg,
+            azimuth_step_deg=1.0 if step_deg is None else step_deg,
+        )
         pattern = read_mitll(source, config, mac=mac, name=pname)
     _write_outputs(pattern, output, plot)
     _summary(pattern, output)
