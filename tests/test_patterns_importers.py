@@ -367,6 +367,22 @@ def test_basta_bad_input(tmp_path, change, column, match, fragment):
     assert "\n" not in str(err.value)
 
 
+def test_basta_a_key_given_twice_is_refused_at_its_second_line(tmp_path):
+    """Two ``Gain`` members: JSON leaves which counts undefined, and json.loads
+    kept the last without a word (helper-63); now one line naming the key and
+    the line of its second appearance."""
+    text = json.dumps(_basta(), indent=1)
+    gain = text[text.index('"Gain"') : text.index("}", text.index('"Gain"')) + 1]
+    twice = text.replace(gain, gain + ",\n " + gain.replace('"value": 15.0', '"value": 3.0'), 1)
+    assert twice.count('"Gain"') == 2
+    path = tmp_path / "twice.json"
+    path.write_text(twice)
+    with pytest.raises(InputError, match="key 'Gain' appears twice") as err:
+        read_basta_json(path)
+    second = twice.index('"Gain"', twice.index('"Gain"') + 1)
+    assert err.value.line == twice.count("\n", 0, second) + 1 and err.value.column == "Gain"
+
+
 def test_basta_missing_key_and_row_count(tmp_path):
     d = _basta()
     del d["Gain"]

@@ -288,16 +288,36 @@ def _decode_rows(text: str, i: int, decoder: json.JSONDecoder) -> tuple[FloatArr
         i = _skip_ws(text, i + 1)
 
 
+class _RepeatedKeyError(Exception):
+    """A key given twice in one JSON object."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
+
+
+def _unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``object_pairs_hook`` of :func:`json.loads`: a dict, refusing a repeated key
+    (``json.loads`` alone keeps the last: a file with two ``Gain`` values would be
+    read with one of them, without a word)."""
+    out: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in out:
+            raise _RepeatedKeyError(key)
+        out[key] = value
+    return out
+
+
 def _decode(text: str) -> dict[str, Any] | None:
     """``json.loads(text)`` of a BASTA object, with ``Data_Set`` decoded straight into
     a float array (:func:`_decode_rows`) instead of a list of lists: 8 bytes a value
     instead of about 60 (a float object and a list slot, plus a list per row).
 
     Each member is decoded by :meth:`json.JSONDecoder.raw_decode` (the same scanner
-    as :func:`json.loads`, the last of repeated keys wins as there). ``None`` for
-    anything else — not an object, a syntax error, a ``Data_Set`` that is not a
-    plain table of numbers — so :func:`json.loads` reads the file again and its
-    error, or the row checks, say what is wrong.
+    as :func:`json.loads`). ``None`` for anything else — not an object, a syntax
+    error, a key given twice, a ``Data_Set`` that is not a plain table of
+    numbers — so :func:`json.loads` reads the file again and its error, or the
+    row checks, say what is wrong.
     """
     decoder = json.JSONDecoder()
     out: dict[str, Any] = {}
@@ -311,7 +331,7 @@ def _decode(text: str) -> dict[str, Any] | None:
                 return None
             key, i = decoder.raw_decode(text, i)
             i = _skip_ws(text, i)
-            if text[i] != ":":
+            if text[i] != ":" or key in out:
                 return None
             i = _skip_ws(text, i + 1)
             if key == "Data_Set" and text[i] == "[":
@@ -462,7 +482,16 @@ def read_basta_json(
     data: Any = _decode(text)
     if data is None:  # json.loads names the syntax error; the row checks a bad row
         try:
-            data = json.loads(text)
+            data = json.loads(text, object_pairs_hook=_unique_keys)
+        except _RepeatedKeyError as exc:
+            spots = [m.start() for m in re.finditer(re.escape(json.dumps(exc.key)) + r"\s*:", text)]
+            raise InputError(
+                f"key {exc.key!r} appears twice in one object (JSON leaves which one counts "
+                "undefined)",
+                path=p,
+                line=text.count("\n", 0, spots[1]) + 1 if len(spots) > 1 else None,
+                column=exc.key,
+            ) from None
         except json.JSONDecodeError as exc:
             raise InputError(
                 f"invalid JSON: {exc.msg} (column {exc.colno})", path=p, line=exc.lineno
