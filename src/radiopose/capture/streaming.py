@@ -116,6 +116,12 @@ class StreamingMatcher:
         self._amb_frames = 0
         self._mixed_tx = 0
 
+    def set_clocks(self, clocks: Mapping[str, ClockModel]) -> None:
+        """Use ``clocks`` for the frames pushed from now on (a re-estimate of the
+        receivers' clocks; frames already pushed keep the times they were given).
+        Missing receivers use the reference clock."""
+        self._clocks = _clock_list(self.receivers, clocks)
+
     @property
     def open_frames(self) -> int:
         """Frames held in open chains (the matcher's memory)."""

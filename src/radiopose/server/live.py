@@ -103,6 +103,12 @@ class LiveConfig:
         Reference-receiver clock span buffered before estimating clocks, s.
     calibration_max_frames
         Buffer at most this many frames before estimating clocks.
+    clock_refresh_s, clock_window_s
+        After the calibration, the receivers' clocks are estimated again every
+        ``clock_refresh_s`` seconds of reference-clock time from the frames of
+        the last ``clock_window_s`` seconds (a clock drifts, NTP slews or steps
+        it, a receiver joins late or reboots), and as soon as a receiver
+        without a clock model has ``calibration_s`` of frames.
     idle_flush_s
         Close open packets (and end calibration) after this long without a
         new batch, wall seconds, counted from the end of the step that
@@ -125,6 +131,8 @@ class LiveConfig:
     max_lag_s: float = 5.0
     calibration_s: float = 3.0
     calibration_max_frames: int = 20_000
+    clock_refresh_s: float = 10.0
+    clock_window_s: float = 30.0
     idle_flush_s: float = 5.0
     checkpoint_s: float = 1.0
     lagged_commit_s: float = 0.25
@@ -135,6 +143,11 @@ class LiveConfig:
     partitions: int = 1
 
     def __post_init__(self) -> None:
+        if not (0.0 < self.clock_refresh_s < math.inf and 0.0 < self.clock_window_s < math.inf):
+            raise ValueError(
+                f"clock_refresh_s and clock_window_s must be > 0, got {self.clock_refresh_s!r} "
+                f"and {self.clock_window_s!r}"
+            )
         for name in ("lagged_commit_s", "lagged_checkpoint_s"):
             if not 0.0 <= getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
@@ -259,6 +272,12 @@ class LivePipeline:
         self._resumed = False
         self._unsaved: list[dict[str, Any]] = []  # output of steps not yet committed
         self._committed_cursor = -1
+        # the frames of the last clock_window_s, for the clocks' re-estimates: not
+        # checkpointed (a restart refills it; the checkpoint keeps the clocks)
+        self._clock_frames: deque[tuple[tuple[str, int, str, str, float], int]] = deque()
+        self._clock_newest_ns: int | None = None
+        self._clock_due_ns: int | None = None
+        self._unclocked_since_ns: dict[str, int] = {}
         self._load()
 
     # ------------------------------------------------------------------ state
@@ -276,6 +295,7 @@ class LivePipeline:
         self.tracker = None
         self._unsaved = []  # output not committed is re-derived from the checkpoint
         self._committed_cursor = self.state.cursor
+        self._forget_clock_frames()  # (they are read again from the checkpoint's cursor)
         # after a restart, give the receivers time to resend before an idle flush
         self.state.last_batch_wall_s = time.time()
 
@@ -367,6 +387,7 @@ class LivePipeline:
         st.matcher = None
         st.calibration = []
         st.clocks = {}
+        self._forget_clock_frames()
         log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
 
     def _drop_ahead(self) -> None:
@@ -531,7 +552,73 @@ class LivePipeline:
         if last_ns is not None:
             ref = int(st.clocks[b.receiver_id].to_reference_ns(np.array([last_ns]))[0])
             st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append((ref, b.received_s))
+            self._track_clocks(b.receiver_id, rows)
         return self._handle(st.matcher.push(_frames(rows)), b.received_s)
+
+    def _forget_clock_frames(self) -> None:
+        """Empty the frames kept for the clocks' re-estimates (a frame read twice
+        would make its hash ambiguous, and so unusable as a pair)."""
+        self._clock_frames.clear()
+        self._clock_newest_ns = None
+        self._clock_due_ns = None
+        self._unclocked_since_ns = {}
+
+    def _track_clocks(self, receiver_id: str, rows: list[tuple[str, int, str, str, float]]) -> None:
+        """Keep the frames of the last ``clock_window_s`` (by reference-clock time)
+        and re-estimate the clocks when due (:meth:`_refresh_clocks`)."""
+        st = self.state
+        cfg = self.config
+        clock = st.clocks[receiver_id]
+        ref_ns = clock.to_reference_ns(np.fromiter((r[1] for r in rows), np.int64, len(rows)))
+        buf = self._clock_frames
+        buf.extend(zip(rows, ref_ns.tolist(), strict=True))
+        newest = int(ref_ns.max())
+        if self._clock_newest_ns is None or newest > self._clock_newest_ns:
+            self._clock_newest_ns = newest
+        newest = self._clock_newest_ns
+        cutoff = newest - round(cfg.clock_window_s * _NS)
+        while buf and buf[0][1] < cutoff:
+            buf.popleft()
+        if self._clock_due_ns is None:
+            self._clock_due_ns = newest + round(cfg.clock_refresh_s * _NS)
+        due = newest >= self._clock_due_ns
+        if clock.method == "none":  # a receiver without a model: as soon as it can have one
+            since = self._unclocked_since_ns.setdefault(receiver_id, int(ref_ns.min()))
+            due = due or int(ref_ns.max()) - since >= round(cfg.calibration_s * _NS)
+        if due:
+            self._refresh_clocks()
+
+    def _refresh_clocks(self) -> None:
+        """Estimate every receiver's clock again from the frames kept
+        (:func:`~radiopose.capture.sync.estimate_clocks` against the same
+        reference); a receiver without enough pairs keeps its model. The
+        matcher applies the new models to the frames pushed from now on."""
+        st = self.state
+        cfg = self.config
+        assert st.matcher is not None and self._clock_newest_ns is not None
+        self._clock_due_ns = self._clock_newest_ns + round(cfg.clock_refresh_s * _NS)
+        self._unclocked_since_ns.clear()  # (a receiver still without a model tries again)
+        ref = next((r for r, m in st.clocks.items() if m.method == "reference"), None)
+        frames = _frames([row for row, _ in self._clock_frames])
+        heard = set(frames.receiver_id.tolist())
+        if ref is None or ref not in heard:
+            return  # the reference is silent: the models extrapolate until it is back
+        sync_cfg = SyncConfig(
+            tolerance_s=cfg.tolerance_s, reference=ref, max_lag_s=cfg.max_lag_s, min_pairs=5
+        )
+        fresh = estimate_clocks(frames, [r for r in st.receivers if r in heard], sync_cfg)
+        changed = {}
+        for r, m in fresh.items():
+            if r == ref or m.method == "none":
+                continue
+            if st.clocks[r].method != m.method:
+                changed[r] = [m.offset_s, m.drift_ppm, m.method]
+            st.clocks[r] = m
+        st.matcher.set_clocks(st.clocks)
+        c = st.counts
+        c["clock_estimates"] = c.get("clock_estimates", 0) + 1
+        if changed:
+            log.info("clock models changed", extra={"clocks": changed})
 
     def _calibration_ready(self) -> bool:
         buf = self.state.calibration or []
