@@ -572,3 +572,25 @@ def test_a_receiver_that_joins_late_gets_a_clock(drifting, tmp_path: Path) -> No
     heard = _live_receptions(site_dir, late_frames, tmp_path / "l.db")
     # about 50 packets before it joins are heard by two; a few while it calibrates
     assert heard.get(3, 0) >= all_three - 60 and heard.get(1, 0) <= 20
+
+
+def test_chains_dropped_at_the_idle_flush_are_counted_in_the_summary(tiny, tmp_path: Path) -> None:
+    """One hash heard twice by rx1 and once by rx2: the idle flush drops the chain
+    (duplicated at a receiver), and the summary /health shows says so, although
+    the flush emitted nothing (it kept 'open_frames: 3' and no count; helper-64)."""
+    db = Database(f"sqlite:///{tmp_path / 'dup.db'}")
+    import_site_dir(db, tiny.site_dir)
+    h, tx = "ab" * 32, tiny.transmitter
+    db.store_batch(
+        "rx1", "dup-1", [(500_000_000_000, h, tx, -50.0), (500_001_000_000, h, tx, -51.0)]
+    )
+    db.store_batch("rx2", "dup-2", [(500_000_500_000, h, tx, -52.0)])
+    p = LivePipeline(db, fast_live(method="full", idle_flush_s=1e6))
+    p.step()
+    p.config = fast_live(method="full", idle_flush_s=0.0)
+    p.step()
+    summary = db.summaries()[p.config.partition_key]
+    db.close()
+    assert summary["open_frames"] == 0 and summary["phase"] == "matching"
+    assert (summary["ambiguous_duplicate"], summary["ambiguous_spread"]) == (1, 0)
+    assert summary["ambiguous_frames"] == 3

@@ -507,7 +507,8 @@ class LivePipeline:
             # close the chains whose frames arrived meanwhile.
             st.last_batch_wall_s = time.time()
         idle_s = now - st.last_batch_wall_s
-        if not batches and not st.flushed and idle_s >= self.config.idle_flush_s:
+        flushed = not batches and not st.flushed and idle_s >= self.config.idle_flush_s
+        if flushed:
             emitted += self._idle_flush(now)
         # Output is committed with the state that produced it, or (a lagged method,
         # whose state is large) ahead of it; a crash re-derives what the last
@@ -517,9 +518,13 @@ class LivePipeline:
         self._unsaved += emitted
         lagged = self.tracker is not None and self.tracker.lag_s is not None
         wait_s = self.config.lagged_commit_s if lagged else 0.0
-        if (self._unsaved and now - self._last_commit_s >= wait_s) or (
-            st.cursor != self._committed_cursor
-            and now - self._last_commit_s >= self.config.checkpoint_s
+        if (
+            (self._unsaved and now - self._last_commit_s >= wait_s)
+            or (
+                st.cursor != self._committed_cursor
+                and now - self._last_commit_s >= self.config.checkpoint_s
+            )
+            or flushed  # (even with no output: /health then shows the closed chains' counts)
         ):
             self._commit(self._unsaved)
             self._unsaved = []
@@ -835,6 +840,11 @@ class LivePipeline:
             "late_frames": 0 if matcher is None else matcher.counts.late_frames,
             # chains dropped for naming two transmitters for one hash (inconsistent reports)
             "ambiguous_transmitter": 0 if matcher is None else matcher.counts.ambiguous_transmitter,
+            # ... for a hash heard twice by one receiver, or spread over more than the
+            # tolerance, and the frames of every dropped chain (as sync reports them)
+            "ambiguous_duplicate": 0 if matcher is None else matcher.counts.ambiguous_duplicate,
+            "ambiguous_spread": 0 if matcher is None else matcher.counts.ambiguous_spread,
+            "ambiguous_frames": 0 if matcher is None else matcher.counts.ambiguous_frames,
             "clocks": {
                 r: {"offset_s": m.offset_s, "drift_ppm": m.drift_ppm, "method": m.method}
                 for r, m in st.clocks.items()
