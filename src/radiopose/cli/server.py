@@ -279,6 +279,14 @@ def receiver(
         raise InputError(f"--batch-ms must be 1-10000, got {batch_ms}")
     if replay is not None and not speed > 0:
         raise InputError(f"--speed must be > 0, got {speed}")
+    if replay is not None and speed * batch_ms / 1000.0 > 1.0:
+        typer.echo(
+            f"radiopose: warning: --speed {speed:g} puts {speed * batch_ms / 1000.0:g} s of "
+            "capture in each batch; receivers replayed side by side then drift apart by "
+            "seconds of capture, and the server drops the frames of one more than 5 s "
+            "(max_lag_s) behind the leading one as late: --speed 10 or less keeps them",
+            err=True,
+        )
     try:
         from radiopose.receiver import (
             AgentConfig,
