@@ -170,6 +170,21 @@ def test_agent_spools_while_the_server_is_down(tiny, db_url: str, tmp_path: Path
     db.close()
 
 
+def test_a_rejected_batch_keeps_the_servers_reason(server: Running, tiny, tmp_path: Path) -> None:
+    """A batch the server refuses (here rx2's token posting as rx1: 403) is kept
+    in rejected/ with the server's answer beside it, and the agent's count and
+    last reason say why (it said only "rejected"; helper-64)."""
+    agent = _agent(server.url, server.tokens["rx2"], "rx1", tmp_path / "spool")
+    agent.submit(tiny.frames["rx1"].take(slice(0, 5)))
+    assert agent.drain(20)
+    agent.close()
+    assert agent.stats.rejected == 1
+    assert agent.stats.last_rejection.startswith("403") and "rx2" in agent.stats.last_rejection
+    (kept,) = (agent.spool.dir / "rejected").glob("*.json")
+    reason = kept.with_suffix(".reason.txt").read_text(encoding="utf-8")
+    assert reason.strip() == agent.stats.last_rejection
+
+
 def _serve(db_url: str, site: Path, port: int, log: Path, **popen: object) -> subprocess.Popen:
     with open(log, "ab") as err:
         return subprocess.Popen(

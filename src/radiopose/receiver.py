@@ -123,6 +123,8 @@ class AgentStats:
     resends: int = 0
     spooled: int = 0
     rejected: int = 0
+    last_rejection: str = ""
+    """The server's answer to the last rejected batch (status and detail)."""
     errors: list[str] = field(default_factory=list)
 
 
@@ -159,12 +161,16 @@ class Spool:
     def remove(self, path: Path) -> None:
         path.unlink(missing_ok=True)
 
-    def reject(self, path: Path | None, batch: dict[str, Any]) -> Path:
+    def reject(self, path: Path | None, batch: dict[str, Any], reason: str = "") -> Path:
+        """Move ``batch`` to ``rejected/``, with the server's ``reason`` beside it
+        (``<batch>.reason.txt``)."""
         dest = self.dir / "rejected" / f"{batch['batch_id'].replace(':', '_')}.json"
         if path is not None:
             os.replace(path, dest)
         else:
             dest.write_text(json.dumps(batch), encoding="utf-8")
+        if reason:
+            dest.with_suffix(".reason.txt").write_text(reason + "\n", encoding="utf-8")
         return dest
 
 
@@ -360,9 +366,11 @@ class ReceiverAgent:
                 with self._lock:
                     if path is None and self._queue and self._queue[0] is batch:
                         self._queue.popleft()
-                    dest = self.spool.reject(path, batch)
+                    dest = self.spool.reject(path, batch, self.stats.last_rejection)
                 self.stats.rejected += 1
-                log.warning("batch rejected by the server; kept in %s", dest)
+                log.warning(
+                    "batch rejected by the server (%s); kept in %s", self.stats.last_rejection, dest
+                )
                 continue
             # retry later: make sure it is on disk, then back off
             if path is None:
@@ -405,6 +413,7 @@ class ReceiverAgent:
             self._note(f"server answered {r.status_code}")
             return "retry"
         detail = _detail(r)
+        self.stats.last_rejection = f"{r.status_code} {detail}"
         self._note(f"server rejected batch {batch['batch_id']}: {r.status_code} {detail}")
         if r.status_code == 422 and "not enrolled" in detail:
             return "refilter"

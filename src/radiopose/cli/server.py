@@ -345,8 +345,8 @@ def receiver(
         )
     if st.rejected:
         raise InputError(
-            f"{st.rejected} batches were rejected by the server; kept in "
-            f"{agent.spool.dir / 'rejected'}"
+            f"{st.rejected} batches were rejected by the server (the last: "
+            f"{st.last_rejection}); kept in {agent.spool.dir / 'rejected'}"
         )
 
 
