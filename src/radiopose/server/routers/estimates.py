@@ -45,6 +45,7 @@ def estimates(
     uncertainty columns (``position_std_m``, ``azimuth_std_deg``) where the
     method gives them, and ``spoof_alarm_flag`` (1 inside a raised spoofing
     alarm, :mod:`radiopose.server.alarms`)."""
+    transmitter = _canonical(transmitter)
     rows = db.estimates(transmitter, since_s, limit=limit)
     return flag_estimates(rows, db.alarms(transmitter, limit=100_000)) if rows else rows
 
@@ -57,7 +58,17 @@ def alarms(
     limit: Annotated[int, Query(ge=1, le=100_000)] = 1_000,
 ) -> list[dict[str, Any]]:
     """Spoofing alarm events (``raised``/``cleared``) in time order."""
-    return db.alarms(transmitter, since_s, limit=limit)
+    return db.alarms(_canonical(transmitter), since_s, limit=limit)
+
+
+def _canonical(transmitter: str | None) -> str | None:
+    """A queried id in the form reports are matched in (a MAC ``AA-BB-…`` as
+    ``aa:bb:…``; the database compares ids case-insensitively), so a query
+    finds what the reports in either spelling made (helper-64: the dash form
+    that reports accept found nothing)."""
+    from radiopose.capture.records import canonical_transmitter
+
+    return None if transmitter is None else canonical_transmitter(transmitter)
 
 
 async def stream(
