@@ -102,6 +102,20 @@ def test_azimuth_only_error_is_wrapped_difference(a, b):
     assert e == pytest.approx(r, abs=1e-6)
 
 
+@settings(max_examples=100, deadline=None)
+@given(st.floats(0, 360), st.floats(-89, 89), st.floats(-180, 180))
+def test_a_flat_estimate_of_a_tilted_pose_counts_the_tilt(az, pitch, roll):
+    """A flat (azimuth-only) estimate scored against a tilted truth, or the
+    reverse, is the relative rotation angle, not the azimuth difference: the
+    shortcut is for poses flat on both sides (a mutant applying it when only
+    one side was flat scored a 2-D method on hand-held data as perfect)."""
+    for est, true in (([az, 0, 0], [az, pitch, roll]), ([az, pitch, roll], [az, 0, 0])):
+        e = orientation_error_deg(est, true)[0]
+        assert e == pytest.approx(relative_rotation_angle_deg(est, true)[0], abs=1e-9)
+    assert orientation_error_deg([10, 0, 0], [10, 30, 0])[0] == pytest.approx(30.0, abs=1e-9)
+    assert orientation_error_deg([0, 0, 0], [0, 0, 20])[0] == pytest.approx(20.0, abs=1e-9)
+
+
 def test_seeded_rotation_invariance():
     """Rotating device and target together leaves pattern angles unchanged."""
     rng = np.random.default_rng(11)
