@@ -330,8 +330,13 @@ def test_bad_filter_settings_are_one_line_errors(field, value):
         FilterConfig(**{field: value})
 
 
-def test_heard_outliers_do_not_throw_the_track(sim_half_db, scorer):
-    """One receiver 15 dB off in one packet of five."""
+@pytest.mark.parametrize("causal", [False, True])
+def test_heard_outliers_do_not_throw_the_track(sim_half_db, scorer, causal):
+    """One receiver 15 dB off in one packet of five, offline and causal (what
+    the live server runs). The offline passes alone absorb it (0.09 m / 0.61°
+    with or without the outlier mixture); the causal filter needs the mixture:
+    0.37 m / 4.4° with it, 1.22 m / 23.6° with a plain Gaussian (helper-65's
+    mutant F13 survived the offline test alone)."""
     p = sim_half_db.packets
     rss = p.rss_dbm.copy()
     first_rows = np.unique(p.packet_id, return_index=True)[1]
@@ -340,9 +345,9 @@ def test_heard_outliers_do_not_throw_the_track(sim_half_db, scorer):
     sim = replace(
         sim_half_db, packets=Packets(p.packet_id, p.timestamp_s, p.transmitter, p.receiver_id, rss)
     )
-    run = _run(sim, scorer, TrackerConfig())
-    assert run.position_error_m.mean() < 0.4
-    assert run.orientation_error_deg.mean() < 4.0
+    run = _run(sim, scorer, TrackerConfig(smoothing_lag_s=None) if causal else TrackerConfig())
+    assert run.position_error_m.mean() < (0.6 if causal else 0.4)
+    assert run.orientation_error_deg.mean() < (8.0 if causal else 4.0)
 
 
 def test_heard_rss_kernel_matches_the_likelihood_model(sim_half_db):
