@@ -379,6 +379,28 @@ def test_the_power_offset_is_carried_over_a_silence(sim_half_db):
     assert st.last_time_s == pytest.approx(t0 + 121.0, abs=0.01)
 
 
+def test_a_smoothed_estimate_states_the_filters_own_uncertainty(sim_half_db):
+    """The fixed-lag smoother's estimate reports the causal filter's spread at
+    that packet (the genealogy collapses to a few ancestors: its own spread was
+    45 times too small, 0.03 m against 1.39 m on a pinned run, and only a pin
+    held the rule; helper-65's mutant F08): the same uncertainties as the causal
+    run, a different (smoothed) position."""
+    from radiopose.tracker import locate
+
+    fc = replace(FilterConfig(), live_resolve_times_s=())
+    runs = {
+        lag: locate(sim_half_db.site, sim_half_db.packets, "filter",
+                    TrackerConfig(smoothing_lag_s=lag, filter=fc)).estimates
+        for lag in (None, 0.25)
+    }  # fmt: skip
+    causal, smoothed = runs[None], runs[0.25]
+    assert list(causal.packet_id) == list(smoothed.packet_id)
+    np.testing.assert_array_equal(smoothed.position_std_m, causal.position_std_m)
+    np.testing.assert_array_equal(smoothed.azimuth_std_deg, causal.azimuth_std_deg)
+    assert np.abs(smoothed.position_m - causal.position_m).max() > 0.01
+    assert np.median(smoothed.position_std_m) > 0.05
+
+
 def test_heard_rss_kernel_matches_the_likelihood_model(sim_half_db):
     """Off-grid expected RSS at a grid candidate equals the likelihood's exact value."""
     from radiopose.likelihood import expected_rss_dbm
