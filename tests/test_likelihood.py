@@ -235,3 +235,19 @@ def test_memo_scorer_hands_out_the_inner_one_thread_twin(tiny_sim):
     heard = space.heard(group_packets(tiny_sim.packets)[0])
     _assert_same(model.scorer.score_heard(heard, 10), memo.score_heard(heard, 10))
     assert not hasattr(MemoScorer(TableScorer(space)), "with_parallel")
+
+
+def test_the_free_power_profile_by_hand():
+    """``profile_offset_db`` against two cases worked by hand (its formula was
+    covered only through the filter's chaotic runs; helper-65's mutant L01
+    dropped the prior's term from the cost):
+    residuals (3, 3, 3), 3 readings, σ 1 dB, prior 0 ± 1 dB: λ = 3, λ₀ = 1,
+    offset 9/4, cost ½·(3−9/4)²·3 + ½·(9/4)² = 27/8; residuals (1, 2, 6),
+    6 readings, σ 2 dB, prior 1 ± 0.5 dB: λ = 3/2, λ₀ = 4, offset 17/11, cost
+    ¼·(36 + 25 + 2401)/121 + 2·(6/11)² = 2750/484."""
+    from radiopose.likelihood.power import profile_offset_db
+
+    off, cost, lam = profile_offset_db(np.array([[3.0, 3, 3]]), 3, 1.0, 0.0, 1.0)
+    assert (off[0], cost[0], lam) == (pytest.approx(9 / 4), pytest.approx(27 / 8), 3.0)
+    off, cost, lam = profile_offset_db(np.array([[1.0, 2, 6]]), 6, 2.0, 1.0, 0.5)
+    assert (off[0], cost[0], lam) == (pytest.approx(17 / 11), pytest.approx(2750 / 484), 1.5)
