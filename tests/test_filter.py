@@ -401,6 +401,28 @@ def test_a_smoothed_estimate_states_the_filters_own_uncertainty(sim_half_db):
     assert np.median(smoothed.position_std_m) > 0.05
 
 
+def test_sigma_from_the_packets_own_differences(sim_half_db):
+    """σ is never told: with the filter's fit 5 dB off (a wrong lock inflates
+    it), the packets' own estimate — successive readings of a receiver 5 ms
+    apart, ``median(d²) / (2 · 0.4549)`` — gives the noise, 1 dB here, within
+    10 % after 200 packets (helper-65's mutant F06, ``/ 0.4549``, which reads
+    σ² twice too large, changed no test)."""
+    space = candidate_space(sim_half_db.site, sim_half_db.site.devices[0].transmitter)
+    pf = ParticleFilter(FilterModel.build(sim_half_db.site, space, None), FilterConfig())
+    st = pf.new_state(0)
+    rng = np.random.default_rng(77)
+    n, h = 50, 4
+    S = np.zeros((n, K.N_COLUMNS))
+    mean = np.array([-60.0, -55.0, -70.0, -65.0])
+    pred = np.tile(mean + 5.0, (n, 1))  # the fit's pose 5 dB off at every receiver
+    w = np.full(n, 1.0 / n)
+    for k in range(200):
+        heard = HeardRss(np.arange(h), mean + rng.normal(0.0, 1.0, h))
+        pf._update_sigma(st, S, pred, heard, w, 0.005 * k)
+    assert np.sqrt(st.fit2_db2) > 3.0  # the fit alone would say several dB
+    assert np.sqrt(st.sigma2_db2) == pytest.approx(1.0, rel=0.1)
+
+
 def test_heard_rss_kernel_matches_the_likelihood_model(sim_half_db):
     """Off-grid expected RSS at a grid candidate equals the likelihood's exact value."""
     from radiopose.likelihood import expected_rss_dbm
