@@ -335,3 +335,43 @@ def test_devices_of_one_pattern_and_power_share_the_scorer_tables(small_sim, met
         for g, e in zip(got, expect, strict=True):
             if e is not None:
                 assert g.position_m == e.position_m and g.orientation_deg == e.orientation_deg
+
+
+def test_the_bounded_search_window_is_the_motion_bounds_plus_half_a_cell():
+    """``search = "bounded"``: 10 ms after a pose at azimuth 100° on a 1° grid,
+    the azimuth window is the rotation bound (360°/s × 10 ms = 3.6°) plus half a
+    cell each side, [95.9°, 104.1°], and the positions those within the movement
+    bound (10 m/s × 10 ms) plus half the cell diagonal (helper-65's mutant M04,
+    which dropped the half cell, was held by a pin only)."""
+    from types import SimpleNamespace
+
+    from radiopose.likelihood import HeardRss
+    from radiopose.tracker import METHODS, TrackerConfig, TrackState
+    from radiopose.tracker.paper import _Grid
+
+    calls = []
+    spy = SimpleNamespace(
+        supports_window=True,
+        score_window=lambda heard, k, positions, lo, span: calls.append((positions, lo, span)),
+        score_heard=lambda heard, k: calls.append("whole grid"),
+    )
+    g = np.arange(0.0, 2.01, 0.1)
+    xx, yy = np.meshgrid(g, g, indexing="ij")
+    space = SimpleNamespace(
+        positions_m=np.column_stack([xx.ravel(), yy.ravel(), np.ones(xx.size)]),
+        n_positions=xx.size,
+    )
+    device = SimpleNamespace(
+        config=TrackerConfig(search="bounded"), scorer=spy, space=space,
+        engine=_Grid(half_diagonal_m=0.05 * np.sqrt(2.0), n_azimuth=360),
+    )  # fmt: skip
+    state = TrackState(
+        last_time_s=1.0, position_time_s=1.0, position_m=(1.0, 1.0, 1.0),
+        orientation_time_s=1.0, orientation_deg=(100.0, 0.0, 0.0),
+    )  # fmt: skip
+    METHODS["full"].score(device, HeardRss(np.arange(4), np.zeros(4)), 1.01, state)
+    ((positions, lo, span),) = calls
+    assert lo == pytest.approx(95.9) and span == pytest.approx(8.2)
+    d = np.linalg.norm(space.positions_m[positions] - [1.0, 1.0, 1.0], axis=1)
+    assert d.max() <= 0.1 + 0.05 * np.sqrt(2.0) + 1e-9
+    assert len(positions) == 9  # (1 ± 0.1, 1 ± 0.1): the 3 × 3 cells within 0.171 m
