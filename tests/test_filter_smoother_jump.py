@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from filter_support import tracker_before_angular_noise
+from filter_support import require_wrong_mode, tracker_before_angular_noise
 from radiopose.evaluate.demo import build_scorer, run_methods
 from radiopose.simulate import ScenarioConfig, simulate
 
@@ -57,8 +57,9 @@ def test_backward_smoother_keeps_the_past_of_a_jump(runs) -> None:
         return float(run.orientation_error_deg[t < t0 + 0.2].mean())
 
     lineage, backward = first_fifth_s(out["lineage"]), first_fifth_s(out["backward"])
-    assert lineage > 25.0  # the genealogy's made-up past (measured 51.5°)
     assert backward < 8.0  # measured 1.1°
+    # the genealogy's made-up past (measured 51.5°) is a chaotic wrong mode
+    require_wrong_mode(lineage, 25.0, "lineage")
     # and over the whole run no worse than the genealogy
     whole = {k: float(r.orientation_error_deg.mean()) for k, r in out.items()}
     assert whole["backward"] < whole["lineage"]
