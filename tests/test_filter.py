@@ -1,7 +1,8 @@
 """The Bayesian tracker (method ``filter``): every packet answered, bounds with a
 safety margin on seeded standard scenarios, and each part shown to matter
 (removing the motion model, the re-entry of grid hypotheses or the power-offset
-state breaks a test below).
+state breaks a test below; the motion kernel's own arithmetic is checked in
+test_filter_kernels.py).
 
 Seeds 4201–4203 are used here only (the filter was tuned on 7000–7011 and is
 reported on 1000–1009, docs/filter.md).

@@ -319,3 +319,25 @@ def test_split_packet_update_gives_the_numbers_of_one_call(monkeypatch):
     for a, b in zip(*out, strict=True):
         np.testing.assert_array_equal(a, b)
     assert not np.array_equal(out[0][0], S)  # the particles moved
+
+
+def test_predict_without_noise_is_constant_velocity_and_turn_rate():
+    """With zero noise ``predict`` moves each particle by ``v dt`` and turns it by
+    ``ω dt`` (trapezoid of equal end points), leaves pitch and roll where a
+    frozen ``tilt_box`` holds them, and reflects a position that leaves the box
+    (helper-65's mutant F12, which dropped ``v dt``, passed test_filter.py)."""
+    import math
+
+    S = np.zeros((2, K.N_COLUMNS))
+    S[:, K.X_M], S[:, K.Y_M] = [1.0, 9.9], [2.0, 5.0]
+    S[:, K.VX_MPS], S[:, K.VY_MPS] = [1.5, 1.0], [-0.5, 0.0]
+    S[:, K.AZIMUTH_RAD], S[:, K.RATE_RAD_S] = [0.1, 6.2], [0.4, 1.0]
+    noise = np.zeros((2, 5))
+    box = np.array([0.0, 10.0, 0.0, 10.0])
+    K.predict(S, noise, 0.2, 1.0, 1.0, 0.0, 10.0, 10.0, box, np.zeros(4))
+    assert S[0, K.X_M] == pytest.approx(1.3) and S[0, K.Y_M] == pytest.approx(1.9)
+    assert S[0, K.AZIMUTH_RAD] == pytest.approx(0.18)
+    assert S[1, K.AZIMUTH_RAD] == pytest.approx((6.2 + 0.2) % (2 * math.pi))
+    # 9.9 + 0.2 = 10.1 is reflected at 10: x = 9.9, heading back
+    assert S[1, K.X_M] == pytest.approx(9.9) and S[1, K.VX_MPS] == pytest.approx(-1.0)
+    assert (S[:, K.PITCH_RAD] == 0).all() and (S[:, K.ROLL_RAD] == 0).all()
