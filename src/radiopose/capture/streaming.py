@@ -93,14 +93,9 @@ class StreamingMatcher:
                 f"StreamingMatcher: tolerance_s = {tolerance_s!r} must be a number in "
                 f"(0, {MAX_TOLERANCE_S:g}] s"
             )
-        if not seconds_in_range(max_lag_s, MAX_LAG_S, allow_inf=True):
-            raise InputError(
-                f"StreamingMatcher: max_lag_s = {max_lag_s!r} must be a number in "
-                f"(0, {MAX_LAG_S:g}] s or inf (no limit)"
-            )
+        self.set_max_lag(max_lag_s)
         self._clocks = _clock_list(self.receivers, clocks)
         self._tol = round(tolerance_s * _NS_PER_S)
-        self._lag = round(max_lag_s * _NS_PER_S) if math.isfinite(max_lag_s) else None
         self._chains: dict[str, list[_Chain]] = {}
         self._heap: list[tuple[int, str, int, int, _Chain]] = []
         self._seq = 0
@@ -115,6 +110,26 @@ class StreamingMatcher:
         self._spread = 0
         self._amb_frames = 0
         self._mixed_tx = 0
+
+    def set_max_lag(self, max_lag_s: float) -> None:
+        """Close chains at the latest ``max_lag_s`` behind the most advanced
+        receiver from the next push on (see ``max_lag_s`` of the constructor)."""
+        if not seconds_in_range(max_lag_s, MAX_LAG_S, allow_inf=True):
+            raise InputError(
+                f"StreamingMatcher: max_lag_s = {max_lag_s!r} must be a number in "
+                f"(0, {MAX_LAG_S:g}] s or inf (no limit)"
+            )
+        self._lag = round(max_lag_s * _NS_PER_S) if math.isfinite(max_lag_s) else None
+
+    def behind_ns(self) -> dict[str, int | None]:
+        """Per receiver, how far (reference-clock ns) its latest frame is behind the
+        most advanced receiver's; ``None`` for a receiver not heard yet."""
+        known = [w for w in self._watermark if w is not None]
+        top = max(known) if known else 0
+        return {
+            r: None if w is None else top - w
+            for r, w in zip(self.receivers, self._watermark, strict=True)
+        }
 
     def set_clocks(self, clocks: Mapping[str, ClockModel]) -> None:
         """Use ``clocks`` for the frames pushed from now on (a re-estimate of the

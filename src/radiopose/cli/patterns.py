@@ -317,8 +317,10 @@ def import_command(
     _check_plot(plot)
     pname = name or output.stem
     if fmt is ImportFormat.msi:
-        mode = (msi_mode or MsiMode.horizontal).value
-        pattern = read_msi(source, mode=mode, normalise=bool(normalise), name=pname)
+        sphere = msi_mode is MsiMode.sphere
+        pattern = read_msi(
+            source, mode="sphere" if sphere else "horizontal", normalise=bool(normalise), name=pname
+        )
     elif fmt is ImportFormat.basta:
         pattern = read_basta_json(source, normalise=bool(normalise), name=pname)
     else:
