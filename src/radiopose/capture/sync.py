@@ -358,7 +358,8 @@ class SyncReport:
         out.append(
             f"hashes heard by 2+ receivers: {h.shared}; in a packet of 2+ receivers: "
             f"{h.shared_matched}; only in ambiguous chains: {h.shared_ambiguous}; "
-            f"never within the tolerance (same bytes sent at other times): {h.shared_apart}"
+            f"never within the tolerance (the same bytes sent at other times, or a clock "
+            f"error beyond the tolerance): {h.shared_apart}"
         )
         if k.late_frames:
             out.append(f"late frames dropped: {k.late_frames}")
