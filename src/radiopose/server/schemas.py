@@ -23,6 +23,7 @@ batch.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Annotated
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field
@@ -36,26 +37,23 @@ MAX_TIMESTAMP_S = 9.2e9
 """Largest accepted ``timestamp_s``: below 2**63 ns, the database's integer limit."""
 
 
-def _transmitter_id(value: str) -> str:
-    problem = transmitter_id_problem(value)
-    if problem is not None:
-        raise ValueError(problem)
-    return value
+def _id_rule(problem_of: Callable[[str], str | None]) -> AfterValidator:
+    """A pydantic validator raising ``problem_of``'s reason (a 422 naming the rule)."""
+
+    def check(value: str) -> str:
+        problem = problem_of(value)
+        if problem is not None:
+            raise ValueError(problem)
+        return value
+
+    return AfterValidator(check)
 
 
-TransmitterId = Annotated[str, AfterValidator(_transmitter_id)]
+TransmitterId = Annotated[str, _id_rule(transmitter_id_problem)]
 """A transmitter id as every reader checks it (:func:`radiopose.ids.transmitter_id_problem`:
 1–64 printable characters, no comma or whitespace); a 422 naming the rule."""
 
-
-def _receiver_id(value: str) -> str:
-    problem = receiver_id_problem(value)
-    if problem is not None:
-        raise ValueError(problem)
-    return value
-
-
-ReceiverId = Annotated[str, AfterValidator(_receiver_id)]
+ReceiverId = Annotated[str, _id_rule(receiver_id_problem)]
 """A receiver id as every reader checks it (:func:`radiopose.ids.receiver_id_problem`:
 the transmitter ids' rule); a 422 naming the rule."""
 
