@@ -192,6 +192,30 @@ class LiveConfig:
 
 
 @dataclass
+class ClockWindow:
+    """The schedule of the receivers' clock re-estimates (:class:`LivePipeline`).
+
+    Attributes
+    ----------
+    first_batch
+        Id of the first stored batch whose frames the next re-estimate reads.
+    newest_ns
+        Newest reference-clock time seen since the calibration, ns.
+    due_ns
+        Reference-clock time of the next re-estimate, ns.
+    unclocked_since_ns
+        Per receiver without a clock model, the reference time of its first
+        frame since the last re-estimate, ns (one is tried as soon as it has
+        ``calibration_s`` of frames).
+    """
+
+    first_batch: int
+    newest_ns: int
+    due_ns: int
+    unclocked_since_ns: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
 class PipelineState:
     """Everything the pipeline remembers (pickled into the checkpoint).
 
@@ -237,6 +261,10 @@ class PipelineState:
         After a pause in the reports (:attr:`LiveConfig.catchup_after_s`): the
         arrival time of the first batch after it and the receivers waited for;
         ``None`` otherwise.
+    clock_window
+        Where the frames of the clocks' next re-estimate start and when it is
+        due (:class:`ClockWindow`; the frames are read back from the database,
+        so the checkpoint stays small and a restart re-estimates the same).
     """
 
     cursor: int = 0
@@ -256,6 +284,7 @@ class PipelineState:
     method: tuple[str, bool] | None = None
     last_received_s: float | None = None
     catchup: tuple[float, tuple[str, ...]] | None = None
+    clock_window: ClockWindow | None = None
 
 
 def _reported_between(arrivals: Iterable[tuple[int, float]], lo_s: float, hi_s: float) -> bool:
@@ -299,12 +328,6 @@ class LivePipeline:
         self._resumed = False
         self._unsaved: list[dict[str, Any]] = []  # output of steps not yet committed
         self._committed_cursor = -1
-        # the frames of the last clock_window_s, for the clocks' re-estimates: not
-        # checkpointed (a restart refills it; the checkpoint keeps the clocks)
-        self._clock_frames: deque[tuple[tuple[str, int, str, str, float], int]] = deque()
-        self._clock_newest_ns: int | None = None
-        self._clock_due_ns: int | None = None
-        self._unclocked_since_ns: dict[str, int] = {}
         self._load()
 
     # ------------------------------------------------------------------ state
@@ -317,6 +340,7 @@ class LivePipeline:
         self.state.__dict__.setdefault("site_version", -1)
         self.state.__dict__.setdefault("last_received_s", None)
         self.state.__dict__.setdefault("catchup", None)
+        self.state.__dict__.setdefault("clock_window", None)
         if not isinstance(self.state.__dict__.setdefault("method", None), tuple | None):
             self.state.method = None  # (a name alone: not the engine; unknown)
         self._resumed = ck is not None  # the first _refresh_site checks the site version
@@ -324,7 +348,6 @@ class LivePipeline:
         self.tracker = None
         self._unsaved = []  # output not committed is re-derived from the checkpoint
         self._committed_cursor = self.state.cursor
-        self._forget_clock_frames()  # (they are read again from the checkpoint's cursor)
         # after a restart, give the receivers time to resend before an idle flush
         self.state.last_batch_wall_s = time.time()
 
@@ -416,7 +439,9 @@ class LivePipeline:
         st.matcher = None
         st.calibration = []
         st.clocks = {}
-        self._forget_clock_frames()
+        st.clock_window = None  # (and the catch-up of the old receivers ends)
+        st.catchup = None
+        st.last_received_s = None
         log.info("receivers changed; recalibrating", extra={"receivers": list(receivers)})
 
     def _drop_ahead(self) -> None:
@@ -576,6 +601,7 @@ class LivePipeline:
         if st.matcher is None:
             assert st.calibration is not None
             st.calibration.extend(rows)
+            st.last_received_s = max(st.last_received_s or b.received_s, b.received_s)
             if last_ns is not None:
                 st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append(
                     (last_ns, b.received_s)  # receiver clock; converted at calibration
@@ -587,23 +613,34 @@ class LivePipeline:
         if last_ns is not None:
             ref = int(st.clocks[b.receiver_id].to_reference_ns(np.array([last_ns]))[0])
             st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append((ref, b.received_s))
-            self._track_clocks(b.receiver_id, rows)
-        self._catch_up(b.received_s, paused_since_s)
+            self._track_clocks(b)
+        self._catch_up(b.receiver_id, b.received_s, paused_since_s)
         out = self._handle(st.matcher.push(_frames(rows)), b.received_s)
         if st.catchup is not None:
             self._catch_up_done(b.received_s)
         return out
 
-    def _catch_up(self, received_s: float, previous_s: float | None) -> None:
+    def _catch_up(self, receiver_id: str, received_s: float, previous_s: float | None) -> None:
         """Start a catch-up when this batch arrived more than ``catchup_after_s``
-        after the previous one (every decision here reads stored arrival times,
-        so a restart re-derives the same packets)."""
+        after the previous one and is a spooled one, more than that later after
+        its own frames than the receiver's previous batch (every decision here
+        reads stored data and the checkpointed state, so a restart re-derives
+        the same packets)."""
         st = self.state
         cfg = self.config
         st.last_received_s = received_s if previous_s is None else max(previous_s, received_s)
         if previous_s is None or st.catchup is not None or st.matcher is None:
             return
         if received_s - previous_s <= cfg.catchup_after_s:
+            return
+        # ... and the batch is a spooled one: it arrived later after its frames than
+        # the receiver's previous batch did (a quiet spell ends with fresh frames,
+        # which need no waiting for)
+        dq = st.arrivals.get(receiver_id)
+        if dq is None or len(dq) < 2:
+            return
+        (ref_prev, got_prev), (ref_now, got_now) = dq[-2], dq[-1]
+        if (got_now - ref_now / _NS) - (got_prev - ref_prev / _NS) <= cfg.catchup_after_s:
             return
         # the receivers that reported in the last max_lag_s before the pause
         before = tuple(
@@ -641,51 +678,59 @@ class LivePipeline:
             c = st.counts
             c["catch_ups"] = c.get("catch_ups", 0) + 1
 
-    def _forget_clock_frames(self) -> None:
-        """Empty the frames kept for the clocks' re-estimates (a frame read twice
-        would make its hash ambiguous, and so unusable as a pair)."""
-        self._clock_frames.clear()
-        self._clock_newest_ns = None
-        self._clock_due_ns = None
-        self._unclocked_since_ns = {}
-
-    def _track_clocks(self, receiver_id: str, rows: list[tuple[str, int, str, str, float]]) -> None:
-        """Keep the frames of the last ``clock_window_s`` (by reference-clock time)
-        and re-estimate the clocks when due (:meth:`_refresh_clocks`)."""
+    def _track_clocks(self, b: StoredBatch) -> None:
+        """Schedule the clocks' re-estimates by this batch's reference-clock times
+        and run one when due (:meth:`_refresh_clocks`)."""
         st = self.state
         cfg = self.config
-        clock = st.clocks[receiver_id]
-        ref_ns = clock.to_reference_ns(np.fromiter((r[1] for r in rows), np.int64, len(rows)))
-        buf = self._clock_frames
-        buf.extend(zip(rows, ref_ns.tolist(), strict=True))
-        newest = int(ref_ns.max())
-        if self._clock_newest_ns is None or newest > self._clock_newest_ns:
-            self._clock_newest_ns = newest
-        newest = self._clock_newest_ns
-        cutoff = newest - round(cfg.clock_window_s * _NS)
-        while buf and buf[0][1] < cutoff:
-            buf.popleft()
-        if self._clock_due_ns is None:
-            self._clock_due_ns = newest + round(cfg.clock_refresh_s * _NS)
-        due = newest >= self._clock_due_ns
+        clock = st.clocks[b.receiver_id]
+        ts = np.asarray(b.timestamp_ns, np.int64)
+        lo, hi = (int(v) for v in clock.to_reference_ns(np.array([ts.min(), ts.max()])))
+        w = st.clock_window
+        if w is None:
+            w = st.clock_window = ClockWindow(b.id, hi, hi + round(cfg.clock_refresh_s * _NS))
+        w.newest_ns = max(w.newest_ns, hi)
+        due = w.newest_ns >= w.due_ns
         if clock.method == "none":  # a receiver without a model: as soon as it can have one
-            since = self._unclocked_since_ns.setdefault(receiver_id, int(ref_ns.min()))
-            due = due or int(ref_ns.max()) - since >= round(cfg.calibration_s * _NS)
+            since = w.unclocked_since_ns.setdefault(b.receiver_id, lo)
+            due = due or hi - since >= round(cfg.calibration_s * _NS)
         if due:
-            self._refresh_clocks()
+            self._refresh_clocks(b.id)
 
-    def _refresh_clocks(self) -> None:
-        """Estimate every receiver's clock again from the frames kept
-        (:func:`~radiopose.capture.sync.estimate_clocks` against the same
-        reference); a receiver without enough pairs keeps its model. The
-        matcher applies the new models to the frames pushed from now on."""
+    def _refresh_clocks(self, upto_batch: int) -> None:
+        """Estimate every receiver's clock again from the stored frames of the last
+        ``clock_window_s`` up to batch ``upto_batch`` (this one; read back from the
+        database, in the clock models of now) with
+        :func:`~radiopose.capture.sync.estimate_clocks` against the same
+        reference; a receiver without enough pairs keeps its model. The matcher
+        applies the new models to the frames pushed from now on."""
         st = self.state
         cfg = self.config
-        assert st.matcher is not None and self._clock_newest_ns is not None
-        self._clock_due_ns = self._clock_newest_ns + round(cfg.clock_refresh_s * _NS)
-        self._unclocked_since_ns.clear()  # (a receiver still without a model tries again)
+        w = st.clock_window
+        assert st.matcher is not None and w is not None
+        w.due_ns = w.newest_ns + round(cfg.clock_refresh_s * _NS)
+        w.unclocked_since_ns = {}  # (a receiver still without a model tries again)
+        cutoff = w.newest_ns - round(cfg.clock_window_s * _NS)
+        rows: list[tuple[str, int, str, str, float]] = []
+        first = None
+        stored = self.db.batches_after(w.first_batch - 1, upto_batch - w.first_batch + 1)
+        for x in stored:
+            if x.id > upto_batch or x.receiver_id not in st.clocks or not x.timestamp_ns:
+                continue
+            ts = np.asarray(x.timestamp_ns, np.int64)
+            keep = st.clocks[x.receiver_id].to_reference_ns(ts) >= cutoff
+            if keep.any():
+                first = x.id if first is None else first
+                rows += [
+                    (x.receiver_id, int(t), h, tx, r)
+                    for t, h, tx, r, k in zip(
+                        ts, x.frame_sha256, x.transmitter, x.rss_dbm, keep, strict=True
+                    )
+                    if k
+                ]
+        w.first_batch = upto_batch if first is None else first
         ref = next((r for r, m in st.clocks.items() if m.method == "reference"), None)
-        frames = _frames([row for row, _ in self._clock_frames])
+        frames = _frames(rows)
         heard = set(frames.receiver_id.tolist())
         if ref is None or ref not in heard:
             return  # the reference is silent: the models extrapolate until it is back
