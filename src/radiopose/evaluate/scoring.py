@@ -95,9 +95,9 @@ def unambiguous_tolerance_s(truth: Truth) -> float:
     just under half the smallest gap between two truth times of one transmitter
     (an estimate that close to a row is closer to it than to any other row),
     at least 1 µs (two rows at one time: the files' own precision) and at most
-    1 s. Packets that went through pcap and ``sync`` carry their receivers'
-    clock estimate (within 0.1 ms); the simulator sends at most one packet of a
-    transmitter per 0.1 ms, so at the default 5 ms spacing this is 2.5 ms."""
+    1 s; 1 µs where no transmitter has two rows (no spacing to go by). Packets
+    that went through pcap and ``sync`` carry their receivers' clock estimate
+    (within 0.1 ms); at the simulator's default 5 ms spacing this is 2.5 ms."""
     t_ns = seconds_to_ns(truth.timestamp_s)
     tx = np.array([str(s).lower() for s in truth.transmitter], dtype=object)
     gaps = [
@@ -106,7 +106,7 @@ def unambiguous_tolerance_s(truth: Truth) -> float:
         if int((tx == key).sum()) > 1
     ]
     if not gaps:
-        return 1.0
+        return 1e-6
     return float(min(max((min(gaps) - 1) // 2 * 1e-9, 1e-6), 1.0))
 
 
