@@ -100,14 +100,12 @@ def unambiguous_tolerance_s(truth: Truth) -> float:
     (within 0.1 ms); at the simulator's default 5 ms spacing this is 2.5 ms."""
     t_ns = seconds_to_ns(truth.timestamp_s)
     tx = np.array([str(s).lower() for s in truth.transmitter], dtype=object)
-    gaps = [
-        int(np.diff(np.sort(t_ns[tx == key])).min())
-        for key in set(tx.tolist())
-        if int((tx == key).sum()) > 1
-    ]
-    if not gaps:
+    _, which = np.unique(tx, return_inverse=True)
+    order = np.lexsort((t_ns, which))  # by transmitter, then time
+    gaps = np.diff(t_ns[order])[np.diff(which[order]) == 0]
+    if not gaps.size:
         return 1e-6
-    return float(min(max((min(gaps) - 1) // 2 * 1e-9, 1e-6), 1.0))
+    return float(min(max((int(gaps.min()) - 1) // 2 * 1e-9, 1e-6), 1.0))
 
 
 def match_truth(truth: Truth, estimates: Estimates, tolerance_s: float = 1e-6) -> NDArray:
