@@ -472,6 +472,13 @@ def test_one_receiver_id_rule_at_every_entry(
                              "receiver", "--receiver", bad], capsys)  # fmt: skip
         assert code == 2 and "--receiver: not a receiver id" in err
     assert not (tmp_path / "o.csv").exists()
+    # a pcap's receiver id taken from its file name follows the rule too (helper-66)
+    spaced = tmp_path / "r x.pcap"
+    spaced.write_bytes(sim.paths["rx1"].read_bytes())
+    code, _, err = _run(["sync", str(spaced), "-o", str(tmp_path / "o.csv")], capsys)
+    assert code == 2 and "receiver id 'r x' (the file name is)" in err and "--receiver" in err
+    args = ["sync", str(spaced), "--receiver", f"rx1={spaced}", "-o", str(tmp_path / "o.csv")]
+    assert _run(args, capsys)[0] == 0
 
 
 def test_cli_sync_simulated(simulated, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

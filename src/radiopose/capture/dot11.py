@@ -57,6 +57,7 @@ from radiopose.capture.radiotap import (
     fast_decode,
 )
 from radiopose.errors import InputError, unreadable
+from radiopose.ids import receiver_id_problem
 
 __all__ = ["hashed_bytes", "read_pcap"]
 
@@ -139,6 +140,14 @@ def read_pcap(
     """
     p = Path(path)
     rid = receiver_id_from_path(p) if receiver_id is None else receiver_id
+    problem = receiver_id_problem(rid)
+    if problem is not None:
+        how = "the file name is" if receiver_id is None else "given"
+        raise InputError(
+            f"receiver id {rid[:40]!r} ({how}): {problem}; name the receiver with "
+            "--receiver ID=FILE",
+            path=p,
+        )
     try:
         fh = open(p, "rb", buffering=1 << 20)  # noqa: SIM115
     except OSError as exc:

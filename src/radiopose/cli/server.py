@@ -206,7 +206,10 @@ def _check_tls(certfile: Path, keyfile: Path) -> None:
         except OSError as exc:
             raise InputError(f"{option} {path}: {exc.strerror or exc}") from None
     try:
-        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(str(certfile), str(keyfile))
+        # (a password callback: an encrypted key is refused here, not prompted for twice)
+        ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER).load_cert_chain(
+            str(certfile), str(keyfile), password=lambda: b""
+        )
     except ssl.SSLError as exc:
         raise InputError(
             f"--ssl-certfile {certfile} / --ssl-keyfile {keyfile}: not a PEM certificate "
@@ -284,7 +287,8 @@ def receiver(
             f"radiopose: warning: --speed {speed:g} puts {speed * batch_ms / 1000.0:g} s of "
             "capture in each batch; receivers replayed side by side then drift apart by "
             "seconds of capture, and the server drops the frames of one more than 5 s "
-            "(max_lag_s) behind the leading one as late: --speed 10 or less keeps them",
+            f"(max_lag_s) behind the leading one as late: --speed {1000.0 / batch_ms:g} or "
+            "less keeps them",
             err=True,
         )
     try:
