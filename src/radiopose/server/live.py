@@ -114,9 +114,13 @@ class LiveConfig:
     clock_refresh_s, clock_window_s
         After the calibration, the receivers' clocks are estimated again every
         ``clock_refresh_s`` seconds of reference-clock time from the frames of
-        the last ``clock_window_s`` seconds (a clock drifts, NTP slews or steps
-        it, a receiver joins late or reboots), and as soon as a receiver
-        without a clock model has ``calibration_s`` of frames.
+        the last ``clock_window_s`` seconds (a clock drifts, NTP slews it, a
+        receiver joins late or reboots), and as soon as a receiver without a
+        clock model has ``calibration_s`` of frames. A step of a clock is not
+        followed: a backward one costs that receiver's frames until the next
+        re-estimate, a forward one beyond ``max_lag_s`` makes the others'
+        frames late (the matcher's horizon moves with the most advanced
+        receiver).
     idle_flush_s
         Close open packets (and end calibration) after this long without a
         new batch, wall seconds, counted from the end of the step that
