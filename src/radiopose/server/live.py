@@ -211,12 +211,29 @@ class ClockWindow:
         Per receiver without a clock model, the reference time of its first
         frame since the last re-estimate, ns (one is tried as soon as it has
         ``calibration_s`` of frames).
+    starts
+        The first batches of the last :data:`LONG_LOOK_REFRESHES` re-estimates'
+        windows: where the long look for a receiver without a model starts.
+    long_due_ns
+        Reference-clock time from which the next long look may run, ns.
     """
 
     first_batch: int
     newest_ns: int
     due_ns: int
     unclocked_since_ns: dict[str, int] = field(default_factory=dict)
+    starts: deque[int] = field(default_factory=lambda: deque(maxlen=LONG_LOOK_REFRESHES))
+    long_due_ns: int = 0
+
+
+_NO_CLOCK = ClockModel("", method="none")
+
+LONG_LOOK_REFRESHES = 30
+"""A receiver still without a clock model after a re-estimate is tried again on
+the frames it shares with the reference since the start of the 30th-last
+window (about 5 minutes at a steady 10 s refresh; longer where traffic comes in
+bursts, which is where it is needed: probe requests every 20–60 s share a few
+frames per burst, fewer than a 30 s window's 5 pairs)."""
 
 
 @dataclass
@@ -269,6 +286,8 @@ class PipelineState:
         Where the frames of the clocks' next re-estimate start and when it is
         due (:class:`ClockWindow`; the frames are read back from the database,
         so the checkpoint stays small and a restart re-estimates the same).
+    calibration_batch
+        Id of the first batch of the last calibration.
     """
 
     cursor: int = 0
@@ -289,6 +308,7 @@ class PipelineState:
     last_received_s: float | None = None
     catchup: tuple[float, tuple[str, ...]] | None = None
     clock_window: ClockWindow | None = None
+    calibration_batch: int | None = None
 
 
 def _reported_between(arrivals: Iterable[tuple[int, float]], lo_s: float, hi_s: float) -> bool:
@@ -345,6 +365,7 @@ class LivePipeline:
         self.state.__dict__.setdefault("last_received_s", None)
         self.state.__dict__.setdefault("catchup", None)
         self.state.__dict__.setdefault("clock_window", None)
+        self.state.__dict__.setdefault("calibration_batch", None)
         if not isinstance(self.state.__dict__.setdefault("method", None), tuple | None):
             self.state.method = None  # (a name alone: not the engine; unknown)
         self._resumed = ck is not None  # the first _refresh_site checks the site version
@@ -604,6 +625,8 @@ class LivePipeline:
         last_ns = max(b.timestamp_ns) if rows else None
         if st.matcher is None:
             assert st.calibration is not None
+            if not st.calibration:
+                st.calibration_batch = b.id
             st.calibration.extend(rows)
             st.last_received_s = max(st.last_received_s or b.received_s, b.received_s)
             if last_ns is not None:
@@ -693,6 +716,7 @@ class LivePipeline:
         w = st.clock_window
         if w is None:
             w = st.clock_window = ClockWindow(b.id, hi, hi + round(cfg.clock_refresh_s * _NS))
+            w.starts.append(st.calibration_batch or b.id)  # the long look reaches back to it
         w.newest_ns = max(w.newest_ns, hi)
         due = w.newest_ns >= w.due_ns
         if clock.method == "none":  # a receiver without a model: as soon as it can have one
@@ -733,6 +757,7 @@ class LivePipeline:
                     if k
                 ]
         w.first_batch = upto_batch if first is None else first
+        w.starts.append(w.first_batch)
         ref = next((r for r, m in st.clocks.items() if m.method == "reference"), None)
         frames = _frames(rows)
         heard = set(frames.receiver_id.tolist())
@@ -748,18 +773,63 @@ class LivePipeline:
             max_candidates=50,
         )
         fresh = estimate_clocks(frames, [r for r in st.receivers if r in heard], sync_cfg)
-        changed = {}
+        changed: dict[str, list[object]] = {}
         for r, m in fresh.items():
             if r == ref or m.method == "none":
                 continue
             if st.clocks[r].method != m.method:
                 changed[r] = [m.offset_s, m.drift_ppm, m.method]
             st.clocks[r] = m
+        # receivers the window could not model (too few pairs: sparse traffic)
+        starved = [r for r in st.receivers if r != ref and fresh.get(r, _NO_CLOCK).method == "none"]
+        if starved and w.newest_ns >= w.long_due_ns:  # (at most every 3 refresh periods)
+            w.long_due_ns = w.newest_ns + 3 * round(cfg.clock_refresh_s * _NS)
+            changed.update(self._long_look(ref, starved, upto_batch))
         st.matcher.set_clocks(st.clocks)
         c = st.counts
         c["clock_estimates"] = c.get("clock_estimates", 0) + 1
         if changed:
             log.info("clock models changed", extra={"clocks": changed})
+
+    def _long_look(
+        self, ref: str, unclocked: list[str], upto_batch: int
+    ) -> dict[str, list[object]]:
+        """Models for receivers the last window could not model (``unclocked``:
+        too few pairs in it), from every frame they share with the reference
+        since the long look's start (:data:`LONG_LOOK_REFRESHES`), with offline
+        ``sync``'s 2 pairs as the least (a receiver without a model has its
+        frames as packets of their own; one whose model is not refreshed drifts
+        out of the tolerance). Returns the models made."""
+        st = self.state
+        w = st.clock_window
+        assert w is not None
+        keep = {ref, *unclocked}
+        start = w.starts[0]
+        rows = [
+            (x.receiver_id, int(t), h, tx, r)
+            for x in self.db.batches_after(start - 1, upto_batch - start + 1)
+            if x.id <= upto_batch and x.receiver_id in keep
+            for t, h, tx, r in zip(
+                x.timestamp_ns, x.frame_sha256, x.transmitter, x.rss_dbm, strict=True
+            )
+        ]
+        cfg = self.config
+        sync_cfg = SyncConfig(
+            tolerance_s=cfg.tolerance_s, reference=ref, max_lag_s=cfg.max_lag_s, max_candidates=50
+        )
+        heard = set(r[0] for r in rows)
+        if ref not in heard:
+            return {}
+        fresh = estimate_clocks(
+            _frames(rows), [r for r in (ref, *unclocked) if r in heard], sync_cfg
+        )
+        made: dict[str, list[object]] = {}
+        for r in unclocked:
+            m = fresh.get(r)
+            if m is not None and m.method != "none":
+                st.clocks[r] = m
+                made[r] = [m.offset_s, m.drift_ppm, m.method]
+        return made
 
     def _calibration_ready(self) -> bool:
         buf = self.state.calibration or []
