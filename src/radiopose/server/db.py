@@ -13,8 +13,10 @@ machine"):
   whole in one transaction together with its frames, keyed by
   ``(receiver_id, batch_id)`` so a resend stores nothing new;
 * **live output** — ``packets`` (synchronised packets), ``estimates``,
-  ``alarms`` and ``checkpoints`` (the pickled pipeline state of each
-  partition). Outputs are inserted idempotently (a packet, estimate or alarm
+  ``alarms``, ``checkpoints`` (the pickled pipeline state of each
+  partition) and ``partition_summaries`` (each partition's latest summary,
+  kept apart: updating one column rewrites a whole row, state included).
+  Outputs are inserted idempotently (a packet, estimate or alarm
   already stored is kept, not stored twice), so that a pipeline resumed from
   an older checkpoint, or a new partitioning re-processing the stored frames,
   re-derives them without error or duplicate: exactly-once after a crash.
@@ -73,6 +75,7 @@ from radiopose.server.models import (
     ReceiverRow,
     SiteFileRow,
     SiteMetaRow,
+    SummaryRow,
     TokenRow,
     migrate,
 )
@@ -419,15 +422,31 @@ class Database:
             return None if row is None else (int(row.cursor_batch), bytes(row.state))
 
     def summaries(self) -> dict[str, dict[str, Any]]:
+        """Per partition: its latest summary, ``cursor_batch`` (its checkpoint's
+        cursor) and ``updated_s``. Reads no checkpoint state (megabytes each)."""
         with self.read() as s:
-            return {
+            cursors = {
+                part: cursor
+                for part, cursor in s.execute(
+                    select(CheckpointRow.partition, CheckpointRow.cursor_batch)
+                )
+            }
+            out = {
                 r.partition: {
                     **r.summary,
-                    "cursor_batch": int(r.cursor_batch),
+                    "cursor_batch": int(cursors.get(r.partition, 0)),
                     "updated_s": r.updated_s,
                 }
-                for r in s.scalars(select(CheckpointRow))
+                for r in s.scalars(select(SummaryRow))
             }
+            for part in set(cursors) - set(out):  # an older database, before its first commit
+                summary, updated = s.execute(
+                    select(CheckpointRow.summary, CheckpointRow.updated_s).where(
+                        CheckpointRow.partition == part
+                    )
+                ).one()
+                out[part] = {**summary, "cursor_batch": int(cursors[part]), "updated_s": updated}
+            return out
 
     def commit_step(
         self,
@@ -449,12 +468,16 @@ class Database:
             self._insert_new(s, PacketRow, packets)
             self._insert_new(s, EstimateRow, estimates)
             self._insert_alarms(s, alarms)
-            row = s.get(CheckpointRow, partition)
-            if state is None:
-                if row is not None:  # output ahead of the checkpoint: the summary only
-                    row.summary = summary
-                    row.updated_s = time.time()
+            now = time.time()
+            kept = s.get(SummaryRow, partition)
+            if kept is None:
+                s.add(SummaryRow(partition=partition, summary=summary, updated_s=now))
+            else:
+                kept.summary = summary
+                kept.updated_s = now
+            if state is None:  # output ahead of the checkpoint: its row is not touched
                 return
+            row = s.get(CheckpointRow, partition)
             if row is None:
                 s.add(
                     CheckpointRow(

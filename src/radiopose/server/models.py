@@ -174,6 +174,20 @@ class CheckpointRow(Base):
     updated_s: Mapped[float] = mapped_column(Float)
 
 
+class SummaryRow(Base):
+    """A partition's latest summary (``/health``), apart from its checkpoint: a
+    database rewrites a whole row to update one column, and a lagged method's
+    checkpoint row holds megabytes (its state), which its output-only commits,
+    several a second, rewrote with every summary (a database from before this
+    table gains it when opened; until its first commit ``/health`` reads the
+    checkpoint row's summary)."""
+
+    __tablename__ = "partition_summaries"
+    partition: Mapped[str] = mapped_column(String(32), primary_key=True)
+    summary: Mapped[dict[str, Any]] = mapped_column(JSON)
+    updated_s: Mapped[float] = mapped_column(Float)
+
+
 ESTIMATE_FIELDS = tuple(c.name for c in ESTIMATE_COLUMNS)
 """The ``estimates.csv`` columns, in contract order: the fields of an estimate row."""
 ESTIMATE_STD_FIELDS = ("position_std_m", "azimuth_std_deg")
