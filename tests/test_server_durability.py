@@ -517,16 +517,19 @@ def drifting(tmp_path_factory: pytest.TempPathFactory):  # type: ignore[no-untyp
 
 def _live_receptions(
     site_dir: Path,
-    frames: dict,
+    frames: dict,  # type: ignore[type-arg]
     db_path: Path,
-    outage: tuple[int, int] | None = None,  # type: ignore[type-arg]
+    outage: tuple[int, int] | None = None,
+    fresh_first: str | None = None,
 ) -> dict[int, int]:
     """Store the frames as agents would (1 s of each receiver's clock per batch,
     receivers interleaved in time), run the live pipeline to the end; packets
     by the number of receivers that heard them. ``outage = (a, b)``: the server
     was down while rounds ``a`` to ``b - 1`` were captured; they arrive 20 s
     after the ones before, rx2's after the others' (each agent drains its spool
-    at its own pace)."""
+    at its own pace). ``fresh_first``: that receiver spooled nothing over the
+    outage (its batches of those rounds are gone), and its first batch after it,
+    a fresh one, arrives before the others' spools."""
     from collections import Counter
 
     import numpy as np
@@ -549,8 +552,12 @@ def _live_receptions(
         before = [x for i in sorted(rounds) if i < a for x in rounds[i]]
         down = [x for i in sorted(rounds) if a <= i < b for x in rounds[i]]
         after = [x for i in sorted(rounds) if i >= b for x in rounds[i]]
-        order = before + [x for x in down if x[0] != "rx2"] + [x for x in down if x[0] == "rx2"]
-        order += after
+        if fresh_first is not None:  # it spooled nothing; its next batch comes first
+            down = [x for x in down if x[0] != fresh_first]
+            first = next(x for x in after if x[0] == fresh_first)
+            after = [first] + [x for x in after if x is not first]
+        spooled = [x for x in down if x[0] != "rx2"] + [x for x in down if x[0] == "rx2"]
+        order = before + (after[:1] + spooled + after[1:] if fresh_first else spooled + after)
         first_late = len(before)
     n = 0
     for r, bid, rows in order:
@@ -595,6 +602,23 @@ def test_after_an_outage_the_agents_spools_are_waited_for(drifting, tmp_path: Pa
     site_dir, frames, all_three = drifting
     heard = _live_receptions(site_dir, frames, tmp_path / "o.db", outage=(100, 130))
     assert heard.get(3, 0) >= all_three - 3 and heard.get(2, 0) <= 6
+
+
+def test_after_an_outage_a_fresh_first_batch_still_starts_the_catch_up(
+    drifting, tmp_path: Path
+) -> None:
+    """The first batch after the outage is a fresh one, from a receiver that had
+    nothing spooled (rx3 heard nothing over it): pushing it moved the horizon past
+    the others' spooled frames, and no catch-up started because it was not a
+    spooled one (helper-68: 64 packets lost a receiver, 131 frames late). Every
+    pause now starts the catch-up before its first batch is pushed."""
+    site_dir, frames, _ = drifting
+    heard = _live_receptions(
+        site_dir, frames, tmp_path / "f.db", outage=(100, 130), fresh_first="rx3"
+    )
+    # rx3's 30 s of the outage are gone: 75 packets at two receivers, none lost
+    # (before: 64 packets lost, both others' frames late, and 12 at two receivers)
+    assert sum(heard.values()) == 600 and heard.get(2, 0) >= 70 and heard.get(3, 0) >= 515
 
 
 def test_a_receiver_that_joins_late_gets_a_clock(drifting, tmp_path: Path) -> None:

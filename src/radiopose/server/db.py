@@ -323,27 +323,31 @@ class Database:
                 )
             ).scalar_one_or_none()
 
-    def batches_after(self, cursor: int, limit: int) -> list[StoredBatch]:
-        """Up to ``limit`` batches with id > ``cursor``, by id, with their frames in time order."""
+    def batches_after(
+        self, cursor: int, limit: int, receivers: Sequence[str] | None = None
+    ) -> list[StoredBatch]:
+        """Up to ``limit`` batches with id > ``cursor`` (of ``receivers`` only, if
+        given), by id, with their frames in time order."""
         with self.read() as s:
-            heads = s.execute(
-                select(BatchRow.id, BatchRow.receiver_id, BatchRow.received_s)
-                .where(BatchRow.id > cursor)
-                .order_by(BatchRow.id)
-                .limit(limit)
-            ).all()
+            q = select(BatchRow.id, BatchRow.receiver_id, BatchRow.received_s).where(
+                BatchRow.id > cursor
+            )
+            if receivers is not None:
+                q = q.where(BatchRow.receiver_id.in_(list(receivers)))
+            heads = s.execute(q.order_by(BatchRow.id).limit(limit)).all()
             if not heads:
                 return []
+            fq = select(
+                FrameRow.batch_pk,
+                FrameRow.timestamp_ns,
+                FrameRow.frame_sha256,
+                FrameRow.transmitter,
+                FrameRow.rss_dbm,
+            ).where(FrameRow.batch_pk >= heads[0][0], FrameRow.batch_pk <= heads[-1][0])
+            if receivers is not None:
+                fq = fq.where(FrameRow.receiver_id.in_(list(receivers)))
             rows = s.execute(
-                select(
-                    FrameRow.batch_pk,
-                    FrameRow.timestamp_ns,
-                    FrameRow.frame_sha256,
-                    FrameRow.transmitter,
-                    FrameRow.rss_dbm,
-                )
-                .where(FrameRow.batch_pk >= heads[0][0], FrameRow.batch_pk <= heads[-1][0])
-                .order_by(FrameRow.batch_pk, FrameRow.timestamp_ns, FrameRow.seq)
+                fq.order_by(FrameRow.batch_pk, FrameRow.timestamp_ns, FrameRow.seq)
             ).all()
         by_batch: dict[int, list[Any]] = {h[0]: [] for h in heads}
         for r in rows:

@@ -161,6 +161,10 @@ class LiveConfig:
         for name in ("catchup_after_s", "catchup_lag_s", "catchup_wait_s"):
             if not 0.0 < getattr(self, name) < math.inf:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if self.catchup_lag_s < self.max_lag_s:
+            raise ValueError(
+                f"catchup_lag_s ({self.catchup_lag_s!r}) must be >= max_lag_s ({self.max_lag_s!r})"
+            )
         if not (0.0 < self.clock_refresh_s < math.inf and 0.0 < self.clock_window_s < math.inf):
             raise ValueError(
                 f"clock_refresh_s and clock_window_s must be > 0, got {self.clock_refresh_s!r} "
@@ -225,8 +229,6 @@ class ClockWindow:
     starts: deque[int] = field(default_factory=lambda: deque(maxlen=LONG_LOOK_REFRESHES))
     long_due_ns: int = 0
 
-
-_NO_CLOCK = ClockModel("", method="none")
 
 LONG_LOOK_REFRESHES = 30
 """A receiver still without a clock model after a re-estimate is tried again on
@@ -366,6 +368,9 @@ class LivePipeline:
         self.state.__dict__.setdefault("catchup", None)
         self.state.__dict__.setdefault("clock_window", None)
         self.state.__dict__.setdefault("calibration_batch", None)
+        if (w := self.state.clock_window) is not None:  # (one pickled before these fields)
+            w.__dict__.setdefault("starts", deque([w.first_batch], maxlen=LONG_LOOK_REFRESHES))
+            w.__dict__.setdefault("long_due_ns", 0)
         if not isinstance(self.state.__dict__.setdefault("method", None), tuple | None):
             self.state.method = None  # (a name alone: not the engine; unknown)
         self._resumed = ck is not None  # the first _refresh_site checks the site version
@@ -641,18 +646,19 @@ class LivePipeline:
             ref = int(st.clocks[b.receiver_id].to_reference_ns(np.array([last_ns]))[0])
             st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append((ref, b.received_s))
             self._track_clocks(b)
-        self._catch_up(b.receiver_id, b.received_s, paused_since_s)
+            self._catch_up(b.receiver_id, b.received_s, paused_since_s)
         out = self._handle(st.matcher.push(_frames(rows)), b.received_s)
         if st.catchup is not None:
             self._catch_up_done(b.received_s)
         return out
 
     def _catch_up(self, receiver_id: str, received_s: float, previous_s: float | None) -> None:
-        """Start a catch-up when this batch arrived more than ``catchup_after_s``
-        after the previous one and is a spooled one, more than that later after
-        its own frames than the receiver's previous batch (every decision here
-        reads stored data and the checkpointed state, so a restart re-derives
-        the same packets)."""
+        """Start a catch-up when this batch (one with frames) arrived more than
+        ``catchup_after_s`` after the previous one (every decision here reads
+        stored data and the checkpointed state, so a restart re-derives the same
+        packets). After a quiet spell it ends as soon as the receivers that
+        reported before it report again; one that does not is waited for up to
+        ``catchup_wait_s`` of arrivals."""
         st = self.state
         cfg = self.config
         st.last_received_s = received_s if previous_s is None else max(previous_s, received_s)
@@ -660,15 +666,9 @@ class LivePipeline:
             return
         if received_s - previous_s <= cfg.catchup_after_s:
             return
-        # ... and the batch is a spooled one: it arrived later after its frames than
-        # the receiver's previous batch did (a quiet spell ends with fresh frames,
-        # which need no waiting for)
-        dq = st.arrivals.get(receiver_id)
-        if dq is None or len(dq) < 2:
-            return
-        (ref_prev, got_prev), (ref_now, got_now) = dq[-2], dq[-1]
-        if (got_now - ref_now / _NS) - (got_prev - ref_prev / _NS) <= cfg.catchup_after_s:
-            return
+        # (whether this first batch is a spooled one or not: a receiver with nothing
+        # spooled may come back first, and pushing it would move the horizon past the
+        # others' spooled frames)
         # the receivers that reported in the last max_lag_s before the pause
         before = tuple(
             r
@@ -781,7 +781,17 @@ class LivePipeline:
                 changed[r] = [m.offset_s, m.drift_ppm, m.method]
             st.clocks[r] = m
         # receivers the window could not model (too few pairs: sparse traffic)
-        starved = [r for r in st.receivers if r != ref and fresh.get(r, _NO_CLOCK).method == "none"]
+        # (heard in the long look's span, about LONG_LOOK_REFRESHES refresh periods:
+        # a receiver that is off has nothing to look at)
+        span_ns = LONG_LOOK_REFRESHES * round(cfg.clock_refresh_s * _NS)
+        starved = [
+            r
+            for r in st.receivers
+            if r != ref
+            and (r not in fresh or fresh[r].method == "none")
+            and (dq := st.arrivals.get(r))
+            and dq[-1][0] >= w.newest_ns - span_ns
+        ]
         if starved and w.newest_ns >= w.long_due_ns:  # (at most every 3 refresh periods)
             w.long_due_ns = w.newest_ns + 3 * round(cfg.clock_refresh_s * _NS)
             changed.update(self._long_look(ref, starved, upto_batch))
@@ -807,8 +817,8 @@ class LivePipeline:
         start = w.starts[0]
         rows = [
             (x.receiver_id, int(t), h, tx, r)
-            for x in self.db.batches_after(start - 1, upto_batch - start + 1)
-            if x.id <= upto_batch and x.receiver_id in keep
+            for x in self.db.batches_after(start - 1, upto_batch - start + 1, sorted(keep))
+            if x.id <= upto_batch
             for t, h, tx, r in zip(
                 x.timestamp_ns, x.frame_sha256, x.transmitter, x.rss_dbm, strict=True
             )
