@@ -714,10 +714,14 @@ class LivePipeline:
         ts = np.asarray(b.timestamp_ns, np.int64)
         lo, hi = (int(v) for v in clock.to_reference_ns(np.array([ts.min(), ts.max()])))
         w = st.clock_window
+        modelled = clock.method != "none"
         if w is None:
+            if not modelled:
+                return  # (the schedule starts from a receiver whose times mean something)
             w = st.clock_window = ClockWindow(b.id, hi, hi + round(cfg.clock_refresh_s * _NS))
             w.starts.append(st.calibration_batch or b.id)  # the long look reaches back to it
-        w.newest_ns = max(w.newest_ns, hi)
+        if modelled:  # a receiver without a model may run hours off: it sets no schedule
+            w.newest_ns = max(w.newest_ns, hi)
         due = w.newest_ns >= w.due_ns
         if clock.method == "none":  # a receiver without a model: as soon as it can have one
             since = w.unclocked_since_ns.setdefault(b.receiver_id, lo)
