@@ -313,6 +313,19 @@ class PipelineState:
     calibration_batch: int | None = None
 
 
+def _batch_rows(
+    b: StoredBatch, keep: Iterable[bool] | None = None
+) -> list[tuple[str, int, str, str, float]]:
+    """A stored batch's frames as ``(receiver, ns, sha256, transmitter, rss)``
+    rows (those ``keep`` marks, if given)."""
+    cols = zip(b.timestamp_ns, b.frame_sha256, b.transmitter, b.rss_dbm, strict=True)
+    if keep is None:
+        return [(b.receiver_id, int(t), h, tx, r) for t, h, tx, r in cols]
+    return [
+        (b.receiver_id, int(t), h, tx, r) for (t, h, tx, r), k in zip(cols, keep, strict=True) if k
+    ]
+
+
 def _reported_between(arrivals: Iterable[tuple[int, float]], lo_s: float, hi_s: float) -> bool:
     """Whether any ``(reference ns, arrival s)`` of a receiver arrived in ``[lo_s, hi_s]``."""
     return any(lo_s <= a <= hi_s for _, a in arrivals)
@@ -621,12 +634,7 @@ class LivePipeline:
         if b.receiver_id not in st.receivers:
             c["frames_unknown_receiver"] = c.get("frames_unknown_receiver", 0) + len(b.timestamp_ns)
             return []
-        rows = [
-            (b.receiver_id, t, h, tx, r)
-            for t, h, tx, r in zip(
-                b.timestamp_ns, b.frame_sha256, b.transmitter, b.rss_dbm, strict=True
-            )
-        ]
+        rows = _batch_rows(b)
         last_ns = max(b.timestamp_ns) if rows else None
         if st.matcher is None:
             assert st.calibration is not None
@@ -641,18 +649,17 @@ class LivePipeline:
             if self._calibration_ready():
                 return self._calibrate(b.received_s)
             return []
-        paused_since_s = st.last_received_s
         if last_ns is not None:
             ref = int(st.clocks[b.receiver_id].to_reference_ns(np.array([last_ns]))[0])
             st.arrivals.setdefault(b.receiver_id, deque(maxlen=20_000)).append((ref, b.received_s))
-            self._track_clocks(b)
-            self._catch_up(b.receiver_id, b.received_s, paused_since_s)
+            self._track_clocks(b, ref)
+            self._catch_up(b.received_s)
         out = self._handle(st.matcher.push(_frames(rows)), b.received_s)
         if st.catchup is not None:
             self._catch_up_done(b.received_s)
         return out
 
-    def _catch_up(self, receiver_id: str, received_s: float, previous_s: float | None) -> None:
+    def _catch_up(self, received_s: float) -> None:
         """Start a catch-up when this batch (one with frames) arrived more than
         ``catchup_after_s`` after the previous one (every decision here reads
         stored data and the checkpointed state, so a restart re-derives the same
@@ -661,8 +668,10 @@ class LivePipeline:
         ``catchup_wait_s`` of arrivals."""
         st = self.state
         cfg = self.config
+        assert st.matcher is not None  # (called on the matching path only)
+        previous_s = st.last_received_s
         st.last_received_s = received_s if previous_s is None else max(previous_s, received_s)
-        if previous_s is None or st.catchup is not None or st.matcher is None:
+        if previous_s is None or st.catchup is not None:
             return
         if received_s - previous_s <= cfg.catchup_after_s:
             return
@@ -705,14 +714,12 @@ class LivePipeline:
             c = st.counts
             c["catch_ups"] = c.get("catch_ups", 0) + 1
 
-    def _track_clocks(self, b: StoredBatch) -> None:
+    def _track_clocks(self, b: StoredBatch, hi: int) -> None:
         """Schedule the clocks' re-estimates by this batch's reference-clock times
-        and run one when due (:meth:`_refresh_clocks`)."""
+        (``hi``: of its last frame, ns) and run one when due (:meth:`_refresh_clocks`)."""
         st = self.state
         cfg = self.config
         clock = st.clocks[b.receiver_id]
-        ts = np.asarray(b.timestamp_ns, np.int64)
-        lo, hi = (int(v) for v in clock.to_reference_ns(np.array([ts.min(), ts.max()])))
         w = st.clock_window
         modelled = clock.method != "none"
         if w is None:
@@ -723,7 +730,8 @@ class LivePipeline:
         if modelled:  # a receiver without a model may run hours off: it sets no schedule
             w.newest_ns = max(w.newest_ns, hi)
         due = w.newest_ns >= w.due_ns
-        if clock.method == "none":  # a receiver without a model: as soon as it can have one
+        if not modelled:  # a receiver without a model: as soon as it can have one
+            lo = int(clock.to_reference_ns(np.array([min(b.timestamp_ns)]))[0])
             since = w.unclocked_since_ns.setdefault(b.receiver_id, lo)
             due = due or hi - since >= round(cfg.calibration_s * _NS)
         if due:
@@ -753,13 +761,7 @@ class LivePipeline:
             keep = st.clocks[x.receiver_id].to_reference_ns(ts) >= cutoff
             if keep.any():
                 first = x.id if first is None else first
-                rows += [
-                    (x.receiver_id, int(t), h, tx, r)
-                    for t, h, tx, r, k in zip(
-                        ts, x.frame_sha256, x.transmitter, x.rss_dbm, keep, strict=True
-                    )
-                    if k
-                ]
+                rows += _batch_rows(x, keep)
         w.first_batch = upto_batch if first is None else first
         w.starts.append(w.first_batch)
         ref = next((r for r, m in st.clocks.items() if m.method == "reference"), None)
@@ -769,13 +771,7 @@ class LivePipeline:
             return  # the reference is silent: the models extrapolate until it is back
         # (50 candidate pairs, not sync's 150: 40 ms instead of 0.4 s on 30 s of 16
         # phones at 4 receivers; the model it refreshes is already close)
-        sync_cfg = SyncConfig(
-            tolerance_s=cfg.tolerance_s,
-            reference=ref,
-            max_lag_s=cfg.max_lag_s,
-            min_pairs=5,
-            max_candidates=50,
-        )
+        sync_cfg = self._sync_config(ref, min_pairs=5, max_candidates=50)
         fresh = estimate_clocks(frames, [r for r in st.receivers if r in heard], sync_cfg)
         changed: dict[str, list[object]] = {}
         for r, m in fresh.items():
@@ -820,17 +816,12 @@ class LivePipeline:
         keep = {ref, *unclocked}
         start = w.starts[0]
         rows = [
-            (x.receiver_id, int(t), h, tx, r)
+            row
             for x in self.db.batches_after(start - 1, upto_batch - start + 1, sorted(keep))
             if x.id <= upto_batch
-            for t, h, tx, r in zip(
-                x.timestamp_ns, x.frame_sha256, x.transmitter, x.rss_dbm, strict=True
-            )
+            for row in _batch_rows(x)
         ]
-        cfg = self.config
-        sync_cfg = SyncConfig(
-            tolerance_s=cfg.tolerance_s, reference=ref, max_lag_s=cfg.max_lag_s, max_candidates=50
-        )
+        sync_cfg = self._sync_config(ref, max_candidates=50)
         heard = set(r[0] for r in rows)
         if ref not in heard:
             return {}
@@ -844,6 +835,13 @@ class LivePipeline:
                 st.clocks[r] = m
                 made[r] = [m.offset_s, m.drift_ppm, m.method]
         return made
+
+    def _sync_config(self, reference: str, **overrides: int) -> SyncConfig:
+        """Clock estimation against ``reference`` at this pipeline's tolerance and lag."""
+        cfg = self.config
+        return SyncConfig(
+            tolerance_s=cfg.tolerance_s, reference=reference, max_lag_s=cfg.max_lag_s, **overrides
+        )
 
     def _calibration_ready(self) -> bool:
         buf = self.state.calibration or []
@@ -868,10 +866,7 @@ class LivePipeline:
         frames = _frames(buf)
         clocks: dict[str, ClockModel] = {}
         if ref is not None and len(frames):
-            cfg = SyncConfig(
-                tolerance_s=self.config.tolerance_s, reference=ref, max_lag_s=self.config.max_lag_s
-            )
-            clocks = estimate_clocks(frames, heard, cfg)
+            clocks = estimate_clocks(frames, heard, self._sync_config(ref))
         st.clocks = {r: clocks.get(r, ClockModel(r, method="none")) for r in st.receivers}
         if ref is not None:
             st.clocks[ref] = clocks.get(ref, ClockModel(ref))
